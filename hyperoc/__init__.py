@@ -1,0 +1,1 @@
+"""hyperoc: optimal control of damped hyperelastic bodies under a global volume constraint."""
