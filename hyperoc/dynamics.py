@@ -1,0 +1,419 @@
+"""Theta-scheme time stepping of the damped hyperelastic system with a global volume constraint.
+
+First-order system ``y0 = u``, ``y1 = u_t``; step ``n -> n+1`` of size ``dt`` (DESIGN.md section 4):
+
+    y0' = y0 + dt (theta y1' + (1 - theta) y1)
+    M (y1' - y1) + dt [theta A(y0', y1') + (1 - theta) A(y0, y1)] + dt p' [theta G(y0') + (1 - theta) G(y0)]
+                 = dt [theta L(xi') + (1 - theta) L(xi)]
+    vol(y0') = V0
+
+with ``A(y0, y1) = kappa K y1 + R(y0)``, ``L(xi) = B xi + g``. The unknown of a step is
+``x = (y0', p')``; ``y1'`` follows from the first line. ``p'`` is the step's multiplier, a
+second-order approximation of p at the mid-step; pressures at time levels are interpolated
+from the two adjacent steps (second order on non-uniform grids too).
+
+``multiplier="theta"`` weights the multiplier as ``theta p' G' + (1 - theta) p G`` (the paper's
+and GetFEM's choice), with ``p`` at t = 0 from the consistent initial acceleration. It is kept for
+comparison: at theta = 1/2 it carries an undamped alternating mode (see `tests/`).
+
+One step is a JAX function (Newton with backtracking inside a ``while_loop``); when the linear
+solver is traced (dense, tridiagonal) the whole time loop is one compiled ``lax.scan``, otherwise
+the step is jitted and driven from Python.
+"""
+
+from __future__ import annotations
+
+import time as _time
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import _jax  # noqa: F401
+from .errors import InputError, SolverError
+from .linsolve import make_solver
+from .model import StateModel
+from .timegrid import TimeGrid
+
+__all__ = ["Scheme", "StateSolution", "TimeStepper", "solve_state", "level_pressure"]
+
+STATUS = {0: "ok", 1: "newton", 2: "nonfinite", 3: "detF"}
+
+
+@dataclass(frozen=True)
+class Scheme:
+    """Time-stepping options.
+
+    theta : 1/2 (Crank-Nicolson, second order) ... 1 (implicit Euler).
+    multiplier : "step" (DESIGN.md, default) or "theta" (paper/GetFEM weighting, comparison only).
+    rtol : Newton stops when ``|dy0|_inf <= rtol |y0'|_inf + atol``.
+    atol : absolute floor of that test, in displacement units.
+    max_iter : Newton iterations per step before the step is declared failed.
+    """
+
+    theta: float = 0.5
+    multiplier: str = "step"
+    rtol: float = 1e-11
+    atol: float = 1e-15
+    max_iter: int = 30
+
+    def __post_init__(self):
+        if not 0.5 <= self.theta <= 1.0:
+            raise InputError(f"theta must lie in [1/2, 1], got {self.theta}")
+        if self.multiplier not in ("step", "theta"):
+            raise InputError(f"multiplier must be 'step' or 'theta', got {self.multiplier!r}")
+        if not (0 < self.rtol < 1 and self.atol >= 0 and self.max_iter >= 1):
+            raise InputError("Newton options: need 0 < rtol < 1, atol >= 0, max_iter >= 1")
+
+
+def level_pressure(p_steps, dt, multiplier: str = "step"):
+    """Pressure at the N+1 time levels from the N step multipliers (works on numpy and JAX arrays).
+
+    "step": interior levels by linear interpolation of the neighbouring mid-step values
+    ``p_{n-1/2}`` (at ``t_n - dt_{n-1}/2``) and ``p_{n+1/2}`` (at ``t_n + dt_n/2``); end levels by
+    linear extrapolation from the two nearest mid-steps. "theta": the multipliers are level values
+    already; ``p_steps`` then has N+1 entries (p_0 first) and is returned as is.
+    """
+    xp = jnp if isinstance(p_steps, jax.Array) else np
+    if multiplier == "theta":
+        return p_steps
+    if p_steps.shape[0] == 1:
+        return xp.concatenate([p_steps, p_steps])
+    a, b = dt[:-1], dt[1:]
+    interior = (b * p_steps[:-1] + a * p_steps[1:]) / (a + b)
+    first = p_steps[0] - (p_steps[1] - p_steps[0]) * dt[0] / (dt[0] + dt[1])
+    last = p_steps[-1] + (p_steps[-1] - p_steps[-2]) * dt[-1] / (dt[-1] + dt[-2])
+    return xp.concatenate([first[None], interior, last[None]])
+
+
+@dataclass(eq=False)
+class StateSolution:
+    """Result of a state solve on a time grid.
+
+    Attributes
+    ----------
+    t : (N+1,) time levels.
+    y0, y1 : (N+1, n) reduced displacement and velocity at the levels.
+    p_steps : (N,) step multipliers (mid-step pressures); (N+1,) level values for multiplier="theta".
+    pressure : (N+1,) pressure at the levels (second order for multiplier="step").
+    volume : (N+1,) deformed volume ``int det F`` at the levels.
+    newton_iterations, min_det_F, max_grad : (N,) per-step monitors.
+    xi : (N+1, n_ctrl) control at the levels (or None).
+    wall_time : seconds spent in the solve (excluding compilation when it was cached).
+    warnings : regimes detected after the solve (loss of convexity, under-resolved fronts).
+    """
+
+    model: StateModel
+    t: np.ndarray
+    y0: np.ndarray
+    y1: np.ndarray
+    p_steps: np.ndarray
+    pressure: np.ndarray
+    volume: np.ndarray
+    newton_iterations: np.ndarray
+    min_det_F: np.ndarray
+    max_grad: np.ndarray
+    xi: np.ndarray | None = None
+    wall_time: float = 0.0
+    warnings: list = field(default_factory=list)
+
+    @property
+    def dt(self) -> np.ndarray:
+        return np.diff(self.t)
+
+    def displacement(self) -> np.ndarray:
+        """Full nodal displacement history (N+1, num_nodes, dim)."""
+        return self.model.expand(self.y0)
+
+    def velocity(self) -> np.ndarray:
+        return self.model.expand(self.y1)
+
+    def volume_drift(self) -> float:
+        """max_n |vol_n - vol_0| / vol_0."""
+        return float(np.max(np.abs(self.volume - self.volume[0])) / abs(self.volume[0]))
+
+    def energies(self) -> tuple[np.ndarray, np.ndarray]:
+        """Kinetic ``y1^T M y1 / 2`` and strain ``Pi(y0)`` energies at the levels, (N+1,) each."""
+        M = self.model.mass
+        kinetic = 0.5 * np.einsum("ti,ti->t", self.y1, (M @ self.y1.T).T)
+        pi = self.model.jitted["strain_energy"]
+        strain = np.array([float(pi(jnp.asarray(y))) for y in self.y0])
+        return kinetic, strain
+
+    def summary(self) -> dict:
+        return {
+            "steps": int(self.t.size - 1),
+            "T": float(self.t[-1]),
+            "dofs": int(self.model.n),
+            "pressure_max": float(np.max(self.pressure)),
+            "t_pressure_max": float(self.t[int(np.argmax(self.pressure))]),
+            "pressure_min": float(np.min(self.pressure)),
+            "volume_drift": self.volume_drift(),
+            "newton_iterations_total": int(np.sum(self.newton_iterations)),
+            "newton_iterations_max": int(np.max(self.newton_iterations)),
+            "min_det_F": float(np.min(self.min_det_F)),
+            "max_grad_u": float(np.max(self.max_grad)),
+            "wall_time_s": float(self.wall_time),
+            "warnings": list(self.warnings),
+        }
+
+
+class TimeStepper:
+    """Builds the traced step of the theta-scheme for a model and drives it over a grid.
+
+    Parameters
+    ----------
+    model : StateModel
+    scheme : Scheme
+    solver : "auto" | "tridiagonal" | "dense" | "lu" | "minres", or a solver object.
+    """
+
+    def __init__(self, model: StateModel, scheme: Scheme = Scheme(), solver="auto"):
+        self.model, self.scheme = model, scheme
+        self.solver = make_solver(model, solver) if isinstance(solver, str) else solver
+        M, K, B = model.jax_operators
+        self._M, self._K, self._B = M, K, B
+        self._g = jnp.asarray(model.traction_load)
+        self._mass_blocks = jnp.asarray(model.mass_blocks)
+        self._lap_blocks = jnp.asarray(model.laplace_blocks)
+
+    # --- the step residual: single source of truth for Newton and adjoint -------------------------
+    def load(self, xi):
+        """L(xi) = B xi + g on the reduced dofs."""
+        if self._B is None:
+            return self._g
+        return self._B @ xi + self._g
+
+    def velocity(self, y0_new, y0, y1, dt):
+        th = self.scheme.theta
+        return (y0_new - y0) / (th * dt) - (1 - th) / th * y1
+
+    def residual(self, x, y0, y1, p_prev, xi0, xi1, dt, V0):
+        """Step residual (n+1,): momentum rows then the volume constraint."""
+        m, th = self.model, self.scheme.theta
+        y0n, pn = x[:-1], x[-1]
+        y1n = self.velocity(y0n, y0, y1, dt)
+        kappa = m.kappa
+        A_new = kappa * (self._K @ y1n) + m.internal_force(y0n)
+        A_old = kappa * (self._K @ y1) + m.internal_force(y0)
+        G_new, G_old = m.volume_gradient(y0n), m.volume_gradient(y0)
+        if self.scheme.multiplier == "step":
+            mult = pn * (th * G_new + (1 - th) * G_old)
+        else:
+            mult = th * pn * G_new + (1 - th) * p_prev * G_old
+        Fu = (self._M @ (y1n - y1) + dt * (th * A_new + (1 - th) * A_old) + dt * mult
+              - dt * (th * self.load(xi1) + (1 - th) * self.load(xi0)))
+        Fc = m.volume(y0n) - V0
+        return jnp.concatenate([Fu, Fc[None]])
+
+    def jacobian_parts(self, x, y0, dt):
+        """(element blocks of dFu/dy0', column dFu/dp', row dFc/dy0') at x."""
+        m, th = self.model, self.scheme.theta
+        y0n, pn = x[:-1], x[-1]
+        blocks = (self._mass_blocks / (th * dt) + m.kappa * self._lap_blocks
+                  + dt * th * m.tangent_blocks(y0n, 1.0, pn))
+        G_new = m.volume_gradient(y0n)
+        if self.scheme.multiplier == "step":
+            col = dt * (th * G_new + (1 - th) * m.volume_gradient(y0))
+        else:
+            col = dt * th * G_new
+        return blocks, col, G_new
+
+    # --- Newton -------------------------------------------------------------------------------
+    def newton(self, x0, args):
+        """Solve residual(x, *args) = 0 from x0; returns (x, iterations, status)."""
+        y0, y1, p_prev, xi0, xi1, dt, V0 = args
+        sch = self.scheme
+        res = lambda x: self.residual(x, *args)
+        merit = lambda r: jnp.sum(r * r)
+
+        def body(state):
+            x, it, _, _ = state
+            r = res(x)
+            blocks, col, row = self.jacobian_parts(x, y0, dt)
+            du, dp = self.solver.solve(blocks, col, row, -r[:-1], -r[-1])
+            dx = jnp.concatenate([du, dp[None]])
+            m0 = merit(r)
+
+            def shrink(ls):
+                alpha, _ = ls
+                return alpha / 2, merit(res(x + alpha / 2 * dx))
+
+            def keep_shrinking(ls):
+                alpha, m1 = ls
+                return (~(m1 <= (1 - 1e-4 * alpha) * m0)) & (alpha > 2.0**-12)
+
+            # An increment below the tolerance is taken whole: its merit is at round-off level and
+            # backtracking on it would only stall.
+            scale = jnp.max(jnp.abs(x[:-1] + du))
+            converged = jnp.max(jnp.abs(du)) <= sch.rtol * scale + sch.atol
+            alpha, _ = jax.lax.cond(converged, lambda: (1.0, 0.0),
+                                    lambda: jax.lax.while_loop(keep_shrinking, shrink, (1.0, merit(res(x + dx)))))
+            x_new = x + alpha * dx
+            finite = jnp.all(jnp.isfinite(x_new))
+            status = jnp.where(~finite, 2, jnp.where(converged, 0, 1))
+            return x_new, it + 1, status, finite
+
+        def cond(state):
+            _, it, status, finite = state
+            return (status == 1) & (it < sch.max_iter) & finite
+
+        x, it, status, _ = jax.lax.while_loop(cond, body, (x0, 0, 1, True))
+        return x, it, status
+
+    def step(self, carry, inputs):
+        """One time step on traced arrays: carry = (y0, y1, p_prev, failed), inputs = (xi0, xi1, dt)."""
+        y0, y1, p_prev, failed = carry
+        xi0, xi1, dt, V0 = inputs
+        m = self.model
+
+        def attempt(_):
+            x, it, status = self.newton(jnp.concatenate([y0, p_prev[None]]), (y0, y1, p_prev, xi0, xi1, dt, V0))
+            y0n = x[:-1]
+            mindet = m.min_det_F(y0n)
+            status = jnp.where((status == 0) & ~(mindet > 0), 3, status)
+            return x, it, status, mindet, m.max_grad(y0n)
+
+        def skip(_):
+            return jnp.concatenate([y0, p_prev[None]]), 0, 4, jnp.nan, jnp.nan
+
+        x, it, status, mindet, maxgrad = jax.lax.cond(failed, skip, attempt, None)
+        y0n, pn = x[:-1], x[-1]
+        y1n = self.velocity(y0n, y0, y1, dt)
+        failed = failed | (status != 0)
+        return (y0n, y1n, pn, failed), (y0n, y1n, pn, it, status, mindet, maxgrad)
+
+    @cached_property
+    def _scan(self):
+        def run(y0, y1, p0, xis, dts, V0):
+            V = jnp.full(dts.shape, V0)
+            _, out = jax.lax.scan(self.step, (y0, y1, p0, jnp.asarray(False)), (xis[:-1], xis[1:], dts, V))
+            return out
+
+        return jax.jit(run)
+
+    @cached_property
+    def _jit_step(self):
+        return jax.jit(self.step)
+
+    # --- driver ---------------------------------------------------------------------------------
+    def initial_pressure(self, y0, y1, xi0) -> float:
+        """p(0) from the consistent initial acceleration (second time derivative of the constraint).
+
+        ``G^T a + y1^T H y1 = 0`` with ``M a = L(xi0) - A(y0, y1) - p G`` gives
+        ``p = (G^T M^-1 (L - A) + y1^T H y1) / (G^T M^-1 G)``.
+        """
+        import scipy.sparse.linalg as spla
+
+        m = self.model
+        G = np.asarray(m.volume_gradient(jnp.asarray(y0)))
+        A = m.kappa * (m.laplace @ y1) + np.asarray(m.internal_force(jnp.asarray(y0)))
+        L = np.asarray(self.load(jnp.asarray(xi0)))
+        _, Hy1 = jax.jvp(m.volume_gradient, (jnp.asarray(y0),), (jnp.asarray(y1),))
+        lu = spla.splu(m.mass.tocsc())
+        MinvG = lu.solve(G)
+        return float((MinvG @ (L - A) + y1 @ np.asarray(Hy1)) / (G @ MinvG))
+
+    def run(self, grid: TimeGrid, xi=None, *, u0=None, v0=None, progress: bool = False) -> StateSolution:
+        """Integrate on ``grid`` with nodal controls ``xi`` (N+1, n_ctrl) (None = no control)."""
+        m = self.model
+        N = grid.num_steps
+        y0 = np.zeros(m.n) if u0 is None else np.asarray(u0, dtype=np.float64)
+        y1 = np.zeros(m.n) if v0 is None else np.asarray(v0, dtype=np.float64)
+        xis = self._controls(xi, N)
+        V0 = float(m.jitted["volume"](jnp.asarray(y0)))
+        p0 = self.initial_pressure(y0, y1, xis[0]) if self.scheme.multiplier == "theta" else 0.0
+        start = _time.perf_counter()
+        if self.solver.traced:
+            out = self._scan(jnp.asarray(y0), jnp.asarray(y1), jnp.asarray(p0), jnp.asarray(xis), jnp.asarray(grid.dt), V0)
+            out = [np.asarray(o) for o in out]
+        else:
+            out = self._python_loop(y0, y1, p0, xis, grid, V0, progress)
+        wall = _time.perf_counter() - start
+        Y0n, Y1n, P, its, status, mindet, maxgrad = out
+        self._raise_on_failure(status, grid, its, mindet)
+        Y0 = np.concatenate([y0[None], Y0n])
+        Y1 = np.concatenate([y1[None], Y1n])
+        if self.scheme.multiplier == "theta":
+            P = np.concatenate([[p0], P])
+        vol = np.array([float(m.jitted["volume"](jnp.asarray(y))) for y in Y0])
+        sol = StateSolution(m, grid.t, Y0, Y1, P, level_pressure(P, grid.dt, self.scheme.multiplier), vol,
+                            its, mindet, maxgrad, xis if m.control is not None else None, wall)
+        sol.warnings = detect_regimes(sol)
+        return sol
+
+    def _controls(self, xi, N) -> np.ndarray:
+        nc = self.model.control.size if self.model.control is not None else 0
+        if xi is None:
+            return np.zeros((N + 1, nc))
+        xi = np.asarray(xi, dtype=np.float64)
+        if xi.shape != (N + 1, nc):
+            raise InputError(f"control array must have shape (N+1, n_ctrl) = {(N + 1, nc)}, got {xi.shape}")
+        return xi
+
+    def _python_loop(self, y0, y1, p0, xis, grid, V0, progress):
+        from tqdm.auto import tqdm
+
+        carry = (jnp.asarray(y0), jnp.asarray(y1), jnp.asarray(p0), jnp.asarray(False))
+        outs = []
+        steps = tqdm(range(grid.num_steps), disable=not progress, desc="time steps", leave=False)
+        for n in steps:
+            carry, out = self._jit_step(carry, (jnp.asarray(xis[n]), jnp.asarray(xis[n + 1]), grid.dt[n], V0))
+            out = [np.asarray(o) for o in out]
+            outs.append(out)
+            if int(out[4]) != 0:
+                break
+        stacked = [np.stack([o[k] for o in outs]) for k in range(7)]
+        if len(outs) < grid.num_steps:  # failed early: pad so that indices match the grid
+            pad = grid.num_steps - len(outs)
+            stacked = [np.concatenate([s, np.repeat(s[-1:], pad, axis=0)]) for s in stacked]
+            stacked[4][len(outs):] = 4
+        return stacked
+
+    def _raise_on_failure(self, status, grid, its, mindet):
+        bad = np.flatnonzero(np.asarray(status) != 0)
+        if bad.size == 0:
+            return
+        n = int(bad[0])
+        cause = STATUS.get(int(status[n]), "unknown")
+        detail = {
+            "newton": f"Newton did not converge in {int(its[n])} iterations (try a smaller dt, or a larger kappa)",
+            "nonfinite": "NaN/Inf in the Newton iterate",
+            "detF": f"min det F = {float(mindet[n]):.3g} <= 0: an element is inverted",
+        }.get(cause, "")
+        raise SolverError(n, grid.t[n + 1], cause, detail)
+
+
+def detect_regimes(sol: StateSolution) -> list:
+    """Flag regimes where the discrete solution should not be trusted as is.
+
+    - loss of convexity of W (negative eigenvalue of dP/dF; SVK in strong compression);
+    - fronts at mesh scale: the jump of grad u between neighbouring cells is comparable to grad u
+      itself (only checked in 1D, where cells are ordered).
+    """
+    m = sol.model
+    out = []
+    levels = np.unique(np.linspace(0, len(sol.t) - 1, min(len(sol.t), 101)).astype(int))
+    eig = np.array([m.min_tangent_eigenvalue(sol.y0[k]) for k in levels])
+    if np.any(eig < 0):
+        k = levels[int(np.argmax(eig < 0))]
+        out.append(f"material tangent dP/dF indefinite from t = {sol.t[k]:.4g} (min eigenvalue {eig.min():.3g}): "
+                   "loss of convexity (e.g. Saint Venant-Kirchhoff in strong compression)")
+    if m.dim == 1:
+        ux = np.diff(sol.displacement()[..., 0], axis=1) / np.diff(m.space.nodes[: m.mesh.points.shape[0], 0])[None, :]
+        if m.space.degree == 1:
+            jump = np.max(np.abs(np.diff(ux, axis=1)), axis=1)
+            ratio = jump / np.maximum(np.max(np.abs(ux), axis=1), 1e-300)
+            k = int(np.argmax(ratio))
+            if np.max(np.abs(ux[k])) > 1e-3 and ratio[k] > 0.5:
+                out.append(f"front at mesh scale at t = {sol.t[k]:.4g}: the jump of u_x between neighbouring cells is "
+                           f"{ratio[k]:.2f} of max|u_x| (refine h or increase kappa)")
+    return out
+
+
+def solve_state(model: StateModel, grid: TimeGrid, xi=None, *, u0=None, v0=None, scheme: Scheme = Scheme(),
+                solver="auto", progress: bool = False) -> StateSolution:
+    """Convenience wrapper: ``TimeStepper(model, scheme, solver).run(grid, xi, u0=u0, v0=v0)``."""
+    return TimeStepper(model, scheme, solver).run(grid, xi, u0=u0, v0=v0, progress=progress)

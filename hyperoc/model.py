@@ -1,0 +1,244 @@
+"""The discrete state system: spaces, operators and the JAX functions every solver shares.
+
+Everything nonlinear derives from two scalar functionals of the reduced displacement vector u
+(free dofs only, Dirichlet dofs are zero):
+
+    Pi(u)  = int_Omega W(E(u)) dx        (strain energy)     -> R(u) = dPi/du  (P, grad phi)
+    vol(u) = int_Omega det(I + grad u)   (deformed volume)   -> G(u) = dvol/du (cof F, grad phi)
+
+so the hyperelastic force and the volume-constraint vector are gradients, and the step tangent is
+the element Hessian of ``a W(F) + b det F`` at each quadrature point, all by JAX.
+"""
+
+from __future__ import annotations
+
+from functools import cached_property
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.experimental import sparse as jsparse
+
+from . import _jax  # noqa: F401
+from .assembly import SparsePattern, reduced_numbering
+from .errors import InputError
+from .materials import Material
+from .mesh import Mesh
+from .spaces import VectorSpace
+
+__all__ = ["StateModel", "det"]
+
+
+def det(F):
+    """Determinant of a (..., d, d) array with explicit formulas (cheap, smooth autodiff)."""
+    d = F.shape[-1]
+    if d == 1:
+        return F[..., 0, 0]
+    if d == 2:
+        return F[..., 0, 0] * F[..., 1, 1] - F[..., 0, 1] * F[..., 1, 0]
+    return (
+        F[..., 0, 0] * (F[..., 1, 1] * F[..., 2, 2] - F[..., 1, 2] * F[..., 2, 1])
+        - F[..., 0, 1] * (F[..., 1, 0] * F[..., 2, 2] - F[..., 1, 2] * F[..., 2, 0])
+        + F[..., 0, 2] * (F[..., 1, 0] * F[..., 2, 1] - F[..., 1, 1] * F[..., 2, 0])
+    )
+
+
+def _to_bcoo(mat):
+    return jsparse.BCOO.from_scipy_sparse(mat.tocoo())
+
+
+class StateModel:
+    """Damped hyperelastic body with a global volume constraint, discretized in space.
+
+    Parameters
+    ----------
+    mesh : Mesh with boundaries ``dirichlet`` (u = 0) and optionally ``neumann`` (traction).
+    material : strain energy W(E).
+    degree : Lagrange degree (1 or 2).
+    kappa : viscous damping coefficient (``kappa (grad u_t, grad phi)``), >= 0.
+    density : mass density (the paper uses 1).
+    control : a control operator (`BodyForce`, `ActiveStress`) or None.
+    traction : constant traction vector g on the Neumann boundary, or None.
+    frames : optional callable ``x (nc, nq, dim) -> (nc, nq, k, dim)`` of material directions.
+    """
+
+    def __init__(self, mesh: Mesh, material: Material, *, degree: int = 1, kappa: float = 0.0, density: float = 1.0,
+                 control=None, traction=None, dirichlet: str = "gamma_d", neumann: str = "gamma_n", frames=None):
+        if kappa < 0 or density <= 0:
+            raise InputError(f"need kappa >= 0 and density > 0, got kappa = {kappa}, density = {density}")
+        self.mesh, self.material = mesh, material.validate()
+        self.kappa, self.density = float(kappa), float(density)
+        self.space = VectorSpace(mesh, degree)
+        self.dim = mesh.dim
+        constrained = self.space.node_dofs(self.space.boundary_nodes(dirichlet))
+        self.free, self.to_reduced = reduced_numbering(self.space.num_dofs, constrained)
+        self.n = self.free.size
+        if self.n == 0:
+            raise InputError("every dof is on the Dirichlet boundary: nothing to solve")
+        self.cell_dofs = self.to_reduced[self.space.cell_dofs]  # (nc, k), -1 = constrained
+        self.pattern = SparsePattern(self.cell_dofs, self.n)
+        self.quad = self.space.quadrature(0 if degree == 1 else 4)
+        self.control = control.build(self.space, self.to_reduced) if control is not None else None
+        self.traction_load = self._traction_vector(traction, neumann)
+        self._frames = None if frames is None else jnp.asarray(frames(self.quad.x))
+        self._dN = jnp.asarray(self.quad.dN)
+        self._w = jnp.asarray(self.quad.wdx)
+        self._gather = jnp.asarray(np.where(self.cell_dofs < 0, self.n, self.cell_dofs))
+
+    # --- constant operators --------------------------------------------------------------------
+    @cached_property
+    def mass_blocks(self) -> np.ndarray:
+        """Element mass matrices (nc, k, k): ``density int N_a N_b delta_ij``."""
+        q = self.space.quadrature(2 * self.space.degree)
+        Ms = self.density * np.einsum("cq,qa,qb->cab", q.wdx, q.N, q.N)
+        return self._vectorize_blocks(Ms)
+
+    @cached_property
+    def laplace_blocks(self) -> np.ndarray:
+        """Element vector-Laplacian matrices (nc, k, k): ``int grad N_a . grad N_b delta_ij``."""
+        q = self.space.quadrature(max(0, 2 * self.space.degree - 2))
+        Ks = np.einsum("cq,cqaj,cqbj->cab", q.wdx, q.dN, q.dN)
+        return self._vectorize_blocks(Ks)
+
+    def _vectorize_blocks(self, scalar_blocks: np.ndarray) -> np.ndarray:
+        d, k = self.dim, self.space.nloc
+        return np.einsum("cab,ij->caibj", scalar_blocks, np.eye(d)).reshape(len(scalar_blocks), k * d, k * d)
+
+    @cached_property
+    def mass(self):
+        return self.pattern.matrix(self.mass_blocks)
+
+    @cached_property
+    def laplace(self):
+        return self.pattern.matrix(self.laplace_blocks)
+
+    @cached_property
+    def jax_operators(self):
+        """(M, K, B) as JAX sparse matrices for traced matvecs (B is None without control)."""
+        B = _to_bcoo(self.control.load) if self.control is not None else None
+        return _to_bcoo(self.mass), _to_bcoo(self.laplace), B
+
+    def _traction_vector(self, traction, neumann: str) -> np.ndarray:
+        load = np.zeros(self.n)
+        if traction is None or not np.any(traction):
+            return load
+        g = np.asarray(traction, dtype=np.float64).reshape(self.dim)
+        facets = self.mesh.boundary(neumann)
+        fnodes = self.space.facet_nodes(facets)
+        from .spaces import reference_shape
+        from .quadrature import simplex_rule
+
+        fd = self.dim - 1
+        if fd == 0:
+            Nint, meas = np.ones((1,)), np.ones(len(facets))
+        else:
+            xi, w = simplex_rule(fd, 2 * self.space.degree)
+            N, _ = reference_shape(fd, self.space.degree, xi)
+            Nint = w @ N
+            x = self.mesh.points[facets]
+            J = np.swapaxes(x[:, 1:] - x[:, :1], 1, 2)
+            meas = np.sqrt(np.linalg.det(np.einsum("fji,fjk->fik", J, J)))
+        full = np.zeros(self.space.num_dofs)
+        contrib = meas[:, None, None] * Nint[None, :, None] * g[None, None, :]
+        np.add.at(full, self.space.node_dofs(fnodes.ravel()).reshape(len(facets), -1), contrib.reshape(len(facets), -1))
+        return full[self.free]
+
+    # --- fields ---------------------------------------------------------------------------------
+    def expand(self, u) -> np.ndarray:
+        """Reduced vector(s) (..., n) -> full nodal displacement (..., num_nodes, dim)."""
+        u = np.asarray(u)
+        full = np.zeros(u.shape[:-1] + (self.space.num_dofs,))
+        full[..., self.free] = u
+        return full.reshape(u.shape[:-1] + (self.space.num_nodes, self.dim))
+
+    def restrict(self, full) -> np.ndarray:
+        """Full nodal field (num_nodes, dim) or flat (num_dofs,) -> reduced vector (n,)."""
+        return np.asarray(full, dtype=np.float64).reshape(-1)[self.free]
+
+    def interpolate(self, fn) -> np.ndarray:
+        """Reduced nodal interpolant of ``fn(x: (n, dim)) -> (n, dim)``; Dirichlet values are dropped."""
+        return self.restrict(self.space.interpolate(fn))
+
+    # --- traced kernels -------------------------------------------------------------------------
+    def deformation_gradient(self, u):
+        """F = I + grad u at every quadrature point, (nc, nq, d, d)."""
+        ue = jnp.concatenate([u, jnp.zeros(1, u.dtype)])[self._gather]
+        ue = ue.reshape(ue.shape[0], -1, self.dim)
+        return jnp.eye(self.dim) + jnp.einsum("cqaj,cai->cqij", self._dN, ue)
+
+    def _pointwise(self, fn, F):
+        frames = self._frames
+        if frames is None:
+            return jax.vmap(jax.vmap(lambda G: fn(G, None)))(F)
+        return jax.vmap(jax.vmap(fn))(F, frames)
+
+    def strain_energy(self, u):
+        """Pi(u) = int W(E) dx (scalar)."""
+        W = self._pointwise(self.material.energy_of_F, self.deformation_gradient(u))
+        return jnp.sum(self._w * W)
+
+    def volume(self, u):
+        """vol(u) = int det(I + grad u) dx (scalar)."""
+        return jnp.sum(self._w * det(self.deformation_gradient(u)))
+
+    def internal_force(self, u):
+        """R(u) = (P(F), grad phi), (n,)."""
+        return jax.grad(self.strain_energy)(u)
+
+    def volume_gradient(self, u):
+        """G(u) = (cof F, grad phi), (n,)."""
+        return jax.grad(self.volume)(u)
+
+    def tangent_blocks(self, u, a, b):
+        """Element Hessians of ``int (a W(F) + b det F)``, (nc, k, k), k = nloc * dim.
+
+        With a = 1, b = p this is the element form of ``K_T(u) + p H(u)``.
+        """
+        F = self.deformation_gradient(u)
+
+        def psi(G, frame):
+            return a * self.material.energy_of_F(G, frame) + b * det(G)
+
+        A = self._pointwise(jax.hessian(psi), F)  # (nc, nq, d, d, d, d)
+        Ke = jnp.einsum("cq,cqaj,cqijkl,cqbl->caibk", self._w, self._dN, A, self._dN)
+        nc, k = Ke.shape[0], self.space.nloc * self.dim
+        return Ke.reshape(nc, k, k)
+
+    def min_det_F(self, u):
+        return jnp.min(det(self.deformation_gradient(u)))
+
+    def max_grad(self, u):
+        """max |grad u| (Frobenius) over quadrature points."""
+        F = self.deformation_gradient(u)
+        return jnp.max(jnp.sqrt(jnp.sum((F - jnp.eye(self.dim)) ** 2, axis=(-2, -1))))
+
+    # --- diagnostics on host ----------------------------------------------------------------------
+    @cached_property
+    def _tangent_eig_fn(self):
+        def fn(u):
+            F = self.deformation_gradient(u)
+            A = self._pointwise(jax.hessian(self.material.energy_of_F), F)
+            d2 = self.dim * self.dim
+            return jnp.min(jnp.linalg.eigvalsh(A.reshape(A.shape[:2] + (d2, d2))))
+
+        return jax.jit(fn)
+
+    def min_tangent_eigenvalue(self, u) -> float:
+        """Smallest eigenvalue of dP/dF (as a d^2 x d^2 matrix) over quadrature points.
+
+        Negative values flag loss of convexity of W in F (e.g. Saint Venant-Kirchhoff in strong
+        compression; in 1D at ``u_x < -1 + 1/sqrt(3)``).
+        """
+        return float(self._tangent_eig_fn(jnp.asarray(u)))
+
+    @cached_property
+    def jitted(self):
+        """Jitted host-callable versions of the scalar functionals and their gradients."""
+        return {
+            "volume": jax.jit(self.volume),
+            "strain_energy": jax.jit(self.strain_energy),
+            "internal_force": jax.jit(self.internal_force),
+            "volume_gradient": jax.jit(self.volume_gradient),
+            "min_det_F": jax.jit(self.min_det_F),
+            "max_grad": jax.jit(self.max_grad),
+        }
