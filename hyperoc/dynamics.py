@@ -34,6 +34,7 @@ import numpy as np
 from . import _jax  # noqa: F401
 from .errors import InputError, SolverError
 from .linsolve import make_solver
+from .newton import newton
 from .model import StateModel
 from .timegrid import TimeGrid
 
@@ -175,22 +176,21 @@ class TimeStepper:
         self.solver = make_solver(model, solver) if isinstance(solver, str) else solver
         M, K, B = model.jax_operators
         self._M, self._K, self._B = M, K, B
-        self._g = jnp.asarray(model.traction_load)
         self._mass_blocks = jnp.asarray(model.mass_blocks)
         self._lap_blocks = jnp.asarray(model.laplace_blocks)
 
     # --- the step residual: single source of truth for Newton and adjoint -------------------------
-    def load(self, xi):
-        """L(xi) = B xi + g on the reduced dofs."""
+    def load(self, xi, f):
+        """L = B xi + f on the reduced dofs (f: external load vector of the level)."""
         if self._B is None:
-            return self._g
-        return self._B @ xi + self._g
+            return f
+        return self._B @ xi + f
 
     def velocity(self, y0_new, y0, y1, dt):
         th = self.scheme.theta
         return (y0_new - y0) / (th * dt) - (1 - th) / th * y1
 
-    def residual(self, x, y0, y1, p_prev, xi0, xi1, dt, V0):
+    def residual(self, x, y0, y1, p_prev, xi0, xi1, f0, f1, dt, V0):
         """Step residual (n+1,): momentum rows then the volume constraint."""
         m, th = self.model, self.scheme.theta
         y0n, pn = x[:-1], x[-1]
@@ -204,7 +204,7 @@ class TimeStepper:
         else:
             mult = th * pn * G_new + (1 - th) * p_prev * G_old
         Fu = (self._M @ (y1n - y1) + dt * (th * A_new + (1 - th) * A_old) + dt * mult
-              - dt * (th * self.load(xi1) + (1 - th) * self.load(xi0)))
+              - dt * (th * self.load(xi1, f1) + (1 - th) * self.load(xi0, f0)))
         Fc = m.volume(y0n) - V0
         return jnp.concatenate([Fu, Fc[None]])
 
@@ -221,56 +221,21 @@ class TimeStepper:
             col = dt * th * G_new
         return blocks, col, G_new
 
-    # --- Newton -------------------------------------------------------------------------------
-    def newton(self, x0, args):
-        """Solve residual(x, *args) = 0 from x0; returns (x, iterations, status)."""
-        y0, y1, p_prev, xi0, xi1, dt, V0 = args
-        sch = self.scheme
-        res = lambda x: self.residual(x, *args)
-        merit = lambda r: jnp.sum(r * r)
-
-        def body(state):
-            x, it, _, _ = state
-            r = res(x)
-            blocks, col, row = self.jacobian_parts(x, y0, dt)
-            du, dp = self.solver.solve(blocks, col, row, -r[:-1], -r[-1])
-            dx = jnp.concatenate([du, dp[None]])
-            m0 = merit(r)
-
-            def shrink(ls):
-                alpha, _ = ls
-                return alpha / 2, merit(res(x + alpha / 2 * dx))
-
-            def keep_shrinking(ls):
-                alpha, m1 = ls
-                return (~(m1 <= (1 - 1e-4 * alpha) * m0)) & (alpha > 2.0**-12)
-
-            # An increment below the tolerance is taken whole: its merit is at round-off level and
-            # backtracking on it would only stall.
-            scale = jnp.max(jnp.abs(x[:-1] + du))
-            converged = jnp.max(jnp.abs(du)) <= sch.rtol * scale + sch.atol
-            alpha, _ = jax.lax.cond(converged, lambda: (1.0, 0.0),
-                                    lambda: jax.lax.while_loop(keep_shrinking, shrink, (1.0, merit(res(x + dx)))))
-            x_new = x + alpha * dx
-            finite = jnp.all(jnp.isfinite(x_new))
-            status = jnp.where(~finite, 2, jnp.where(converged, 0, 1))
-            return x_new, it + 1, status, finite
-
-        def cond(state):
-            _, it, status, finite = state
-            return (status == 1) & (it < sch.max_iter) & finite
-
-        x, it, status, _ = jax.lax.while_loop(cond, body, (x0, 0, 1, True))
-        return x, it, status
-
     def step(self, carry, inputs):
-        """One time step on traced arrays: carry = (y0, y1, p_prev, failed), inputs = (xi0, xi1, dt)."""
+        """One time step on traced arrays.
+
+        carry = (y0, y1, p_prev, failed); inputs = (xi0, xi1, f0, f1, dt, V0) with f the external
+        load vectors at both ends of the step.
+        """
         y0, y1, p_prev, failed = carry
-        xi0, xi1, dt, V0 = inputs
-        m = self.model
+        xi0, xi1, f0, f1, dt, V0 = inputs
+        m, sch = self.model, self.scheme
+        args = (y0, y1, p_prev, xi0, xi1, f0, f1, dt, V0)
 
         def attempt(_):
-            x, it, status = self.newton(jnp.concatenate([y0, p_prev[None]]), (y0, y1, p_prev, xi0, xi1, dt, V0))
+            x, it, status = newton(lambda x: self.residual(x, *args), lambda x: self.jacobian_parts(x, y0, dt),
+                                   self.solver, jnp.concatenate([y0, p_prev[None]]),
+                                   rtol=sch.rtol, atol=sch.atol, max_iter=sch.max_iter)
             y0n = x[:-1]
             mindet = m.min_det_F(y0n)
             status = jnp.where((status == 0) & ~(mindet > 0), 3, status)
@@ -287,9 +252,9 @@ class TimeStepper:
 
     @cached_property
     def _scan(self):
-        def run(y0, y1, p0, xis, dts, V0):
+        def run(y0, y1, p0, xis, fs, dts, V0):
             V = jnp.full(dts.shape, V0)
-            _, out = jax.lax.scan(self.step, (y0, y1, p0, jnp.asarray(False)), (xis[:-1], xis[1:], dts, V))
+            _, out = jax.lax.scan(self.step, (y0, y1, p0, jnp.asarray(False)), (xis[:-1], xis[1:], fs[:-1], fs[1:], dts, V))
             return out
 
         return jax.jit(run)
@@ -299,7 +264,7 @@ class TimeStepper:
         return jax.jit(self.step)
 
     # --- driver ---------------------------------------------------------------------------------
-    def initial_pressure(self, y0, y1, xi0) -> float:
+    def initial_pressure(self, y0, y1, xi0, f0) -> float:
         """p(0) from the consistent initial acceleration (second time derivative of the constraint).
 
         ``G^T a + y1^T H y1 = 0`` with ``M a = L(xi0) - A(y0, y1) - p G`` gives
@@ -310,27 +275,33 @@ class TimeStepper:
         m = self.model
         G = np.asarray(m.volume_gradient(jnp.asarray(y0)))
         A = m.kappa * (m.laplace @ y1) + np.asarray(m.internal_force(jnp.asarray(y0)))
-        L = np.asarray(self.load(jnp.asarray(xi0)))
+        L = np.asarray(self.load(jnp.asarray(xi0), jnp.asarray(f0)))
         _, Hy1 = jax.jvp(m.volume_gradient, (jnp.asarray(y0),), (jnp.asarray(y1),))
         lu = spla.splu(m.mass.tocsc())
         MinvG = lu.solve(G)
         return float((MinvG @ (L - A) + y1 @ np.asarray(Hy1)) / (G @ MinvG))
 
-    def run(self, grid: TimeGrid, xi=None, *, u0=None, v0=None, progress: bool = False) -> StateSolution:
-        """Integrate on ``grid`` with nodal controls ``xi`` (N+1, n_ctrl) (None = no control)."""
+    def run(self, grid: TimeGrid, xi=None, *, u0=None, v0=None, external=None, progress: bool = False) -> StateSolution:
+        """Integrate on ``grid`` with nodal controls ``xi`` (N+1, n_ctrl) (None = no control).
+
+        ``external``: external load vectors per level, (N+1, n), or a callable ``t -> (n,)``
+        (e.g. ``lambda t: model.load_vector(traction=g, t=t)``); default: the model's constant traction.
+        """
         m = self.model
         N = grid.num_steps
         y0 = np.zeros(m.n) if u0 is None else np.asarray(u0, dtype=np.float64)
         y1 = np.zeros(m.n) if v0 is None else np.asarray(v0, dtype=np.float64)
         xis = self._controls(xi, N)
+        fs = self._external(external, grid)
         V0 = float(m.jitted["volume"](jnp.asarray(y0)))
-        p0 = self.initial_pressure(y0, y1, xis[0]) if self.scheme.multiplier == "theta" else 0.0
+        p0 = self.initial_pressure(y0, y1, xis[0], fs[0]) if self.scheme.multiplier == "theta" else 0.0
         start = _time.perf_counter()
         if self.solver.traced:
-            out = self._scan(jnp.asarray(y0), jnp.asarray(y1), jnp.asarray(p0), jnp.asarray(xis), jnp.asarray(grid.dt), V0)
+            out = self._scan(jnp.asarray(y0), jnp.asarray(y1), jnp.asarray(p0), jnp.asarray(xis), jnp.asarray(fs),
+                             jnp.asarray(grid.dt), V0)
             out = [np.asarray(o) for o in out]
         else:
-            out = self._python_loop(y0, y1, p0, xis, grid, V0, progress)
+            out = self._python_loop(y0, y1, p0, xis, fs, grid, V0, progress)
         wall = _time.perf_counter() - start
         Y0n, Y1n, P, its, status, mindet, maxgrad = out
         self._raise_on_failure(status, grid, its, mindet)
@@ -353,14 +324,26 @@ class TimeStepper:
             raise InputError(f"control array must have shape (N+1, n_ctrl) = {(N + 1, nc)}, got {xi.shape}")
         return xi
 
-    def _python_loop(self, y0, y1, p0, xis, grid, V0, progress):
+    def _external(self, external, grid) -> np.ndarray:
+        n, N = self.model.n, grid.num_steps
+        if external is None:
+            return np.broadcast_to(self.model.traction_load, (N + 1, n))
+        if callable(external):
+            return np.stack([np.asarray(external(t), dtype=np.float64) for t in grid.t])
+        ext = np.asarray(external, dtype=np.float64)
+        if ext.shape != (N + 1, n):
+            raise InputError(f"external loads must have shape (N+1, n) = {(N + 1, n)}, got {ext.shape}")
+        return ext
+
+    def _python_loop(self, y0, y1, p0, xis, fs, grid, V0, progress):
         from tqdm.auto import tqdm
 
         carry = (jnp.asarray(y0), jnp.asarray(y1), jnp.asarray(p0), jnp.asarray(False))
         outs = []
         steps = tqdm(range(grid.num_steps), disable=not progress, desc="time steps", leave=False)
         for n in steps:
-            carry, out = self._jit_step(carry, (jnp.asarray(xis[n]), jnp.asarray(xis[n + 1]), grid.dt[n], V0))
+            inputs = (jnp.asarray(xis[n]), jnp.asarray(xis[n + 1]), jnp.asarray(fs[n]), jnp.asarray(fs[n + 1]), grid.dt[n], V0)
+            carry, out = self._jit_step(carry, inputs)
             out = [np.asarray(o) for o in out]
             outs.append(out)
             if int(out[4]) != 0:
@@ -413,7 +396,7 @@ def detect_regimes(sol: StateSolution) -> list:
     return out
 
 
-def solve_state(model: StateModel, grid: TimeGrid, xi=None, *, u0=None, v0=None, scheme: Scheme = Scheme(),
-                solver="auto", progress: bool = False) -> StateSolution:
-    """Convenience wrapper: ``TimeStepper(model, scheme, solver).run(grid, xi, u0=u0, v0=v0)``."""
-    return TimeStepper(model, scheme, solver).run(grid, xi, u0=u0, v0=v0, progress=progress)
+def solve_state(model: StateModel, grid: TimeGrid, xi=None, *, u0=None, v0=None, external=None,
+                scheme: Scheme = Scheme(), solver="auto", progress: bool = False) -> StateSolution:
+    """Convenience wrapper: ``TimeStepper(model, scheme, solver).run(grid, xi, ...)``."""
+    return TimeStepper(model, scheme, solver).run(grid, xi, u0=u0, v0=v0, external=external, progress=progress)

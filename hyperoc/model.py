@@ -24,7 +24,8 @@ from .assembly import SparsePattern, reduced_numbering
 from .errors import InputError
 from .materials import Material
 from .mesh import Mesh
-from .spaces import VectorSpace
+from .quadrature import simplex_rule
+from .spaces import VectorSpace, reference_shape
 
 __all__ = ["StateModel", "det"]
 
@@ -58,7 +59,8 @@ class StateModel:
     kappa : viscous damping coefficient (``kappa (grad u_t, grad phi)``), >= 0.
     density : mass density (the paper uses 1).
     control : a control operator (`BodyForce`, `ActiveStress`) or None.
-    traction : constant traction vector g on the Neumann boundary, or None.
+    traction : traction g on the Neumann boundary, constant vector or callable ``(x, t)``, evaluated at
+        t = 0 (pass time-dependent loads to the stepper as ``external``), or None.
     frames : optional callable ``x (nc, nq, dim) -> (nc, nq, k, dim)`` of material directions.
     """
 
@@ -79,7 +81,8 @@ class StateModel:
         self.pattern = SparsePattern(self.cell_dofs, self.n)
         self.quad = self.space.quadrature(0 if degree == 1 else 4)
         self.control = control.build(self.space, self.to_reduced) if control is not None else None
-        self.traction_load = self._traction_vector(traction, neumann)
+        self.neumann = neumann
+        self.traction_load = self.load_vector(traction=traction) if traction is not None else np.zeros(self.n)
         self._frames = None if frames is None else jnp.asarray(frames(self.quad.x))
         self._dN = jnp.asarray(self.quad.dN)
         self._w = jnp.asarray(self.quad.wdx)
@@ -118,30 +121,44 @@ class StateModel:
         B = _to_bcoo(self.control.load) if self.control is not None else None
         return _to_bcoo(self.mass), _to_bcoo(self.laplace), B
 
-    def _traction_vector(self, traction, neumann: str) -> np.ndarray:
-        load = np.zeros(self.n)
-        if traction is None or not np.any(traction):
-            return load
-        g = np.asarray(traction, dtype=np.float64).reshape(self.dim)
-        facets = self.mesh.boundary(neumann)
-        fnodes = self.space.facet_nodes(facets)
-        from .spaces import reference_shape
-        from .quadrature import simplex_rule
+    def load_vector(self, *, body_force=None, traction=None, t: float = 0.0, neumann: str | None = None) -> np.ndarray:
+        """External load ``int_Omega f . phi + int_{Gamma_N} g . phi`` on the reduced dofs, (n,).
 
-        fd = self.dim - 1
-        if fd == 0:
-            Nint, meas = np.ones((1,)), np.ones(len(facets))
-        else:
-            xi, w = simplex_rule(fd, 2 * self.space.degree)
-            N, _ = reference_shape(fd, self.space.degree, xi)
-            Nint = w @ N
-            x = self.mesh.points[facets]
-            J = np.swapaxes(x[:, 1:] - x[:, :1], 1, 2)
-            meas = np.sqrt(np.linalg.det(np.einsum("fji,fjk->fik", J, J)))
+        ``body_force`` and ``traction`` are constant vectors (dim,) or callables ``(x, t) -> (..., dim)``
+        with x of shape (..., dim); ``neumann`` names the boundary of g (default: the model's Gamma_N).
+        """
         full = np.zeros(self.space.num_dofs)
-        contrib = meas[:, None, None] * Nint[None, :, None] * g[None, None, :]
-        np.add.at(full, self.space.node_dofs(fnodes.ravel()).reshape(len(facets), -1), contrib.reshape(len(facets), -1))
+        if body_force is not None:
+            q = self.space.quadrature(2 * self.space.degree + 2)
+            f = self._field_values(body_force, q.x, t)
+            contrib = np.einsum("cq,qa,cqi->cai", q.wdx, q.N, f)
+            np.add.at(full, self.space.cell_dofs, contrib.reshape(len(contrib), -1))
+        if traction is not None:
+            facets = self.mesh.boundary(neumann or self.neumann)
+            x, w, N, meas = self._facet_quadrature(facets)
+            g = self._field_values(traction, x, t)
+            contrib = np.einsum("f,q,qa,fqi->fai", meas, w, N, g)
+            fdofs = self.space.node_dofs(self.space.facet_nodes(facets).ravel()).reshape(len(facets), -1)
+            np.add.at(full, fdofs, contrib.reshape(len(facets), -1))
         return full[self.free]
+
+    def _field_values(self, fn, x, t) -> np.ndarray:
+        if callable(fn):
+            return np.broadcast_to(np.asarray(fn(x, t), dtype=np.float64), x.shape[:-1] + (self.dim,))
+        return np.broadcast_to(np.asarray(fn, dtype=np.float64).reshape(self.dim), x.shape[:-1] + (self.dim,))
+
+    def _facet_quadrature(self, facets):
+        """Points (nf, nq, dim), weights (nq,), facet shape values (nq, nloc_f), measures (nf,)."""
+        fd = self.dim - 1
+        xv = self.mesh.points[facets]
+        if fd == 0:
+            return xv, np.ones(1), np.ones((1, 1)), np.ones(len(facets))
+        xi, w = simplex_rule(fd, 2 * self.space.degree + 2)
+        N, _ = reference_shape(fd, self.space.degree, xi)
+        J = np.swapaxes(xv[:, 1:] - xv[:, :1], 1, 2)  # (nf, dim, fd)
+        meas = np.sqrt(np.linalg.det(np.einsum("fji,fjk->fik", J, J)))
+        x = xv[:, :1, :] + np.einsum("fij,qj->fqi", J, xi)
+        return x, w, N, meas
 
     # --- fields ---------------------------------------------------------------------------------
     def expand(self, u) -> np.ndarray:
