@@ -292,7 +292,7 @@ class TimeStepper:
         y0 = np.zeros(m.n) if u0 is None else np.asarray(u0, dtype=np.float64)
         y1 = np.zeros(m.n) if v0 is None else np.asarray(v0, dtype=np.float64)
         xis = self._controls(xi, N)
-        fs = self._external(external, grid)
+        fs = self.external_loads(external, grid)
         V0 = float(m.jitted["volume"](jnp.asarray(y0)))
         p0 = self.initial_pressure(y0, y1, xis[0], fs[0]) if self.scheme.multiplier == "theta" else 0.0
         start = _time.perf_counter()
@@ -324,7 +324,7 @@ class TimeStepper:
             raise InputError(f"control array must have shape (N+1, n_ctrl) = {(N + 1, nc)}, got {xi.shape}")
         return xi
 
-    def _external(self, external, grid) -> np.ndarray:
+    def external_loads(self, external, grid) -> np.ndarray:
         n, N = self.model.n, grid.num_steps
         if external is None:
             return np.broadcast_to(self.model.traction_load, (N + 1, n))

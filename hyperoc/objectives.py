@@ -1,0 +1,155 @@
+"""Objective functionals ``J = int_0^T c(u, u_t, xi) dt + phi1(u, u_t)(tau) + phi2(u, u_t)(T)`` (maximized).
+
+Each term is a small object whose ``value(traj)`` is a JAX-traceable function of the discrete
+trajectory, so that its partial derivatives come from autodiff and the adjoint handles the rest.
+Writing a new term takes a few lines::
+
+    class FinalKineticEnergy(Terminal):
+        def value(self, traj):
+            v = traj.y1[-1]
+            return -0.5 * v @ (traj.mass @ v)
+
+Time integrals use the trapezoid rule on the (possibly non-uniform) t-grid; pressures at time
+levels are the second-order level values of `hyperoc.dynamics.level_pressure`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import jax.numpy as jnp
+
+from .dynamics import level_pressure
+from .errors import InputError
+
+__all__ = ["Trajectory", "Objective", "ControlCost", "PressureAt", "PressureRise", "Terminal", "objective_from_config"]
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """What objective terms see (JAX arrays).
+
+    y0, y1 : (N+1, n) displacement and velocity at the levels; p_steps : (N,) step multipliers;
+    xi : (N+1, n_ctrl) control; dt : (N,) steps; tau_index / eps_index : level indices of tau and
+    tau + eps; control_mass : (n_ctrl, n_ctrl) L2(omega) Gram matrix (JAX sparse); mass : state mass.
+    """
+
+    y0: Any
+    y1: Any
+    p_steps: Any
+    xi: Any
+    dt: Any
+    tau_index: int
+    eps_index: int
+    control_mass: Any = None
+    mass: Any = None
+
+    @property
+    def pressure(self):
+        """Level pressures (N+1,)."""
+        return level_pressure(self.p_steps, self.dt)
+
+
+class Term:
+    def value(self, traj: Trajectory):  # pragma: no cover - interface
+        raise NotImplementedError
+
+
+class Running(Term):
+    """``int_0^T c dt`` with ``density(traj) -> (N+1,)`` the integrand at the levels (trapezoid rule)."""
+
+    def density(self, traj: Trajectory):  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def value(self, traj):
+        c = self.density(traj)
+        return jnp.sum(0.5 * traj.dt * (c[:-1] + c[1:]))
+
+
+class AtTau(Term):
+    """phi1 evaluated at tau (and tau + eps)."""
+
+
+class Terminal(Term):
+    """phi2 evaluated at T."""
+
+
+@dataclass(frozen=True)
+class ControlCost(Running):
+    """``c = -alpha/2 ||xi||^2_{L2(omega)}`` (the paper's cost)."""
+
+    alpha: float = 2e-3
+
+    def density(self, traj):
+        Mxi = (traj.control_mass @ traj.xi.T).T
+        return -0.5 * self.alpha * jnp.sum(traj.xi * Mxi, axis=1)
+
+
+@dataclass(frozen=True)
+class PressureAt(AtTau):
+    """``phi1 = p(tau)`` (the paper's 1D experiment)."""
+
+    def value(self, traj):
+        return traj.pressure[traj.tau_index]
+
+
+@dataclass(frozen=True)
+class PressureRise(AtTau):
+    """``phi1 = (p(tau + eps) - p(tau)) / eps`` (the paper's main objective, ``sysmainpressure``)."""
+
+    eps: float = 0.1
+
+    def value(self, traj):
+        p = traj.pressure
+        return (p[traj.eps_index] - p[traj.tau_index]) / self.eps
+
+
+@dataclass(frozen=True)
+class Objective:
+    """Sum of terms: running costs, one phi1 at tau, optional terminal phi2."""
+
+    running: tuple = (ControlCost(),)
+    at_tau: AtTau = field(default_factory=PressureAt)
+    terminal: tuple = ()
+
+    @property
+    def eps(self) -> float:
+        return getattr(self.at_tau, "eps", 0.0)
+
+    def value(self, traj: Trajectory):
+        total = self.at_tau.value(traj)
+        for term in self.running + self.terminal:
+            total = total + term.value(traj)
+        return total
+
+    def parts(self, traj: Trajectory) -> dict:
+        """Each term's value, for reports."""
+        out = {type(self.at_tau).__name__: float(self.at_tau.value(traj))}
+        for term in self.running + self.terminal:
+            out[type(term).__name__] = float(term.value(traj))
+        return out
+
+
+def objective_from_config(cfg: dict) -> Objective:
+    """``{"phi1": "pressure" | "pressure_rise", "eps": 0.1, "alpha": 2e-3}`` -> Objective."""
+    cfg = dict(cfg or {})
+    phi1 = cfg.pop("phi1", "pressure")
+    alpha = cfg.pop("alpha", 2e-3)
+    eps = cfg.pop("eps", 0.0)
+    if cfg:
+        raise InputError(f"objective: unknown key(s) {sorted(cfg)}")
+    for name, v in (("alpha", alpha), ("eps", eps)):
+        if not isinstance(v, (int, float)) or isinstance(v, bool):
+            raise InputError(f"objective: {name} must be a number, got {type(v).__name__}")
+    if alpha < 0:
+        raise InputError(f"objective: alpha must be >= 0, got {alpha}")
+    if phi1 == "pressure":
+        if eps:
+            raise InputError("objective: eps is only used with phi1 = 'pressure_rise'")
+        return Objective(running=(ControlCost(float(alpha)),), at_tau=PressureAt())
+    if phi1 == "pressure_rise":
+        if not eps > 0:
+            raise InputError("objective: phi1 = 'pressure_rise' needs eps > 0")
+        return Objective(running=(ControlCost(float(alpha)),), at_tau=PressureRise(float(eps)))
+    raise InputError(f"objective: unknown phi1 {phi1!r} (pressure, pressure_rise)")
