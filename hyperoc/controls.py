@@ -23,7 +23,7 @@ from .errors import InputError
 from .mesh import Mesh
 from .spaces import VectorSpace
 
-__all__ = ["Region", "BodyForce", "ActiveStress", "ControlData", "circumferential_fibres", "control_from_config"]
+__all__ = ["Region", "BodyForce", "ActiveStress", "ControlData", "circumferential_fibres"]
 
 
 @dataclass(frozen=True)
@@ -198,29 +198,3 @@ class ActiveStress:
         load = _cell_blocks_to_matrix(sdofs, cdofs, blocks, (n_state, nodes.size))
         mass = _cell_blocks_to_matrix(cdofs, cdofs, _scalar_mass_blocks(space, mask), (nodes.size,) * 2)
         return ControlData(load, mass, nodes, 1, mask)
-
-
-def region_from_config(cfg: dict | None) -> Region:
-    if cfg is None:
-        return Region()
-    cfg = dict(cfg)
-    kind = cfg.pop("kind", "box" if "lower" in cfg else "all")
-    allowed = {"tag", "lower", "upper", "r_range", "theta_range"}
-    if set(cfg) - allowed:
-        raise InputError(f"control region: unknown key(s) {sorted(set(cfg) - allowed)}")
-    conv = {k: (tuple(float(x) for x in v) if isinstance(v, (list, tuple)) else v) for k, v in cfg.items()}
-    return Region(kind=kind, **conv)
-
-
-def control_from_config(cfg: dict | None):
-    """``{"kind": "body_force" | "active_stress", "region": {...}}`` -> operator."""
-    cfg = dict(cfg or {})
-    kind = cfg.pop("kind", "body_force")
-    region = region_from_config(cfg.pop("region", None))
-    if cfg:
-        raise InputError(f"control: unknown key(s) {sorted(cfg)}")
-    if kind == "body_force":
-        return BodyForce(region)
-    if kind == "active_stress":
-        return ActiveStress(region)
-    raise InputError(f"control: unknown kind {kind!r} (body_force, active_stress)")

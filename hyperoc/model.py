@@ -231,22 +231,40 @@ class StateModel:
 
     # --- diagnostics on host ----------------------------------------------------------------------
     @cached_property
-    def _tangent_eig_fn(self):
+    def _directions(self) -> np.ndarray:
+        """Unit directions sampling the half sphere (1D: 1; 2D: 12 angles; 3D: 31 Fibonacci points)."""
+        if self.dim == 1:
+            return np.ones((1, 1))
+        if self.dim == 2:
+            a = np.pi * np.arange(12) / 12
+            return np.stack([np.cos(a), np.sin(a)], axis=1)
+        k = np.arange(31) + 0.5
+        z = k / 31
+        phi = np.pi * (1 + 5**0.5) * k
+        r = np.sqrt(1 - z**2)
+        return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+    @cached_property
+    def _ellipticity_fn(self):
+        dirs = jnp.asarray(self._directions)
+
         def fn(u):
             F = self.deformation_gradient(u)
-            A = self._pointwise(jax.hessian(self.material.energy_of_F), F)
-            d2 = self.dim * self.dim
-            return jnp.min(jnp.linalg.eigvalsh(A.reshape(A.shape[:2] + (d2, d2))))
+            A = self._pointwise(jax.hessian(self.material.energy_of_F), F)  # (nc, nq, d, d, d, d)
+            Q = jnp.einsum("cqijkl,nj,nl->cqnik", A, dirs, dirs)  # acoustic tensors
+            return jnp.min(jnp.linalg.eigvalsh(Q))
 
         return jax.jit(fn)
 
-    def min_tangent_eigenvalue(self, u) -> float:
-        """Smallest eigenvalue of dP/dF (as a d^2 x d^2 matrix) over quadrature points.
+    def min_acoustic_eigenvalue(self, u) -> float:
+        """Smallest eigenvalue of the acoustic tensor ``Q(n)_ik = dP_iJ/dF_kL n_J n_L`` over quadrature
+        points and sampled unit directions n.
 
-        Negative values flag loss of convexity of W in F (e.g. Saint Venant-Kirchhoff in strong
-        compression; in 1D at ``u_x < -1 + 1/sqrt(3)``).
+        Negative values mean loss of strong ellipticity: the continuum problem is no longer
+        well posed and discrete solutions localize (e.g. Saint Venant-Kirchhoff in strong
+        compression; in 1D exactly ``dP/dF < 0``, i.e. ``u_x < -1 + 1/sqrt(3)``).
         """
-        return float(self._tangent_eig_fn(jnp.asarray(u)))
+        return float(self._ellipticity_fn(jnp.asarray(u)))
 
     @cached_property
     def jitted(self):

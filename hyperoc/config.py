@@ -1,0 +1,248 @@
+"""TOML configuration: schema, validation with one clear message, and builders.
+
+A configuration has the sections ``[mesh] [material] [dynamics] [control] [objective] [optimize]
+[output]`` (see ``examples/*.toml``). Every entry is checked for its type and range before any
+computation starts; a problem raises `InputError` naming the section and key, which the CLI turns
+into one line on stderr and exit status 2.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .controls import ActiveStress, BodyForce, Region
+from .dynamics import Scheme
+from .errors import InputError
+from .expr import expression_field, parse_expression
+from .materials import material_from_config
+from .mesh import Mesh, box, interval, rectangle
+from .model import StateModel
+from .objectives import objective_from_config
+from .timegrid import TimeTransform, uniform_grid
+
+__all__ = ["Config", "load_config", "parse_config"]
+
+NUMBER = (int, float)
+
+# section -> key -> (accepted types, default); None default = required, ... = optional
+SCHEMA = {
+    "mesh": {
+        "kind": (str, "interval"), "n": (int, 100), "length": (NUMBER, 1.0), "nx": (int, 8), "ny": (int, ...),
+        "nz": (int, ...), "size": (list, ...), "dirichlet": (str, "left"), "r_inner": (NUMBER, 0.5),
+        "r_outer": (NUMBER, 1.0), "h": (NUMBER, 0.1), "structured": (bool, False), "n_radial": (int, ...),
+        "n_theta": (int, ...), "file": (str, ...), "degree": (int, 1),
+        "dirichlet_tag": (str, "gamma_d"), "neumann_tag": (str, "gamma_n"), "control_tag": (str, "omega"),
+    },
+    "material": {"law": (str, "svk"), "mu": (NUMBER, ...), "lambda": (NUMBER, ...), "beta": (NUMBER, ...),
+                 "gamma": (NUMBER, ...), "W0": (NUMBER, ...), "coefficients": (list, ...), "exponents": (list, ...)},
+    "dynamics": {"T": (NUMBER, 15.0), "dt": (NUMBER, 0.02), "kappa": (NUMBER, 2e-4), "density": (NUMBER, 1.0),
+                 "theta": (NUMBER, 0.5), "multiplier": (str, "step"), "solver": (str, "auto"),
+                 "newton_rtol": (NUMBER, 1e-11), "newton_max_iter": (int, 30), "traction": (list, ...)},
+    "control": {"kind": (str, "body_force"), "region": (dict, ...), "value": ((str, list, NUMBER), ...),
+                "file": (str, ...)},
+    "objective": {"phi1": (str, "pressure"), "alpha": (NUMBER, 2e-3), "eps": (NUMBER, 0.0)},
+    "optimize": {"method": (str, "bb"), "tau0": (NUMBER, ...), "tau_starts": (list, ...), "max_iter": (int, 100),
+                 "gtol": (NUMBER, 1e-6), "xi_bounds": (list, ...), "tau_margin": (NUMBER, ...)},
+    "output": {"snapshot_times": (list, ...), "series_every": (int, ...)},
+}
+
+
+def _type_name(types) -> str:
+    types = types if isinstance(types, tuple) else (types,)
+    names = {int: "an integer", float: "a number", str: "a string", list: "a list", dict: "a table", bool: "true/false"}
+    return " or ".join(dict.fromkeys(names[t] for t in types))
+
+
+def _check_section(name: str, given: dict) -> dict:
+    schema = SCHEMA[name]
+    if not isinstance(given, dict):
+        raise InputError(f"config: [{name}] must be a table")
+    unknown = set(given) - set(schema)
+    if unknown:
+        raise InputError(f"config: [{name}] has unknown key(s) {sorted(unknown)}; allowed: {sorted(schema)}")
+    out = {}
+    for key, (types, default) in schema.items():
+        if key not in given:
+            if default is not ...:
+                out[key] = default
+            continue
+        value = given[key]
+        tt = types if isinstance(types, tuple) else (types,)
+        ok = isinstance(value, tt) and not (isinstance(value, bool) and bool not in tt)
+        if not ok:
+            raise InputError(f"config: [{name}] {key} must be {_type_name(types)}, got {type(value).__name__} {value!r}")
+        out[key] = value
+    return out
+
+
+@dataclass(frozen=True)
+class Config:
+    """Validated configuration (sections as dicts with defaults filled in) and its folder."""
+
+    sections: dict
+    base: Path
+
+    def __getitem__(self, name: str) -> dict:
+        return self.sections[name]
+
+    # --- builders ---------------------------------------------------------------------------------
+    def mesh(self) -> Mesh:
+        c = self["mesh"]
+        kind = c["kind"]
+        if kind == "interval":
+            return interval(c["n"], c["length"])
+        if kind == "rectangle":
+            return rectangle(c["nx"], c.get("ny"), tuple(c.get("size", (1.0, 1.0))), c["dirichlet"])
+        if kind == "box":
+            return box(c["nx"], c.get("ny"), c.get("nz"), tuple(c.get("size", (1.0, 1.0, 1.0))), c["dirichlet"])
+        from . import geometry
+
+        if kind == "annulus":
+            return geometry.annulus(c["r_inner"], c["r_outer"], c["h"], structured=c["structured"],
+                                    n_radial=c.get("n_radial"), n_theta=c.get("n_theta"))
+        if kind == "shell":
+            return geometry.thick_shell(c["r_inner"], c["r_outer"], c["h"])
+        if kind == "ventricle":
+            return geometry.ventricle(c["h"])
+        if kind == "file":
+            if "file" not in c:
+                raise InputError("config: [mesh] kind = 'file' needs file = 'path/to/mesh.msh'")
+            path = (self.base / c["file"]).resolve()
+            return geometry.from_file(path, dirichlet=c["dirichlet_tag"], neumann=c["neumann_tag"], control=c["control_tag"])
+        raise InputError(f"config: [mesh] kind {kind!r} unknown (interval, rectangle, box, annulus, shell, ventricle, file)")
+
+    def control_operator(self):
+        c = self["control"]
+        region = _region(c.get("region"))
+        if c["kind"] == "body_force":
+            return BodyForce(region)
+        if c["kind"] == "active_stress":
+            return ActiveStress(region)
+        raise InputError(f"config: [control] kind {c['kind']!r} unknown (body_force, active_stress)")
+
+    def model(self) -> StateModel:
+        d = self["dynamics"]
+        mesh = self.mesh()
+        traction = d.get("traction")
+        if traction is not None and (len(traction) != mesh.dim or not all(isinstance(v, NUMBER) for v in traction)):
+            raise InputError(f"config: [dynamics] traction must be a list of {mesh.dim} numbers")
+        if self["mesh"]["degree"] not in (1, 2):
+            raise InputError(f"config: [mesh] degree must be 1 or 2, got {self['mesh']['degree']}")
+        return StateModel(mesh, material_from_config(self["material"]), degree=self["mesh"]["degree"],
+                          kappa=float(d["kappa"]), density=float(d["density"]), control=self.control_operator(),
+                          traction=traction, dirichlet="gamma_d", neumann="gamma_n")
+
+    def scheme(self) -> Scheme:
+        d = self["dynamics"]
+        return Scheme(theta=float(d["theta"]), multiplier=d["multiplier"], rtol=float(d["newton_rtol"]),
+                      max_iter=int(d["newton_max_iter"]))
+
+    def grid(self):
+        d = self["dynamics"]
+        return uniform_grid(float(d["T"]), float(d["dt"]))
+
+    def objective(self):
+        return objective_from_config(self["objective"])
+
+    def transform(self, tau: float) -> TimeTransform:
+        d = self["dynamics"]
+        eps = float(self["objective"]["eps"])
+        T = float(d["T"])
+        if not 0 < tau < T - eps:
+            raise InputError(f"config: tau = {tau} must lie in (0, T - eps) = (0, {T - eps})")
+        return TimeTransform.for_step(T, float(d["dt"]), tau, eps)
+
+    def tau_starts(self) -> list:
+        o, T = self["optimize"], float(self["dynamics"]["T"])
+        starts = o.get("tau_starts") or [o.get("tau0", T / 2)]
+        if not all(isinstance(t, NUMBER) and not isinstance(t, bool) for t in starts):
+            raise InputError("config: [optimize] tau_starts must be a list of numbers")
+        for t in starts:
+            self.transform(float(t))
+        return [float(t) for t in starts]
+
+    def xi_bounds(self):
+        b = self["optimize"].get("xi_bounds")
+        if b is None:
+            return (None, None)
+        if len(b) != 2 or not all(isinstance(v, NUMBER) for v in b) or not b[0] < b[1]:
+            raise InputError("config: [optimize] xi_bounds must be [lower, upper] with lower < upper")
+        return (float(b[0]), float(b[1]))
+
+    def prescribed_control(self, model: StateModel, t: np.ndarray) -> np.ndarray | None:
+        """Control values (N+1, n_ctrl) from ``[control] value`` (expression(s)) or ``file`` (NPZ)."""
+        c = self["control"]
+        if "file" in c:
+            return _control_from_npz(self.base / c["file"], model, t.size)
+        if "value" not in c:
+            return None
+        comps = model.control.components
+        values = c["value"] if isinstance(c["value"], list) else [c["value"]] * comps
+        if len(values) != comps:
+            raise InputError(f"config: [control] value needs {comps} expression(s) (one per component)")
+        exprs = [parse_expression(str(v)) for v in values]
+        x = model.control.coordinates(model.space)
+        out = np.stack([np.stack([expression_field(e, x, float(tk)) for e in exprs], axis=-1) for tk in t])
+        return out.reshape(t.size, -1)
+
+
+def _region(cfg) -> Region:
+    if cfg is None:
+        return Region()
+    cfg = dict(cfg)
+    kind = cfg.pop("kind", "box")
+    allowed = {"tag", "lower", "upper", "r_range", "theta_range"}
+    if set(cfg) - allowed:
+        raise InputError(f"config: [control.region] unknown key(s) {sorted(set(cfg) - allowed)}")
+    for key, value in cfg.items():
+        if key == "tag":
+            if not isinstance(value, str):
+                raise InputError("config: [control.region] tag must be a string")
+        elif not (isinstance(value, list) and all(isinstance(v, NUMBER) and not isinstance(v, bool) for v in value)):
+            raise InputError(f"config: [control.region] {key} must be a list of numbers")
+    conv = {k: (tuple(float(x) for x in v) if isinstance(v, list) else v) for k, v in cfg.items()}
+    return Region(kind=kind, **conv)
+
+
+def _control_from_npz(path: Path, model: StateModel, levels: int) -> np.ndarray:
+    if not path.exists():
+        raise InputError(f"control file not found: {path}")
+    with np.load(path) as data:
+        if "xi" not in data:
+            raise InputError(f"control file {path} has no array 'xi'")
+        xi = np.asarray(data["xi"], dtype=np.float64)
+    if xi.shape != (levels, model.control.size):
+        raise InputError(f"control file {path}: 'xi' must have shape (levels, n_ctrl) = {(levels, model.control.size)}, got {xi.shape}")
+    return xi
+
+
+def parse_config(data: dict, base: Path = Path(".")) -> Config:
+    """Validate a config dict (as read from TOML) into a `Config`."""
+    unknown = set(data) - set(SCHEMA)
+    if unknown:
+        raise InputError(f"config: unknown section(s) {sorted(unknown)}; allowed: {sorted(SCHEMA)}")
+    sections = {name: _check_section(name, data.get(name, {})) for name in SCHEMA}
+    d = sections["dynamics"]
+    if not d["dt"] > 0 or not d["T"] > 0:
+        raise InputError(f"config: [dynamics] needs dt > 0 and T > 0, got dt = {d['dt']}, T = {d['T']}")
+    if d["kappa"] < 0:
+        raise InputError(f"config: [dynamics] kappa must be >= 0, got {d['kappa']}")
+    if d["density"] <= 0:
+        raise InputError(f"config: [dynamics] density must be > 0, got {d['density']}")
+    return Config(sections, Path(base))
+
+
+def load_config(path) -> Config:
+    """Read and validate a TOML file; every problem raises `InputError` with a one-line message."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"config file not found: {path}")
+    try:
+        data = tomllib.loads(path.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"config {path}: invalid TOML: {exc}") from None
+    return parse_config(data, path.parent)

@@ -1,0 +1,93 @@
+"""Files people can look at, written from solutions: NPZ arrays, JSON summary, PNG plots, ParaView series.
+
+Every file goes through `hyperoc.io`'s atomic writers, so an interrupted run never leaves a
+half-written result behind.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .dynamics import StateSolution
+from .io import write_json, write_npz, write_time_series
+from .plotting import plot_control_spacetime, plot_history, plot_pressure, plot_snapshots
+
+__all__ = ["write_state_outputs", "PAPER_SNAPSHOT_TIMES"]
+
+# Times of the paper's Figures figDisp / figVelo / figControl.
+PAPER_SNAPSHOT_TIMES = (0.02, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 4.5, 5.0, 5.5, 6.0, 6.5, 7.0, 7.46, 7.48)
+
+_CELL_TYPES = {(1, 1): "line", (1, 2): "line3", (2, 1): "triangle", (2, 2): "triangle6", (3, 1): "tetra", (3, 2): "tetra10"}
+
+
+def _series_levels(n_levels: int, every: int | None, max_frames: int = 200) -> np.ndarray:
+    every = every or max(1, int(np.ceil(n_levels / max_frames)))
+    levels = np.arange(0, n_levels, every)
+    return levels if levels[-1] == n_levels - 1 else np.append(levels, n_levels - 1)
+
+
+def _vtk_cells(sol: StateSolution) -> tuple[np.ndarray, str]:
+    space = sol.model.space
+    cells = space.cell_nodes
+    if space.degree == 2 and space.dim == 1:
+        cells = cells[:, [0, 1, 2]]
+    return cells, _CELL_TYPES[(space.dim, space.degree)]
+
+
+def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = None, eps: float | None = None,
+                        snapshot_times=None, series_every: int | None = None, extra_summary: dict | None = None,
+                        history: dict | None = None) -> dict:
+    """Write results.npz, summary.json, pressure.png, the ParaView series and (1D) snapshot figures.
+
+    results.npz holds ``t, p, p_steps, volume, nodes, displacement, velocity`` (all levels) and the
+    control ``xi`` with its node coordinates ``xi_nodes`` when there is a control. Returns the summary.
+    """
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    model = sol.model
+    u, v = sol.displacement(), sol.velocity()
+    arrays = dict(t=sol.t, p=sol.pressure, p_steps=sol.p_steps, volume=sol.volume, nodes=model.space.nodes,
+                  displacement=u, velocity=v, newton_iterations=sol.newton_iterations, min_det_F=sol.min_det_F)
+    xi_nodal = None
+    if sol.xi is not None and model.control is not None:
+        xi_nodal = model.control.nodal(sol.xi)
+        arrays.update(xi=xi_nodal, xi_nodes=model.control.coordinates(model.space))
+    write_npz(out / "results.npz", **arrays)
+
+    files = {"results": "results.npz", "pressure_plot": "pressure.png"}
+    plot_pressure(out / "pressure.png", sol.t, sol.pressure, tau=tau, eps=eps, volume=sol.volume)
+    cells, cell_type = _vtk_cells(sol)
+    levels = _series_levels(sol.t.size, series_every)
+    point_data = {"displacement": u[levels], "velocity": v[levels]}
+    if xi_nodal is not None:
+        full = np.zeros((levels.size, model.space.num_nodes, xi_nodal.shape[-1]))
+        full[:, model.control.nodes] = xi_nodal[levels]
+        point_data["control"] = full
+    series = write_time_series(out / "paraview", "state", model.space.nodes, cells, cell_type, sol.t[levels], point_data)
+    files["time_series"] = str(Path(series).relative_to(out))
+    if model.dim == 1:
+        files.update(_write_1d_figures(out, sol, u, v, xi_nodal, snapshot_times or PAPER_SNAPSHOT_TIMES))
+    if history:
+        plot_history(out / "history.png", history)
+        files["history_plot"] = "history.png"
+    summary = {**sol.summary(), "files": files, **(extra_summary or {})}
+    write_json(out / "summary.json", summary)
+    return summary
+
+
+def _write_1d_figures(out: Path, sol: StateSolution, u, v, xi_nodal, times) -> dict:
+    x = sol.model.space.nodes[:, 0]
+    order = np.argsort(x)
+    times = [t for t in times if sol.t[0] <= t <= sol.t[-1]]
+    plot_snapshots(out / "displacement.png", x[order], sol.t, u[:, order, 0], times, ylabel="u(x, t)")
+    plot_snapshots(out / "velocity.png", x[order], sol.t, v[:, order, 0], times, ylabel="u_t(x, t)")
+    files = {"displacement_plot": "displacement.png", "velocity_plot": "velocity.png"}
+    if xi_nodal is not None:
+        xc = sol.model.control.coordinates(sol.model.space)[:, 0]
+        o = np.argsort(xc)
+        plot_control_spacetime(out / "control.png", sol.t, xc[o], xi_nodal[:, o, 0])
+        plot_snapshots(out / "control_snapshots.png", xc[o], sol.t, xi_nodal[:, o, 0], times, ylabel="xi(x, t)")
+        files.update(control_plot="control.png", control_snapshots_plot="control_snapshots.png")
+    return files

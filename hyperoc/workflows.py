@@ -1,0 +1,182 @@
+"""End-to-end runs from a `Config`: simulate, optimize (single or multi-start), check gradients.
+
+These are what the CLI calls; they are plain functions so that scripts and notebooks can call them
+too. Every run writes its files atomically into an output folder.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .config import Config
+from .dynamics import TimeStepper
+from .errors import InputError
+from .io import read_json, write_json
+from .optimize import OptimizationResult, barzilai_borwein, lbfgsb
+from .reduced import ControlPoint, ReducedFunctional
+from .report import write_state_outputs
+from .verification import random_directions, taylor_test
+
+__all__ = ["simulate", "build_reduced", "optimize_single", "optimize", "check_gradient"]
+
+
+def simulate(cfg: Config, out, *, progress: bool = False) -> dict:
+    """Forward solve with the prescribed control of ``[control]``; writes the standard outputs."""
+    model = cfg.model()
+    grid = cfg.grid()
+    xi = cfg.prescribed_control(model, grid.t)
+    stepper = TimeStepper(model, cfg.scheme(), cfg["dynamics"]["solver"])
+    sol = stepper.run(grid, xi, progress=progress)
+    o = cfg["output"]
+    return write_state_outputs(Path(out), sol, snapshot_times=o.get("snapshot_times"), series_every=o.get("series_every"))
+
+
+def build_reduced(cfg: Config, tau0: float, model=None) -> ReducedFunctional:
+    model = model or cfg.model()
+    return ReducedFunctional(model, cfg.transform(tau0), cfg.objective(), scheme=cfg.scheme(),
+                             solver=cfg["dynamics"]["solver"])
+
+
+def optimize_single(cfg: Config, tau0: float, *, checkpoint=None, method: str | None = None, progress: bool = False,
+                    model=None) -> tuple[ReducedFunctional, OptimizationResult]:
+    """One optimization from ``(xi, tau) = (0, tau0)`` with the method of ``[optimize]``."""
+    J = build_reduced(cfg, tau0, model)
+    o = cfg["optimize"]
+    method = method or o["method"]
+    bar = _progress_bar(progress, o["max_iter"], f"optimize (tau0={tau0:g})")
+
+    def callback(k, m, value, g):
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(J=f"{value:.5g}", tau=f"{m.tau:.4f}", G=f"{J.norm(g):.2e}")
+
+    kwargs = dict(gtol=float(o["gtol"]), max_iter=int(o["max_iter"]), checkpoint=checkpoint, callback=callback,
+                  tau_margin=o.get("tau_margin"))
+    if method == "bb":
+        if cfg.xi_bounds() != (None, None):
+            raise InputError("config: [optimize] xi_bounds needs method = 'lbfgsb' (Algorithm 1 is unconstrained)")
+        res = barzilai_borwein(J, J.zero(tau0), **kwargs)
+    elif method == "lbfgsb":
+        res = lbfgsb(J, J.zero(tau0), xi_bounds=cfg.xi_bounds(), **kwargs)
+    else:
+        raise InputError(f"config: [optimize] method {method!r} unknown (bb, lbfgsb)")
+    if bar is not None:
+        bar.close()
+    return J, res
+
+
+def _progress_bar(enabled: bool, total: int, desc: str):
+    if not enabled:
+        return None
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=desc, leave=False)
+
+
+def write_optimization_outputs(out: Path, cfg: Config, J: ReducedFunctional, res: OptimizationResult, extra=None) -> dict:
+    sol = J.state(res.point)
+    parts = J.objective.parts(J.trajectory(sol))
+    summary = {**res.summary(), "objective_terms": parts, "tau0": float(res.history["tau"][0]),
+               **(extra or {})}
+    hist = {"objective": res.history["objective"], "grad_norm": res.history["grad_norm"], "tau": res.history["tau"]}
+    o = cfg["output"]
+    return write_state_outputs(out, sol, tau=res.point.tau, eps=J.transform.eps or None, history=hist,
+                               snapshot_times=o.get("snapshot_times"), series_every=o.get("series_every"),
+                               extra_summary={"optimization": summary, "tau": summary["tau"],
+                                              "objective": summary["objective"], "iterations": summary["iterations"],
+                                              "converged": summary["converged"],
+                                              "grad_norm_history": summary["grad_norm_history"],
+                                              "objective_history": summary["objective_history"],
+                                              "tau_history": summary["tau_history"],
+                                              "wall_time_s": summary["wall_time_s"]})
+
+
+def _start_dir(out: Path, k: int, tau0: float) -> Path:
+    return out / f"start_{k:02d}_tau{tau0:g}"
+
+
+def _run_start(cfg_sections: dict, base: str, tau0: float, folder: str) -> dict:
+    """One start of a multi-start run (executed on a Dask worker or in-process)."""
+    from .config import Config as _Config
+
+    cfg = _Config(cfg_sections, Path(base))
+    folder = Path(folder)
+    try:
+        J, res = optimize_single(cfg, tau0, checkpoint=folder / "checkpoint")
+        summary = write_optimization_outputs(folder, cfg, J, res)
+        return {"tau0": tau0, "status": "ok", "tau": summary["tau"], "objective": summary["objective"],
+                "converged": summary["converged"], "iterations": summary["iterations"], "folder": folder.name}
+    except Exception as exc:  # a failed start is reported, not fatal
+        return {"tau0": tau0, "status": "failed", "error": f"{type(exc).__name__}: {exc}", "folder": folder.name}
+
+
+def optimize(cfg: Config, out, *, progress: bool = False, scheduler: str | None = None, workers: int = 2) -> dict:
+    """Optimize from every tau start of ``[optimize]``; several starts run in parallel on Dask.
+
+    Each start writes into its own folder; a start whose ``summary.json`` exists is not recomputed
+    (resume). The best start's outputs are also written at the top level of ``out``.
+    """
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    starts = cfg.tau_starts()
+    start_time = time.perf_counter()
+    if len(starts) == 1:
+        J, res = optimize_single(cfg, starts[0], checkpoint=out / "checkpoint", progress=progress)
+        return write_optimization_outputs(out, cfg, J, res)
+    results = _multistart(cfg, out, starts, scheduler, workers)
+    ok = [r for r in results if r["status"] == "ok"]
+    summary = {"starts": results, "wall_time_s": time.perf_counter() - start_time}
+    if ok:
+        best = max(ok, key=lambda r: r["objective"])
+        best_summary = read_json(out / best["folder"] / "summary.json")
+        summary = {**best_summary, "best_start": best["folder"], **summary}
+    write_json(out / "summary.json", summary)
+    return summary
+
+
+def _multistart(cfg: Config, out: Path, starts, scheduler, workers) -> list:
+    todo, results = [], {}
+    for k, tau0 in enumerate(starts):
+        folder = _start_dir(out, k, tau0)
+        done = folder / "summary.json"
+        if done.exists():
+            s = read_json(done)
+            results[k] = {"tau0": tau0, "status": "ok", "tau": s["tau"], "objective": s["objective"],
+                          "converged": s["converged"], "iterations": s["iterations"], "folder": folder.name,
+                          "resumed": True}
+        else:
+            todo.append((k, tau0, folder))
+    if todo:
+        from dask.distributed import Client, LocalCluster
+
+        cluster = None if scheduler else LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                                      dashboard_address=None)
+        with Client(scheduler or cluster) as client:
+            futures = [client.submit(_run_start, cfg.sections, str(cfg.base), tau0, str(folder), pure=False)
+                       for _, tau0, folder in todo]
+            for (k, _, _), fut in zip(todo, futures):
+                results[k] = fut.result()
+        if cluster is not None:
+            cluster.close()
+    return [results[k] for k in sorted(results)]
+
+
+def check_gradient(cfg: Config, *, seed: int = 0) -> dict:
+    """Taylor tests of the exact gradient at a nonzero control, for xi, tau and joint directions.
+
+    The point is ``xi = 0.1 * xi_scale * (smooth random field)`` and the configured tau0 (or T/2),
+    so that J depends on tau (at xi = 0 the state is trivial and J is flat in tau).
+    """
+    tau0 = cfg.tau_starts()[0]
+    J = build_reduced(cfg, tau0)
+    dirs = random_directions(J, J.zero(tau0), seed=seed)
+    m = ControlPoint(0.1 * dirs["xi"].xi, tau0)
+    out = {}
+    for name, dm in random_directions(J, m, seed=seed + 1).items():
+        r = taylor_test(J, m, dm)
+        out[name] = r.as_dict()
+    return out
