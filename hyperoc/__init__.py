@@ -1,1 +1,42 @@
-"""hyperoc: optimal control of damped hyperelastic bodies under a global volume constraint."""
+"""hyperoc: optimal control of damped hyperelastic bodies under a global volume constraint.
+
+The curated API (see the README for a tour)::
+
+    mesh        interval, rectangle, box, Mesh; geometry: annulus, thick_shell, ventricle, from_file
+    materials   SaintVenantKirchhoff, Fung, Ogden, NeoHookean (W(E), derivatives by JAX)
+    controls    BodyForce, ActiveStress, Region
+    model       StateModel
+    dynamics    Scheme, TimeStepper, solve_state, StateSolution; statics: solve_static
+    time        uniform_grid, TimeGrid, TimeTransform
+    objectives  Objective, ControlCost, PressureAt, PressureRise
+    gradients   ReducedFunctional, ControlPoint, taylor_test
+    optimizers  barzilai_borwein (the paper's Algorithm 1), lbfgsb
+    config      load_config
+
+Importing hyperoc enables JAX's float64 mode (``jax_enable_x64``), which the solvers need.
+"""
+
+from .controls import ActiveStress, BodyForce, Region
+from .config import load_config
+from .dynamics import Scheme, StateSolution, TimeStepper, solve_state
+from .errors import HyperocError, InputError, SolverError
+from .geometry import annulus, from_file, thick_shell, ventricle
+from .materials import Fung, NeoHookean, Ogden, SaintVenantKirchhoff
+from .mesh import Mesh, box, interval, rectangle
+from .model import StateModel
+from .objectives import ControlCost, Objective, PressureAt, PressureRise
+from .optimize import barzilai_borwein, lbfgsb
+from .reduced import ControlPoint, ReducedFunctional
+from .statics import solve_static
+from .timegrid import TimeGrid, TimeTransform, uniform_grid
+from .verification import taylor_test
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "ActiveStress", "BodyForce", "Region", "load_config", "Scheme", "StateSolution", "TimeStepper", "solve_state",
+    "HyperocError", "InputError", "SolverError", "annulus", "from_file", "thick_shell", "ventricle", "Fung",
+    "NeoHookean", "Ogden", "SaintVenantKirchhoff", "Mesh", "box", "interval", "rectangle", "StateModel",
+    "ControlCost", "Objective", "PressureAt", "PressureRise", "barzilai_borwein", "lbfgsb", "ControlPoint",
+    "ReducedFunctional", "solve_static", "TimeGrid", "TimeTransform", "uniform_grid", "taylor_test",
+]

@@ -53,6 +53,8 @@ SCHEMA = {
 
 def _type_name(types) -> str:
     types = types if isinstance(types, tuple) else (types,)
+    if float in types:  # an int is accepted wherever a float is
+        types = tuple(t for t in types if t is not int)
     names = {int: "an integer", float: "a number", str: "a string", list: "a list", dict: "a table", bool: "true/false"}
     return " or ".join(dict.fromkeys(names[t] for t in types))
 

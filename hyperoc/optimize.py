@@ -93,18 +93,26 @@ class EvaluationCache:
         return out
 
 
-def _project_tau(J: ReducedFunctional, m: ControlPoint, margin: float) -> ControlPoint:
+def _project(J: ReducedFunctional, m: ControlPoint, margin: float, xi_bounds=(None, None)) -> ControlPoint:
+    """Projection onto the admissible set: tau in [margin, T - eps - margin], xi in xi_bounds."""
     lo, hi = margin, J.transform.T - J.transform.eps - margin
-    return ControlPoint(m.xi, float(np.clip(m.tau, lo, hi)))
+    xi = m.xi if xi_bounds == (None, None) else np.clip(m.xi, *(b if b is not None else s * np.inf for b, s in zip(xi_bounds, (-1, 1))))
+    return ControlPoint(xi, float(np.clip(m.tau, lo, hi)))
+
+
+def stationarity(J: ReducedFunctional, m: ControlPoint, g: ControlPoint, margin: float, xi_bounds=(None, None)) -> float:
+    """``|| P(m + G) - m ||``: the projected gradient norm (equals ``||G||`` without active bounds)."""
+    return J.norm(_project(J, m + g, margin, xi_bounds) - m)
 
 
 def _default_margin(J: ReducedFunctional) -> float:
     return 2.0 * float(J.transform.T) / J.N
 
 
-def _record(res: OptimizationResult, J: ReducedFunctional, value: float, g: ControlPoint, m: ControlPoint, step: float):
+def _record(res: OptimizationResult, J: ReducedFunctional, value: float, g: ControlPoint, m: ControlPoint, step: float,
+            gnorm: float):
     res.history["objective"].append(float(value))
-    res.history["grad_norm"].append(J.norm(g))
+    res.history["grad_norm"].append(float(gnorm))
     res.history["tau"].append(float(m.tau))
     res.history["step"].append(float(step))
 
@@ -119,10 +127,14 @@ def _safe_eval(evaluate, m):
 
 def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e-6, gtol_abs: float = 0.0,
                      max_iter: int = 200, tau_margin: float | None = None, armijo: float = 0.5,
-                     max_backtracks: int = 30, checkpoint=None, callback=None) -> OptimizationResult:
+                     max_backtracks: int = 30, xi_bounds=(None, None), checkpoint=None,
+                     callback=None) -> OptimizationResult:
     """The paper's Algorithm 1 (maximization): one Armijo step along G0, then Barzilai-Borwein steps.
 
-    Stops when ``||G|| <= max(gtol ||G0||, gtol_abs)`` or after ``max_iter`` iterations. The BB step
+    With ``xi_bounds`` the iterates are projected onto the box (projected BB, the paper's Remark
+    ``rk-box`` as a pointwise bound); ``||G||`` is then the projected gradient norm
+    ``||P(m + G) - m||``. Stops when it is ``<= max(gtol ||G0||, gtol_abs)`` or after ``max_iter``
+    iterations. The BB step
     is ``alpha = <s, s> / <s, -y>`` (s = m_k - m_{k-1}, y = G_k - G_{k-1}); when it is not positive
     (J locally not concave along s) the iteration takes an Armijo step from ``|s| / |y|``.
     A trial point where the state solver fails is rejected and its step halved.
@@ -131,18 +143,18 @@ def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e
     margin = _default_margin(J) if tau_margin is None else tau_margin
     evaluate = EvaluationCache(J, checkpoint)
     res = OptimizationResult(m0, np.nan, 0, False, "")
-    m = _project_tau(J, m0, margin)
+    m = _project(J, m0, margin, xi_bounds)
     first = _safe_eval(evaluate, m)
     if first is None:
         raise SolverError(0, 0.0, "initial point", "the state solver fails at the initial control")
     value, g = first
-    _record(res, J, value, g, m, 0.0)
-    g0norm = J.norm(g)
-    target = max(gtol * g0norm, gtol_abs)
+    gnorm = stationarity(J, m, g, margin, xi_bounds)
+    _record(res, J, value, g, m, 0.0, gnorm)
+    target = max(gtol * gnorm, gtol_abs)
     m_prev = g_prev = None
     alpha = 1.0
     for k in range(1, max_iter + 1):
-        if J.norm(g) <= target:
+        if gnorm <= target:
             res.converged, res.message = True, f"||G|| <= {target:.3g}"
             break
         curv = 0.0
@@ -151,36 +163,36 @@ def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e
             curv = -J.inner(s, y)
             # BB1 step; where J is not concave along s, the scale-free |s|/|y| with a monotone search.
             alpha = J.inner(s, s) / curv if curv > 0 else J.norm(s) / max(J.norm(y), 1e-300)
-        step = _ascent_step(J, evaluate, m, value, g, alpha, margin, armijo, max_backtracks,
+        step = _ascent_step(J, evaluate, m, value, g, alpha, margin, xi_bounds, armijo, max_backtracks,
                             monotone=(m_prev is None or curv <= 0), res=res)
         if step is None:
             res.message = "no admissible step (state solver fails or no ascent along G)"
             break
         m_prev, g_prev = m, g
         m, value, g, alpha = step
+        gnorm = stationarity(J, m, g, margin, xi_bounds)
         res.iterations = k
-        _record(res, J, value, g, m, alpha)
+        _record(res, J, value, g, m, alpha, gnorm)
         if callback is not None:
             callback(k, m, value, g)
     else:
         res.message = f"maximum number of iterations ({max_iter}) reached"
     res.point, res.objective = m, value
-    res.converged = res.converged or J.norm(g) <= target
+    res.converged = res.converged or gnorm <= target
     res.wall_time = time.perf_counter() - start
     res.evaluations = {"state_solves": J.counts["state"], "adjoint_solves": J.counts["adjoint"], "cache_hits": evaluate.hits}
     return res
 
 
-def _ascent_step(J, evaluate, m, value, g, alpha, margin, armijo, max_backtracks, monotone, res):
-    """Trial ``m + alpha G`` (tau projected); backtrack on solver failure, and on lack of ascent
-    when ``monotone`` (Armijo with sufficient increase 1e-4 alpha ||G||^2)."""
-    gg = J.inner(g, g)
+def _ascent_step(J, evaluate, m, value, g, alpha, margin, xi_bounds, armijo, max_backtracks, monotone, res):
+    """Trial ``P(m + alpha G)``; backtrack on solver failure, and on lack of ascent when
+    ``monotone`` (Armijo: sufficient increase ``1e-4 <G, trial - m>``)."""
     for _ in range(max_backtracks):
-        trial = _project_tau(J, m + g * alpha, margin)
+        trial = _project(J, m + g * alpha, margin, xi_bounds)
         out = _safe_eval(evaluate, trial)
         if out is None:
             res.failed_trials += 1
-        elif not monotone or out[0] >= value + 1e-4 * alpha * gg:
+        elif not monotone or out[0] >= value + 1e-4 * J.inner(g, trial - m):
             return trial, out[0], out[1], alpha
         alpha *= armijo
     return None
@@ -194,8 +206,9 @@ def lbfgsb(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gt
 
     Variables are scaled by the square roots of the lumped L2(0,2; L2(omega)) weights, so that the
     Euclidean geometry scipy uses approximates the function-space one (mesh-independent
-    iterations). A point where the state solver fails returns ``-J = +inf`` equivalents (a large
-    value), which makes the line search backtrack. Stops at ``||G|| <= gtol ||G0||``.
+    iterations). A trial point where the state solver fails gets the value ``-J_best + |J_best| + 1``
+    (worse than any point seen) and the last gradient, so the line search backtracks. Stops when
+    the projected gradient norm is ``<= gtol`` times its initial value.
     """
     start = time.perf_counter()
     margin = _default_margin(J) if tau_margin is None else tau_margin
@@ -204,7 +217,7 @@ def lbfgsb(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gt
     scale = np.sqrt(J.s_weights[:, None] * lumped[None, :])  # z = scale * xi
     shape = m0.xi.shape
     res = OptimizationResult(m0, np.nan, 0, False, "")
-    state = {"g0": None, "last": None}
+    state = {"target": None, "last": None, "best": -np.inf, "grad": None}
 
     def to_point(z):
         return ControlPoint(z[:-1].reshape(shape) / scale, float(z[-1]))
@@ -214,40 +227,44 @@ def lbfgsb(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gt
         out = _safe_eval(evaluate, m)
         if out is None:
             res.failed_trials += 1
-            return 1e30, np.zeros_like(z)
+            return -state["best"] + abs(state["best"]) + 1.0, state["grad"]
         value, g = out
         dual = _dual(J, g)  # dJ/dxi as a dual vector
-        grad_z = np.concatenate([(dual.xi / scale).ravel(), [dual.tau]])
+        grad_z = -np.concatenate([(dual.xi / scale).ravel(), [dual.tau]])
         state["last"] = (m, value, g)
-        if state["g0"] is None:
-            state["g0"] = J.norm(g)
-        return -value, -grad_z
+        state["best"], state["grad"] = max(state["best"], value), grad_z
+        return -value, grad_z
 
     def cb(z):
         m, value, g = state["last"]
+        gnorm = stationarity(J, m, g, margin, xi_bounds)
         res.iterations += 1
-        _record(res, J, value, g, m, 0.0)
+        _record(res, J, value, g, m, 0.0, gnorm)
         if callback is not None:
             callback(res.iterations, m, value, g)
-        if J.norm(g) <= gtol * state["g0"]:
+        if gnorm <= state["target"]:
             raise StopIteration
 
     lo, hi = xi_bounds
     bounds = [(None if lo is None else lo * s, None if hi is None else hi * s) for s in scale.ravel()]
     bounds.append((margin, J.transform.T - J.transform.eps - margin))
-    z0 = np.concatenate([(m0.xi * scale).ravel(), [np.clip(m0.tau, margin, J.transform.T - J.transform.eps - margin)]])
-    first = fun(z0)
-    m_init, v_init, g_init = state["last"]
-    _record(res, J, v_init, g_init, m_init, 0.0)
-    if first[0] >= 1e30:
+    m_init = _project(J, m0, margin, xi_bounds)
+    z0 = np.concatenate([(m_init.xi * scale).ravel(), [m_init.tau]])
+    if _safe_eval(evaluate, m_init) is None:
         raise SolverError(0, 0.0, "initial point", "the state solver fails at the initial control")
+    fun(z0)
+    _, v_init, g_init = state["last"]
+    g0 = stationarity(J, m_init, g_init, margin, xi_bounds)
+    state["target"] = gtol * g0
+    _record(res, J, v_init, g_init, m_init, 0.0, g0)
     out = sopt.minimize(fun, z0, jac=True, method="L-BFGS-B", bounds=bounds, callback=cb,
                         options={"maxiter": max_iter, "maxcor": memory, "gtol": 0.0, "ftol": 1e-15})
-    m, value, g = state["last"]
-    final = evaluate(to_point(out.x))
-    res.point, res.objective = to_point(out.x), final[0]
-    res.converged = J.norm(final[1]) <= gtol * state["g0"] or res.iterations == 0 and J.norm(final[1]) == 0
-    res.message = "||G|| <= gtol ||G0||" if res.converged else str(out.message)
+    point = to_point(out.x)
+    value, g = evaluate(point)
+    gnorm = stationarity(J, point, g, margin, xi_bounds)
+    res.point, res.objective = point, value
+    res.converged = gnorm <= state["target"]
+    res.message = "projected ||G|| <= gtol ||G0||" if res.converged else str(out.message)
     res.wall_time = time.perf_counter() - start
     res.evaluations = {"state_solves": J.counts["state"], "adjoint_solves": J.counts["adjoint"], "cache_hits": evaluate.hits}
     return res

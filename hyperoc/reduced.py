@@ -56,7 +56,7 @@ class ReducedFunctional:
     Parameters
     ----------
     model : StateModel with a control operator.
-    transform : TimeTransform (its eps must match the objective's).
+    transform : TimeTransform (its eps must match the objective's when the objective uses one).
     objective : Objective.
     scheme, solver : time-stepping options (multiplier "step").
     u0, v0 : initial state (reduced vectors), zero by default.
@@ -66,7 +66,7 @@ class ReducedFunctional:
                  scheme: Scheme = Scheme(), solver="auto", u0=None, v0=None):
         if model.control is None:
             raise InputError("the optimal control problem needs a model with a control operator")
-        if abs(transform.eps - objective.eps) > 1e-14:
+        if objective.eps and abs(transform.eps - objective.eps) > 1e-14:
             raise InputError(f"time transform eps = {transform.eps} differs from the objective's eps = {objective.eps}")
         self.model, self.transform, self.objective = model, transform, objective
         self.stepper = TimeStepper(model, scheme, solver)

@@ -1,0 +1,182 @@
+"""``hyperoc reproduce paper-1d``: the paper's 1D experiment, and what it takes to interpret it.
+
+Runs, all from ``(xi, tau) = (0, T/2)`` on the setup of Table ``tab-param``:
+
+1. ``algorithm1/`` (also copied to the top level): the paper's Algorithm 1 as stated (Armijo, then
+   Barzilai-Borwein, unconstrained control);
+2. ``ray.json``: J along ``s * xi*`` for the control Algorithm 1 ends with (is there an interior
+   maximum, or does J grow until the body inverts?);
+3. ``bounded/``: the well-posed variant with a pointwise bound ``|xi| <= xi_max`` (projected
+   Algorithm 1; the paper's Remark ``rk-box`` in pointwise form);
+4. ``resolution.json`` (skipped with ``quick``): the bounded variant again with dt halved and with
+   h halved.
+
+The top-level ``summary.json`` gathers every run next to the paper's reported values.
+"""
+
+from __future__ import annotations
+
+import shutil
+import time
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from .config import Config, parse_config
+from .errors import SolverError
+from .io import write_json
+from .reduced import ControlPoint
+from .workflows import optimize_single, write_optimization_outputs
+
+__all__ = ["paper_config", "reproduce_paper_1d", "PAPER_REPORT"]
+
+PAPER_REPORT = {
+    "tau": 7.9,
+    "tau0": 7.5,
+    "control_off_from_t": 7.48,
+    "pressure_maxima_near_t": [6.3, 7.9],
+    "source": "Court, section 'Results' (Figures figControl, fig-pressure)",
+}
+
+XI_MAX = 0.05  # bound of the well-posed variant (same order as the control the paper's figures suggest)
+
+
+def paper_config() -> Config:
+    """The shipped configuration of Table tab-param (``hyperoc/data/paper-1d.toml``)."""
+    import tomllib
+
+    text = resources.files("hyperoc").joinpath("data/paper-1d.toml").read_text()
+    return parse_config(tomllib.loads(text))
+
+
+def _with(cfg: Config, **changes) -> Config:
+    sections = {k: dict(v) for k, v in cfg.sections.items()}
+    for dotted, value in changes.items():
+        section, key = dotted.split("__")
+        sections[section][key] = value
+    return Config(sections, cfg.base)
+
+
+def _run(cfg: Config, tau0: float, out: Path, *, progress: bool, xi_bounds=None, label: str) -> dict:
+    started = time.perf_counter()
+    if xi_bounds is not None:
+        cfg = _with(cfg, optimize__xi_bounds=list(xi_bounds))
+    J, res = _optimize(cfg, tau0, out, progress, xi_bounds)
+    summary = write_optimization_outputs(out, cfg, J, res, extra={"label": label})
+    sol = J.state(res.point)
+    return {
+        "label": label,
+        "folder": out.name,
+        "dt": float(cfg["dynamics"]["dt"]),
+        "h": 1.0 / cfg["mesh"]["n"],
+        "xi_bounds": None if xi_bounds is None else list(xi_bounds),
+        "tau": summary["tau"],
+        "objective": summary["objective"],
+        "iterations": summary["iterations"],
+        "converged": summary["converged"],
+        "message": res.message,
+        "grad_norm_first_last": [summary["grad_norm_history"][0], summary["grad_norm_history"][-1]],
+        "min_det_F": float(sol.min_det_F.min()),
+        "max_abs_xi": float(np.max(np.abs(res.point.xi))),
+        "control_off_from_t": _control_off_time(sol.t, res.point.xi),
+        "pressure_local_maxima_t": _local_maxima(sol.t, sol.pressure),
+        "warnings": sol.warnings,
+        "wall_time_s": time.perf_counter() - started,
+    }, J, res
+
+
+def _optimize(cfg, tau0, out, progress, xi_bounds):
+    from .optimize import barzilai_borwein
+    from .workflows import build_reduced, _progress_bar
+
+    if xi_bounds is None:
+        return optimize_single(cfg, tau0, checkpoint=out / "checkpoint", progress=progress)
+    J = build_reduced(cfg, tau0)
+    o = cfg["optimize"]
+    bar = _progress_bar(progress, o["max_iter"], "bounded variant")
+    cb = (lambda k, m, v, g: bar.update(1)) if bar is not None else None
+    res = barzilai_borwein(J, J.zero(tau0), gtol=o["gtol"], max_iter=o["max_iter"], xi_bounds=tuple(xi_bounds),
+                           checkpoint=out / "checkpoint", callback=cb)
+    if bar is not None:
+        bar.close()
+    return J, res
+
+
+def _control_off_time(t: np.ndarray, xi: np.ndarray, rel: float = 1e-3) -> float | None:
+    """First time after which |xi| stays below ``rel * max|xi|``."""
+    amp = np.max(np.abs(xi), axis=1)
+    if amp.max() == 0:
+        return None
+    on = np.flatnonzero(amp > rel * amp.max())
+    return float(t[min(on[-1] + 1, t.size - 1)])
+
+
+def _local_maxima(t: np.ndarray, p: np.ndarray, keep: int = 4) -> list:
+    """Times of the largest local maxima of p (at most ``keep``), in increasing time."""
+    idx = np.flatnonzero((p[1:-1] > p[:-2]) & (p[1:-1] >= p[2:])) + 1
+    idx = idx[np.argsort(p[idx])[::-1][:keep]]
+    return [float(t[k]) for k in sorted(idx)]
+
+
+def ray_study(J, point: ControlPoint, scales=(0.25, 0.5, 0.75, 1.0, 1.1, 1.25, 1.5, 2.0)) -> list:
+    """J(s xi*, tau*) for several s: where does J stop growing, and why (solver failure, det F)."""
+    rows = []
+    for s in scales:
+        try:
+            value = J(ControlPoint(s * point.xi, point.tau))
+            sol = J.state(ControlPoint(s * point.xi, point.tau))
+            rows.append({"scale": s, "J": value, "min_det_F": float(sol.min_det_F.min())})
+        except SolverError as exc:
+            rows.append({"scale": s, "J": None, "failure": str(exc)})
+    return rows
+
+
+def reproduce_paper_1d(out: Path, *, quick: bool = False, progress: bool = True) -> dict:
+    """Run the studies listed in the module docstring; returns the top-level summary."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    cfg = paper_config()
+    tau0 = float(cfg["optimize"]["tau0"])
+    started = time.perf_counter()
+    runs = {}
+    runs["algorithm1"], J, res = _run(cfg, tau0, out / "algorithm1", progress=progress, label="Algorithm 1 (paper)")
+    _copy_top_level(out / "algorithm1", out)
+    ray = ray_study(J, res.point)
+    write_json(out / "ray.json", ray)
+    runs["bounded"], _, _ = _run(cfg, tau0, out / "bounded", progress=progress, xi_bounds=(-XI_MAX, XI_MAX),
+                                 label=f"bounded |xi| <= {XI_MAX}")
+    resolution = []
+    if not quick:
+        for label, changes in (("dt/2", {"dynamics__dt": cfg["dynamics"]["dt"] / 2}),
+                               ("h/2", {"mesh__n": 2 * cfg["mesh"]["n"]})):
+            row, _, _ = _run(_with(cfg, **changes), tau0, out / f"bounded_{label.replace('/', '')}", progress=progress,
+                             xi_bounds=(-XI_MAX, XI_MAX), label=f"bounded, {label}")
+            resolution.append(row)
+        write_json(out / "resolution.json", resolution)
+    summary = {"paper": PAPER_REPORT, "runs": runs, "ray": ray, "resolution": resolution,
+               "config": cfg.sections, "wall_time_s": time.perf_counter() - started,
+               "tau": runs["algorithm1"]["tau"], "objective": runs["algorithm1"]["objective"]}
+    write_json(out / "summary.json", summary)
+    _print_report(out, summary)
+    return summary
+
+
+def _copy_top_level(src: Path, dst: Path) -> None:
+    for name in ("pressure.png", "control.png", "displacement.png", "velocity.png", "control_snapshots.png",
+                 "history.png", "results.npz"):
+        if (src / name).exists():
+            shutil.copyfile(src / name, dst / name)
+
+
+def _print_report(out: Path, summary: dict) -> None:
+    p = summary["paper"]
+    print(f"paper: tau ~ {p['tau']} (from tau0 = {p['tau0']}), control off from t ~ {p['control_off_from_t']}, "
+          f"pressure maxima near t = {p['pressure_maxima_near_t']}")
+    for key, r in summary["runs"].items():
+        print(f"{r['label']}: tau = {r['tau']:.4f}, J = {r['objective']:.5g}, iterations = {r['iterations']}, "
+              f"converged = {r['converged']}, min det F = {r['min_det_F']:.3g}, control off from t = {r['control_off_from_t']}, "
+              f"pressure maxima at t = {[round(x, 2) for x in r['pressure_local_maxima_t']]}")
+    for r in summary["resolution"]:
+        print(f"{r['label']}: tau = {r['tau']:.4f}, J = {r['objective']:.5g}, converged = {r['converged']}")
+    print(f"-> {out / 'summary.json'} ({summary['wall_time_s']:.0f} s)")

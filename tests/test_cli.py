@@ -1,0 +1,108 @@
+"""The command line: outputs of simulate/check-gradient, and bad input -> one line, exit status 2."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hyperoc.cli import main
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+SMALL_1D = """
+[mesh]
+kind = "interval"
+n = 20
+[material]
+law = "svk"
+mu = 0.05
+lambda = 0.05
+[dynamics]
+T = 2.0
+dt = 0.05
+kappa = 2e-3
+[control]
+kind = "body_force"
+region = { kind = "box", lower = [0.75], upper = [1.0] }
+value = "0.05 * sin(pi * t)"
+[objective]
+alpha = 2e-3
+[optimize]
+tau0 = 1.0
+max_iter = 4
+"""
+
+
+def _write(tmp_path, text, name="c.toml"):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def test_simulate_writes_outputs(tmp_path):
+    cfg = _write(tmp_path, SMALL_1D)
+    assert main(["simulate", str(cfg), "--out", str(tmp_path / "out"), "--no-progress"]) == 0
+    out = tmp_path / "out"
+    summary = json.loads((out / "summary.json").read_text())
+    data = np.load(out / "results.npz")
+    for key in ("t", "p", "volume", "nodes", "displacement", "xi"):
+        assert key in data
+    assert data["displacement"].shape == (41, 21, 1)
+    assert summary["volume_drift"] < 1e-12
+    assert (out / "pressure.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (out / summary["files"]["time_series"]).exists()
+
+
+def test_check_gradient_json(tmp_path, capsys):
+    cfg = _write(tmp_path, SMALL_1D)
+    assert main(["check-gradient", str(cfg), "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert set(res) == {"xi", "tau", "joint"}
+    for r in res.values():
+        assert 1.9 <= r["rate"] <= 2.1
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (("mu = 0.05", 'mu = "soft"'), "mu must be a number"),
+        (("mu = 0.05", "mu = -1.0"), "mu must be > 0"),
+        (("dt = 0.05", "dt = 0.0"), "dt > 0"),
+        (("lower = [0.75], upper = [1.0]", "lower = [2.0], upper = [3.0]"), "contains no cell"),
+        (("tau0 = 1.0", "tau0 = 5.0"), "tau"),
+        (('kind = "interval"', 'kind = "file"\nfile = "missing.msh"'), "mesh file not found"),
+        (("[objective]", "[objektive]"), "unknown section"),
+    ],
+)
+def test_bad_input_exit_2(tmp_path, change, message):
+    cfg = _write(tmp_path, SMALL_1D.replace(*change))
+    cmd = "optimize" if "tau0" in change[1] else "simulate"
+    proc = subprocess.run([sys.executable, "-m", "hyperoc.cli", cmd, str(cfg), "--out", str(tmp_path / "o"), "--no-progress"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("hyperoc: error:") and message in lines[0], proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+def test_missing_config_exit_2(tmp_path):
+    assert main(["simulate", str(tmp_path / "nope.toml"), "--out", str(tmp_path / "o")]) == 2
+
+
+def test_solver_failure_names_step(tmp_path, capsys):
+    cfg = _write(tmp_path, SMALL_1D.replace('value = "0.05 * sin(pi * t)"', 'value = "50.0 * t"'))
+    assert main(["simulate", str(cfg), "--out", str(tmp_path / "o"), "--no-progress"]) == 1
+    err = capsys.readouterr().err
+    assert "solver failed at step" in err and ("detF" in err or "newton" in err or "nonfinite" in err)
+
+
+@pytest.mark.parametrize("name", ["simulate-1d.toml", "annulus-2d.toml"])
+def test_examples_parse(name):
+    from hyperoc.config import load_config
+
+    cfg = load_config(EXAMPLES / name)
+    model = cfg.model()
+    assert model.n > 0 and model.control is not None
