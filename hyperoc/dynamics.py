@@ -281,8 +281,11 @@ class TimeStepper:
         MinvG = lu.solve(G)
         return float((MinvG @ (L - A) + y1 @ np.asarray(Hy1)) / (G @ MinvG))
 
-    def run(self, grid: TimeGrid, xi=None, *, u0=None, v0=None, external=None, progress: bool = False) -> StateSolution:
+    def run(self, grid: TimeGrid, xi=None, *, u0=None, v0=None, external=None, progress: bool = False,
+            diagnose: bool = True) -> StateSolution:
         """Integrate on ``grid`` with nodal controls ``xi`` (N+1, n_ctrl) (None = no control).
+
+        ``diagnose``: run `detect_regimes` on the result (optimizers skip it inside their loops).
 
         ``external``: external load vectors per level, (N+1, n), or a callable ``t -> (n,)``
         (e.g. ``lambda t: model.load_vector(traction=g, t=t)``); default: the model's constant traction.
@@ -309,11 +312,16 @@ class TimeStepper:
         Y1 = np.concatenate([y1[None], Y1n])
         if self.scheme.multiplier == "theta":
             P = np.concatenate([[p0], P])
-        vol = np.array([float(m.jitted["volume"](jnp.asarray(y))) for y in Y0])
+        vol = np.asarray(self._volumes(jnp.asarray(Y0)))
         sol = StateSolution(m, grid.t, Y0, Y1, P, level_pressure(P, grid.dt, self.scheme.multiplier), vol,
                             its, mindet, maxgrad, xis if m.control is not None else None, wall)
-        sol.warnings = detect_regimes(sol)
+        if diagnose:
+            sol.warnings = detect_regimes(sol)
         return sol
+
+    @cached_property
+    def _volumes(self):
+        return jax.jit(jax.vmap(self.model.volume))
 
     def _controls(self, xi, N) -> np.ndarray:
         nc = self.model.control.size if self.model.control is not None else 0

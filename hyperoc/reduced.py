@@ -123,7 +123,7 @@ class ReducedFunctional:
         key = (m.tau, m.xi.tobytes())
         if key != self._cache_key:
             grid = self.transform.grid(m.tau)
-            sol = self.stepper.run(grid, m.xi, u0=self.u0, v0=self.v0)
+            sol = self.stepper.run(grid, m.xi, u0=self.u0, v0=self.v0, diagnose=False)
             self.counts["state"] += 1
             self._cache_key, self._cache = key, sol
         return self._cache

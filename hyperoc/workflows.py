@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from .config import Config
-from .dynamics import TimeStepper
+from .dynamics import TimeStepper, detect_regimes
 from .errors import InputError
 from .io import read_json, write_json
 from .optimize import OptimizationResult, barzilai_borwein, lbfgsb
@@ -79,6 +79,7 @@ def _progress_bar(enabled: bool, total: int, desc: str):
 
 def write_optimization_outputs(out: Path, cfg: Config, J: ReducedFunctional, res: OptimizationResult, extra=None) -> dict:
     sol = J.state(res.point)
+    sol.warnings = detect_regimes(sol)
     parts = J.objective.parts(J.trajectory(sol))
     summary = {**res.summary(), "objective_terms": parts, "tau0": float(res.history["tau"][0]),
                **(extra or {})}

@@ -1,0 +1,56 @@
+"""Paper's 1D case (N = 100 P1, 750 steps): state solve and gradient, after JIT warm-up.
+
+Prints absolute times and the ratios against a baseline run in this same script: the same state
+solve with the dense-LU solver instead of the tridiagonal one (both compiled into one lax.scan).
+
+    python bench/bench_1d.py
+"""
+
+import time
+
+import numpy as np
+
+import hyperoc as ho
+from hyperoc.workflows import build_reduced
+
+
+def best_of(fn, repeat=5):
+    fn()  # warm-up (JIT compilation)
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return min(times)
+
+
+def main():
+    cfg = ho.load_config("examples/paper-1d.toml")
+    model = cfg.model()
+    grid = cfg.grid()
+    xi = 0.05 * np.sin(2 * np.pi * grid.t / 3)[:, None] * np.ones((1, model.control.size))
+    fs = np.zeros((grid.t.size, model.n))
+    rows = {}
+    for solver in ("tridiagonal", "dense"):
+        st = ho.TimeStepper(model, cfg.scheme(), solver)
+        V0 = float(model.volume(np.zeros(model.n)))
+        scan = lambda st=st, V0=V0: np.asarray(st._scan(np.zeros(model.n), np.zeros(model.n), 0.0, xi, fs, grid.dt, V0)[0])
+        rows[f"state solve (lax.scan, {solver})"] = best_of(scan)
+        rows[f"state solve + diagnostics (TimeStepper.run, {solver})"] = best_of(lambda: st.run(grid, xi), repeat=3)
+    J = build_reduced(cfg, 7.5, model)
+    m = ho.ControlPoint(0.05 * np.ones((J.N + 1, model.control.size)), 7.5)
+    k = [0]
+
+    def grad():
+        k[0] += 1  # a new point each time, so the state cache is not hit
+        J.value_and_gradient(ho.ControlPoint(m.xi * (1 + 1e-9 * k[0]), 7.5))
+
+    rows["gradient (state + adjoint + Riesz map)"] = best_of(grad)
+    base = rows["state solve (lax.scan, dense)"]
+    print(f"{'what':60s} {'seconds':>10s} {'/ dense-scan baseline':>22s}")
+    for name, sec in rows.items():
+        print(f"{name:60s} {sec:10.4f} {sec / base:22.3f}")
+
+
+if __name__ == "__main__":
+    main()
