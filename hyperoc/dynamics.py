@@ -296,6 +296,7 @@ class TimeStepper:
         y1 = np.zeros(m.n) if v0 is None else np.asarray(v0, dtype=np.float64)
         xis = self._controls(xi, N)
         fs = self.external_loads(external, grid)
+        self._check_initial_velocity(y0, y1)
         V0 = float(m.jitted["volume"](jnp.asarray(y0)))
         p0 = self.initial_pressure(y0, y1, xis[0], fs[0]) if self.scheme.multiplier == "theta" else 0.0
         start = _time.perf_counter()
@@ -331,6 +332,15 @@ class TimeStepper:
         if xi.shape != (N + 1, nc):
             raise InputError(f"control array must have shape (N+1, n_ctrl) = {(N + 1, nc)}, got {xi.shape}")
         return xi
+
+    def _check_initial_velocity(self, y0, y1) -> None:
+        """The constraint's time derivative ``G(u0) . v0 = 0`` must hold: an incompatible v0 would
+        leave an undamped alternating velocity at the constrained boundary."""
+        G = np.asarray(self.model.volume_gradient(jnp.asarray(y0)))
+        scale = np.linalg.norm(G) * max(np.linalg.norm(y1), 1e-300)
+        if abs(G @ y1) > 1e-10 * scale:
+            raise InputError(f"initial velocity violates the volume constraint: G(u0).v0 = {G @ y1:.3g} "
+                             "(it must be 0; project v0 onto G(u0)^perp)")
 
     def external_loads(self, external, grid) -> np.ndarray:
         n, N = self.model.n, grid.num_steps

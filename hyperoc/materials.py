@@ -215,21 +215,24 @@ def material_from_config(cfg: dict) -> Material:
     unknown = set(cfg) - names
     if unknown:
         raise InputError(f"material {law!r}: unknown parameter(s) {sorted(unknown)}; expected {sorted(names)}")
+    is_number = lambda x: isinstance(x, (int, float)) and not isinstance(x, bool)
+    defaults = {f.name: f.default for f in fields(cls)}
     kwargs = {}
     for k, v in cfg.items():
-        if isinstance(v, (list, tuple)):
-            if not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
-                raise InputError(f"material {law!r}: {k} must be a list of numbers")
+        if isinstance(defaults[k], tuple):  # a list parameter (Ogden terms)
+            if not (isinstance(v, (list, tuple)) and v and all(is_number(x) for x in v)):
+                raise InputError(f"material {law!r}: {k} must be a non-empty list of numbers, got {v!r}")
             kwargs[k] = tuple(float(x) for x in v)
-        elif isinstance(v, (int, float)) and not isinstance(v, bool):
+        elif is_number(v):
             kwargs[k] = float(v)
         else:
-            raise InputError(f"material {law!r}: {k} must be a number, got {type(v).__name__}")
+            raise InputError(f"material {law!r}: {k} must be a number, got {type(v).__name__} {v!r}")
     return cls(**kwargs).validate()
 
 
 def finite_difference_check(material: Material, F: np.ndarray, h: float = 1e-6) -> tuple[float, float]:
-    """Relative errors of autodiff ``P`` and ``dP/dF`` against central differences of ``W`` and ``P``."""
+    """Errors of autodiff ``P`` and ``dP/dF`` against central differences of ``W`` and ``P``,
+    relative to ``max(|dP/dF|, |P|)``."""
     F = np.asarray(F, dtype=np.float64)
     d = F.shape[0]
     W = lambda G: float(material.energy_of_F(jnp.asarray(G)))
@@ -242,5 +245,6 @@ def finite_difference_check(material: Material, F: np.ndarray, h: float = 1e-6) 
             dF[k, L] = h
             P_fd[k, L] = (W(F + dF) - W(F - dF)) / (2 * h)
             A_fd[:, :, k, L] = (np.asarray(first_piola(material, jnp.asarray(F + dF))) - np.asarray(first_piola(material, jnp.asarray(F - dF)))) / (2 * h)
-    rel = lambda a, b: float(np.linalg.norm(a - b) / max(np.linalg.norm(b), 1e-300))
-    return rel(P, P_fd), rel(A, A_fd)
+    # Relative to the tangent's size, which is not zero at a stress-free state (where P = 0).
+    scale = max(np.linalg.norm(A), np.linalg.norm(P), 1e-300)
+    return float(np.linalg.norm(P - P_fd) / scale), float(np.linalg.norm(A - A_fd) / scale)

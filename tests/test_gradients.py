@@ -32,11 +32,8 @@ def _model_1d(n=30):
                       control=BodyForce(Region("box", lower=(0.75,), upper=(1.0,))))
 
 
-@pytest.mark.parametrize("eps", [0.0, 0.2])
-@pytest.mark.parametrize("phi1", ["pressure", "rise"])
+@pytest.mark.parametrize("phi1, eps", [("pressure", 0.0), ("pressure", 0.2), ("rise", 0.2)])
 def test_taylor_1d(phi1, eps):
-    if phi1 == "rise" and eps == 0.0:
-        pytest.skip("the pressure rise needs eps > 0")
     at_tau = PressureAt() if phi1 == "pressure" else PressureRise(eps)
     # With eps > 0 the transform has three pieces; for p(tau) the middle one only shapes the grid,
     # and the tau-derivative must account for its tau-independent steps.
