@@ -46,7 +46,8 @@ SCHEMA = {
                 "file": (str, ...)},
     "objective": {"phi1": (str, "pressure"), "alpha": (NUMBER, 2e-3), "eps": (NUMBER, 0.0)},
     "optimize": {"method": (str, "bb"), "tau0": (NUMBER, ...), "tau_starts": (list, ...), "max_iter": (int, 100),
-                 "gtol": (NUMBER, 1e-6), "xi_bounds": (list, ...), "tau_margin": (NUMBER, ...)},
+                 "gtol": (NUMBER, 1e-6), "xi_bounds": (list, ...), "tau_margin": (NUMBER, ...),
+                 "gradient": (str, "exact")},
     "output": {"snapshot_times": (list, ...), "series_every": (int, ...)},
 }
 

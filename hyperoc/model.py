@@ -176,6 +176,16 @@ class StateModel:
         """Reduced nodal interpolant of ``fn(x: (n, dim)) -> (n, dim)``; Dirichlet values are dropped."""
         return self.restrict(self.space.interpolate(fn))
 
+    def control_values(self, fn, t) -> np.ndarray:
+        """Nodal control values (len(t), n_ctrl) of a callable ``xi(x, t)``, x of shape (n_nodes, dim),
+        returning (n_nodes,) or (n_nodes, components) (a prescribed control as a Python function)."""
+        if self.control is None:
+            raise InputError("this model has no control operator")
+        x = self.control.coordinates(self.space)
+        rows = [np.broadcast_to(np.asarray(fn(x, float(tk)), dtype=np.float64).reshape(x.shape[0], -1),
+                                (x.shape[0], self.control.components)).ravel() for tk in np.atleast_1d(t)]
+        return np.stack(rows)
+
     # --- traced kernels -------------------------------------------------------------------------
     def deformation_gradient(self, u):
         """F = I + grad u at every quadrature point, (nc, nq, d, d)."""

@@ -60,10 +60,15 @@ class ReducedFunctional:
     objective : Objective.
     scheme, solver : time-stepping options (multiplier "step").
     u0, v0 : initial state (reduced vectors), zero by default.
+    gradient : "exact" (gradient of the discrete J, default) or "continuous" (the paper's
+        optimize-then-discretize gradient, `hyperoc.continuous_adjoint`; for comparison).
     """
 
     def __init__(self, model: StateModel, transform: TimeTransform, objective: Objective, *,
-                 scheme: Scheme = Scheme(), solver="auto", u0=None, v0=None):
+                 scheme: Scheme = Scheme(), solver="auto", u0=None, v0=None, gradient: str = "exact"):
+        if gradient not in ("exact", "continuous"):
+            raise InputError(f"gradient must be 'exact' or 'continuous', got {gradient!r}")
+        self.gradient_method = gradient
         if model.control is None:
             raise InputError("the optimal control problem needs a model with a control operator")
         if objective.eps and abs(transform.eps - objective.eps) > 1e-14:
@@ -171,7 +176,11 @@ class ReducedFunctional:
         return self.value_and_derivative(m)[1]
 
     def value_and_gradient(self, m: ControlPoint) -> tuple[float, ControlPoint]:
-        """J(m) and its Riesz gradient (L2(0,2; L2(omega)) x R)."""
+        """J(m) and its Riesz gradient (L2(0,2; L2(omega)) x R), exact or continuous (see ``gradient``)."""
+        if self.gradient_method == "continuous":
+            from .continuous_adjoint import continuous_gradient
+
+            return self(m), continuous_gradient(self, m)
         J, d = self.value_and_derivative(m)
         return J, self.riesz(d)
 

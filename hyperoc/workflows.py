@@ -38,7 +38,7 @@ def simulate(cfg: Config, out, *, progress: bool = False) -> dict:
 def build_reduced(cfg: Config, tau0: float, model=None) -> ReducedFunctional:
     model = model or cfg.model()
     return ReducedFunctional(model, cfg.transform(tau0), cfg.objective(), scheme=cfg.scheme(),
-                             solver=cfg["dynamics"]["solver"])
+                             solver=cfg["dynamics"]["solver"], gradient=cfg["optimize"]["gradient"])
 
 
 def optimize_single(cfg: Config, tau0: float, *, checkpoint=None, method: str | None = None, progress: bool = False,
