@@ -1,0 +1,63 @@
+"""Control operators and prescribed controls (callable, expression string, NPZ)."""
+
+import numpy as np
+import pytest
+
+from hyperoc import ActiveStress, BodyForce, InputError, Region, SaintVenantKirchhoff, StateModel, interval, rectangle
+from hyperoc.config import parse_config
+
+
+def test_active_stress_1d_is_the_boundary_difference():
+    """1D, fibre = 1, omega = whole bar: <f(xi), phi> = int xi phi_x = xi (phi(1) - phi(0)) for a
+    constant xi: the load is xi at x = 1 and nothing elsewhere (x = 0 is clamped)."""
+    m = StateModel(interval(8), SaintVenantKirchhoff(), control=ActiveStress(Region()))
+    load = m.control.load @ np.full(m.control.size, 0.3)
+    expected = np.zeros(m.n)
+    expected[-1] = 0.3
+    np.testing.assert_allclose(load, expected, atol=1e-14)
+
+
+def test_body_force_load_integrates_the_force():
+    """sum of the load vector = int_omega xi . e over the free dofs plus the clamped ones' share."""
+    mesh = rectangle(4, dirichlet="left")
+    m = StateModel(mesh, SaintVenantKirchhoff(), control=BodyForce(Region("box", lower=(0.5, 0.0), upper=(1.0, 1.0))))
+    xi = np.tile([1.0, 0.0], m.control.size // 2)
+    assert float(xi @ (m.control.mass @ xi)) == pytest.approx(0.5)  # ||xi||^2 = |omega|
+    assert (m.control.load @ xi).sum() == pytest.approx(0.5, rel=1e-12)  # omega does not touch x = 0
+
+
+def test_prescribed_controls_agree_across_sources(tmp_path):
+    text = """
+[mesh]
+kind = "interval"
+n = 10
+[dynamics]
+T = 1.0
+dt = 0.25
+[control]
+kind = "body_force"
+region = { kind = "box", lower = [0.5], upper = [1.0] }
+value = "sin(pi * t) * x"
+"""
+    import tomllib
+
+    cfg = parse_config(tomllib.loads(text), tmp_path)
+    model = cfg.model()
+    t = cfg.grid().t
+    from_expr = cfg.prescribed_control(model, t)
+    from_fn = model.control_values(lambda x, tk: np.sin(np.pi * tk) * x[:, 0], t)
+    np.testing.assert_allclose(from_expr, from_fn, rtol=0, atol=1e-15)
+    np.savez(tmp_path / "xi.npz", xi=from_fn)
+    cfg_npz = parse_config(tomllib.loads(text.replace('value = "sin(pi * t) * x"', 'file = "xi.npz"')), tmp_path)
+    np.testing.assert_array_equal(cfg_npz.prescribed_control(model, t), from_fn)
+    np.savez(tmp_path / "bad.npz", xi=from_fn[:-1])
+    bad = parse_config(tomllib.loads(text.replace('value = "sin(pi * t) * x"', 'file = "bad.npz"')), tmp_path)
+    with pytest.raises(InputError, match="shape"):
+        bad.prescribed_control(model, t)
+
+
+@pytest.mark.parametrize("region", [Region("box", lower=(2.0,), upper=(3.0,)), Region("tag", tag="nope"),
+                                    Region("sector", r_range=(0.1, 0.2))])
+def test_region_errors(region):
+    with pytest.raises(InputError):
+        StateModel(interval(4), SaintVenantKirchhoff(), control=BodyForce(region))
