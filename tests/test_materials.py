@@ -215,7 +215,7 @@ def test_good_config_builds_the_right_law():
     assert material_from_config({"law": "svk", "mu": 0.7, "lambda": 1.3}) == MATERIALS["svk"]
 
 
-@pytest.mark.parametrize("name", list(MATERIALS))
+@pytest.mark.parametrize("name", ["svk", "ogden2"])
 def test_library_finite_difference_check_at_a_generic_state(name):
     """The shipped helper agrees at a generic (stressed) F, where relative errors are well defined.
 
