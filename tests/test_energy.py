@@ -69,6 +69,17 @@ def rate(values):
 # ---- damped, controlled, nonlinear: balance mismatch O(dt^2) ------------------------------------
 
 
+def _smooth_control_study(model, bump, T, A, steps):
+    """Runs with xi = A sin^2(pi t / T) bump(x) on padded uniform grids of the given step counts."""
+    stepper = TimeStepper(model, Scheme(theta=0.5))
+    out = []
+    for n in steps:
+        t = padded_uniform_levels(T, n, max(steps))
+        xi = A * np.sin(np.pi * np.minimum(t, T) / T)[:, None] ** 2 * bump[None, :]
+        out.append((n, stepper.run(TimeGrid(t), xi), xi))
+    return out
+
+
 @lru_cache(maxsize=None)
 def damped_1d():
     """The paper's bar with kappa = 1e-2 and a strong smooth control (min det F ~ 0.91)."""
@@ -77,13 +88,7 @@ def damped_1d():
     x = model.control.coordinates(model.space)[:, 0]
     bump = np.sin(np.pi * (x - 0.75) / 0.25) ** 2
     T, A, steps = 4.0, 0.1, (40, 80, 160)
-    stepper = TimeStepper(model, Scheme(theta=0.5))
-    out = []
-    for n in steps:
-        t = padded_uniform_levels(T, n, max(steps))
-        xi = A * np.sin(np.pi * np.minimum(t, T) / T)[:, None] ** 2 * bump[None, :]
-        out.append((n, stepper.run(TimeGrid(t), xi), xi))
-    return out
+    return _smooth_control_study(model, bump, T, A, steps)
 
 
 @lru_cache(maxsize=None)
@@ -96,13 +101,7 @@ def damped_2d():
     r, ang = np.hypot(x[:, 0], x[:, 1]), np.arctan2(x[:, 1], x[:, 0])
     bump = np.cos(ang / 2) ** 2 * np.sin(np.pi * (r - 0.5) / 0.5) ** 2
     T, A, steps = 2.0, 0.02, (40, 80, 160)
-    stepper = TimeStepper(model, Scheme(theta=0.5))
-    out = []
-    for n in steps:
-        t = padded_uniform_levels(T, n, max(steps))
-        xi = A * np.sin(np.pi * np.minimum(t, T) / T)[:, None] ** 2 * bump[None, :]
-        out.append((n, stepper.run(TimeGrid(t), xi), xi))
-    return out
+    return _smooth_control_study(model, bump, T, A, steps)
 
 
 @pytest.mark.parametrize("case", [damped_1d, damped_2d], ids=["1d", "2d"])
