@@ -38,19 +38,12 @@ class StaticSolution:
         return self.model.expand(self.u)
 
 
-def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None = None, steps: int = 1,
-                 scheme: Scheme = Scheme(), solver="auto", u0=None) -> StaticSolution:
-    """Equilibrium with external load vector ``load`` (n,) and control ``xi``, ramped in ``steps``.
-
-    Raises `SolverError` naming the load step when Newton fails or an element inverts.
-    """
-    lin = make_solver(model, solver) if isinstance(solver, str) else solver
-    B = model.jax_operators[2]
-    f = jnp.zeros(model.n) if load is None else jnp.asarray(load)
-    if xi is not None:
-        f = f + B @ jnp.asarray(xi)
-    u = np.zeros(model.n) if u0 is None else np.asarray(u0, dtype=np.float64)
-    V = float(model.jitted["volume"](jnp.asarray(u))) if volume is None else float(volume)
+def _compiled_solve(model: StateModel, lin, scheme: Scheme):
+    """The jitted Newton solve of one load step, cached on the model per (solver kind, scheme)."""
+    cache = model.__dict__.setdefault("_static_solves", {})
+    key = (type(lin).__name__, getattr(lin, "method", None), scheme)
+    if key in cache:
+        return cache[key]
 
     def residual(x, fk, Vk):
         r = model.internal_force(x[:-1]) + x[-1] * model.volume_gradient(x[:-1]) - fk
@@ -66,6 +59,25 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
                                rtol=scheme.rtol, atol=scheme.atol, max_iter=scheme.max_iter)
         return x, it, status, model.min_det_F(x[:-1])
 
+    cache[key] = solve
+    return solve
+
+
+def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None = None, steps: int = 1,
+                 scheme: Scheme = Scheme(), solver="auto", u0=None) -> StaticSolution:
+    """Equilibrium with external load vector ``load`` (n,) and control ``xi``, ramped in ``steps``.
+
+    Raises `SolverError` naming the load step when Newton fails or an element inverts.
+    """
+    lin = make_solver(model, solver) if isinstance(solver, str) else solver
+    B = model.jax_operators[2]
+    f = jnp.zeros(model.n) if load is None else jnp.asarray(load)
+    if xi is not None:
+        f = f + B @ jnp.asarray(xi)
+    u = np.zeros(model.n) if u0 is None else np.asarray(u0, dtype=np.float64)
+    V = float(model.jitted["volume"](jnp.asarray(u))) if volume is None else float(volume)
+
+    solve = _compiled_solve(model, lin, scheme)
     V_start = float(model.jitted["volume"](jnp.asarray(u)))
     x = jnp.concatenate([jnp.asarray(u), jnp.zeros(1)])
     iters = []
