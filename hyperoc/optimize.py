@@ -93,20 +93,24 @@ class EvaluationCache:
         return out
 
 
-def _project(J: ReducedFunctional, m: ControlPoint, margin: float, xi_bounds=(None, None)) -> ControlPoint:
-    """Projection onto the admissible set: tau in [margin, T - eps - margin], xi in xi_bounds."""
-    lo, hi = margin, J.transform.T - J.transform.eps - margin
+def _project(J: ReducedFunctional, m: ControlPoint, tau_range, xi_bounds=(None, None)) -> ControlPoint:
+    """Projection onto the admissible set: tau in tau_range = (lo, hi), xi in xi_bounds."""
+    lo, hi = tau_range
     xi = m.xi if xi_bounds == (None, None) else np.clip(m.xi, *(b if b is not None else s * np.inf for b, s in zip(xi_bounds, (-1, 1))))
     return ControlPoint(xi, float(np.clip(m.tau, lo, hi)))
 
 
-def stationarity(J: ReducedFunctional, m: ControlPoint, g: ControlPoint, margin: float, xi_bounds=(None, None)) -> float:
+def stationarity(J: ReducedFunctional, m: ControlPoint, g: ControlPoint, tau_range, xi_bounds=(None, None)) -> float:
     """``|| P(m + G) - m ||``: the projected gradient norm (equals ``||G||`` without active bounds)."""
-    return J.norm(_project(J, m + g, margin, xi_bounds) - m)
+    return J.norm(_project(J, m + g, tau_range, xi_bounds) - m)
 
 
-def _default_margin(J: ReducedFunctional) -> float:
-    return 2.0 * float(J.transform.T) / J.N
+def _tau_range(J: ReducedFunctional, tau_margin: float | None, fix_tau: bool, tau0: float) -> tuple:
+    """Admissible tau: ``[margin, T - eps - margin]`` (default margin: two mean steps), or ``tau0`` alone."""
+    if fix_tau:
+        return (float(tau0), float(tau0))
+    margin = 2.0 * float(J.transform.T) / J.N if tau_margin is None else tau_margin
+    return (margin, J.transform.T - J.transform.eps - margin)
 
 
 def _record(res: OptimizationResult, J: ReducedFunctional, value: float, g: ControlPoint, m: ControlPoint, step: float,
@@ -127,28 +131,28 @@ def _safe_eval(evaluate, m):
 
 def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e-6, gtol_abs: float = 0.0,
                      max_iter: int = 200, tau_margin: float | None = None, armijo: float = 0.5,
-                     max_backtracks: int = 30, xi_bounds=(None, None), checkpoint=None,
-                     callback=None) -> OptimizationResult:
+                     max_backtracks: int = 30, xi_bounds=(None, None), fix_tau: bool = False,
+                     checkpoint=None, callback=None) -> OptimizationResult:
     """The paper's Algorithm 1 (maximization): one Armijo step along G0, then Barzilai-Borwein steps.
 
     With ``xi_bounds`` the iterates are projected onto the box (projected BB, the paper's Remark
     ``rk-box`` as a pointwise bound); ``||G||`` is then the projected gradient norm
     ``||P(m + G) - m||``. Stops when it is ``<= max(gtol ||G0||, gtol_abs)`` or after ``max_iter``
-    iterations. The BB step
+    iterations. ``fix_tau`` optimizes the control only (tau stays at ``m0.tau``). The BB step
     is ``alpha = <s, s> / <s, -y>`` (s = m_k - m_{k-1}, y = G_k - G_{k-1}); when it is not positive
     (J locally not concave along s) the iteration takes an Armijo step from ``|s| / |y|``.
     A trial point where the state solver fails is rejected and its step halved.
     """
     start = time.perf_counter()
-    margin = _default_margin(J) if tau_margin is None else tau_margin
+    tau_range = _tau_range(J, tau_margin, fix_tau, m0.tau)
     evaluate = EvaluationCache(J, checkpoint)
     res = OptimizationResult(m0, np.nan, 0, False, "")
-    m = _project(J, m0, margin, xi_bounds)
+    m = _project(J, m0, tau_range, xi_bounds)
     first = _safe_eval(evaluate, m)
     if first is None:
         raise SolverError(0, 0.0, "initial point", "the state solver fails at the initial control")
     value, g = first
-    gnorm = stationarity(J, m, g, margin, xi_bounds)
+    gnorm = stationarity(J, m, g, tau_range, xi_bounds)
     _record(res, J, value, g, m, 0.0, gnorm)
     target = max(gtol * gnorm, gtol_abs)
     m_prev = g_prev = None
@@ -163,14 +167,14 @@ def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e
             curv = -J.inner(s, y)
             # BB1 step; where J is not concave along s, the scale-free |s|/|y| with a monotone search.
             alpha = J.inner(s, s) / curv if curv > 0 else J.norm(s) / max(J.norm(y), 1e-300)
-        step = _ascent_step(J, evaluate, m, value, g, alpha, margin, xi_bounds, armijo, max_backtracks,
+        step = _ascent_step(J, evaluate, m, value, g, alpha, tau_range, xi_bounds, armijo, max_backtracks,
                             monotone=(m_prev is None or curv <= 0), res=res)
         if step is None:
             res.message = "no admissible step (state solver fails or no ascent along G)"
             break
         m_prev, g_prev = m, g
         m, value, g, alpha = step
-        gnorm = stationarity(J, m, g, margin, xi_bounds)
+        gnorm = stationarity(J, m, g, tau_range, xi_bounds)
         res.iterations = k
         _record(res, J, value, g, m, alpha, gnorm)
         if callback is not None:
@@ -184,11 +188,11 @@ def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e
     return res
 
 
-def _ascent_step(J, evaluate, m, value, g, alpha, margin, xi_bounds, armijo, max_backtracks, monotone, res):
+def _ascent_step(J, evaluate, m, value, g, alpha, tau_range, xi_bounds, armijo, max_backtracks, monotone, res):
     """Trial ``P(m + alpha G)``; backtrack on solver failure, and on lack of ascent when
     ``monotone`` (Armijo: sufficient increase ``1e-4 <G, trial - m>``)."""
     for _ in range(max_backtracks):
-        trial = _project(J, m + g * alpha, margin, xi_bounds)
+        trial = _project(J, m + g * alpha, tau_range, xi_bounds)
         out = _safe_eval(evaluate, trial)
         if out is None:
             res.failed_trials += 1
@@ -199,8 +203,8 @@ def _ascent_step(J, evaluate, m, value, g, alpha, margin, xi_bounds, armijo, max
 
 
 def lbfgsb(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gtol: float = 1e-6,
-           max_iter: int = 200, tau_margin: float | None = None, memory: int = 10, checkpoint=None,
-           callback=None) -> OptimizationResult:
+           max_iter: int = 200, tau_margin: float | None = None, memory: int = 10, fix_tau: bool = False,
+           checkpoint=None, callback=None) -> OptimizationResult:
     """L-BFGS-B (scipy) on ``-J`` with bounds ``xi_bounds`` on every control value and tau in
     ``[tau_margin, T - eps - tau_margin]``.
 
@@ -211,7 +215,7 @@ def lbfgsb(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gt
     the projected gradient norm is ``<= gtol`` times its initial value.
     """
     start = time.perf_counter()
-    margin = _default_margin(J) if tau_margin is None else tau_margin
+    tau_range = _tau_range(J, tau_margin, fix_tau, m0.tau)
     evaluate = EvaluationCache(J, checkpoint)
     lumped = np.asarray(J.model.control.mass.sum(axis=1)).ravel()
     scale = np.sqrt(J.s_weights[:, None] * lumped[None, :])  # z = scale * xi
@@ -237,7 +241,7 @@ def lbfgsb(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gt
 
     def cb(z):
         m, value, g = state["last"]
-        gnorm = stationarity(J, m, g, margin, xi_bounds)
+        gnorm = stationarity(J, m, g, tau_range, xi_bounds)
         res.iterations += 1
         _record(res, J, value, g, m, 0.0, gnorm)
         if callback is not None:
@@ -247,21 +251,21 @@ def lbfgsb(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gt
 
     lo, hi = xi_bounds
     bounds = [(None if lo is None else lo * s, None if hi is None else hi * s) for s in scale.ravel()]
-    bounds.append((margin, J.transform.T - J.transform.eps - margin))
-    m_init = _project(J, m0, margin, xi_bounds)
+    bounds.append(tau_range)
+    m_init = _project(J, m0, tau_range, xi_bounds)
     z0 = np.concatenate([(m_init.xi * scale).ravel(), [m_init.tau]])
     if _safe_eval(evaluate, m_init) is None:
         raise SolverError(0, 0.0, "initial point", "the state solver fails at the initial control")
     fun(z0)
     _, v_init, g_init = state["last"]
-    g0 = stationarity(J, m_init, g_init, margin, xi_bounds)
+    g0 = stationarity(J, m_init, g_init, tau_range, xi_bounds)
     state["target"] = gtol * g0
     _record(res, J, v_init, g_init, m_init, 0.0, g0)
     out = sopt.minimize(fun, z0, jac=True, method="L-BFGS-B", bounds=bounds, callback=cb,
                         options={"maxiter": max_iter, "maxcor": memory, "gtol": 0.0, "ftol": 1e-15})
     point = to_point(out.x)
     value, g = evaluate(point)
-    gnorm = stationarity(J, point, g, margin, xi_bounds)
+    gnorm = stationarity(J, point, g, tau_range, xi_bounds)
     res.point, res.objective = point, value
     res.converged = gnorm <= state["target"]
     res.message = "projected ||G|| <= gtol ||G0||" if res.converged else str(out.message)

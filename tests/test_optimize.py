@@ -92,3 +92,18 @@ def test_time_shift_of_a_control_keeps_J():
     xi2 = np.zeros((J2.N + 1, xi1.shape[1]))
     xi2[shift: shift + n1 + 1] = xi1[: n1 + 1]
     assert J2(ControlPoint(xi2, 1.5)) == pytest.approx(J1(ControlPoint(xi1, 1.0)), rel=1e-9, abs=1e-15)
+
+
+def test_optimal_value_does_not_decrease_with_tau():
+    """The property itself, on a small well-posed case: maximize over xi at fixed tau (zero initial
+    state) for tau = 0.8, 1.2, 1.6; each optimum is converged to ||G|| <= 1e-6 ||G0||; near a
+    nondegenerate maximum the value error is quadratic in that (~1e-12 relative), so the optimal
+    values must be non-decreasing up to 1e-8 relative."""
+    values = []
+    for tau in (0.8, 1.2, 1.6):
+        J = _J(tau=tau, T=2.4, dt=0.05, alpha=0.1, omega=(0.25, 0.5), material=NeoHookean(0.05, 0.05))
+        res = barzilai_borwein(J, J.zero(tau), fix_tau=True, gtol=1e-6, max_iter=200)
+        assert res.converged and res.point.tau == tau
+        values.append(res.objective)
+    assert values[0] > 0
+    assert all(b >= a * (1 - 1e-8) for a, b in zip(values, values[1:])), values
