@@ -1,0 +1,183 @@
+"""State solves on the sparse path: 2D annulus P2 (~20k dofs) and 3D thick shell P1 (~30k dofs).
+
+Per linear-solver variant: seconds per step, per Newton iteration and per dof-step, and the split
+between the host linear solve (`SparseSolver.stats`: blocks -> matrix, factorization, solves and
+refinement) and the rest of the step (JAX: element tangents, residuals, line search, callback).
+Ratios are against a baseline run in this same script: ``lu_colamd``, the sparse LU of hyperoc
+before the linsolve changes (CSR -> CSC conversion and a COLAMD ordering at every factorization,
+kept here verbatim as a subclass).
+
+    python bench/bench_2d3d.py --case 2d                        # 500 steps, every variant
+    python bench/bench_2d3d.py --case 3d --steps 10             # fewer steps (per-step figures)
+    python bench/bench_2d3d.py --case 2d --methods lu,lu_reuse --steps 500
+
+Variants: ``lu_colamd`` (baseline), ``minres_amg`` (previous MINRES: smoothed-aggregation AMG of
+|K| set up at every call), and the current ``SparseSolver`` methods ``lu``, ``lu_reuse``,
+``minres`` (see hyperoc/linsolve.py). All variants of one invocation run the same steps; the
+first step of each is run once before timing (JIT compilation), then the solver is reset.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numpy as np
+import scipy.sparse.linalg as spla
+
+import hyperoc as ho
+from hyperoc.geometry import annulus, thick_shell
+from hyperoc.linsolve import SparseSolver
+
+
+class BaselineLU(SparseSolver):
+    """The sparse LU as it was: CSR -> CSC and SuperLU with its default COLAMD ordering per call."""
+
+    def host_solve(self, blocks, col, row, r_u, r_c):
+        t0 = time.perf_counter()
+        K = self.pattern.matrix(np.asarray(blocks)).tocsc()
+        t1 = time.perf_counter()
+        rhs = np.stack([np.asarray(r_u), np.asarray(col)], axis=1)
+        lu = spla.splu(K)
+        t2 = time.perf_counter()
+        ab = lu.solve(rhs)
+        t3 = time.perf_counter()
+        a, b = ab[:, 0], ab[:, 1]
+        row = np.asarray(row)
+        q = (row @ a - float(r_c)) / (row @ b)
+        s = self.stats
+        s["calls"] += 1
+        s["factorizations"] += 1
+        s["assembly_s"] += t1 - t0
+        s["factor_s"] += t2 - t1
+        s["solve_s"] += t3 - t2
+        s["host_s"] += time.perf_counter() - t0
+        return np.concatenate([a - b * q, [q]])
+
+
+class BaselineMinresAMG(SparseSolver):
+    """The previous MINRES: SA-AMG of |K| built at every call, scipy's MINRES to rtol = 1e-13."""
+
+    def host_solve(self, blocks, col, row, r_u, r_c):
+        import pyamg
+
+        t0 = time.perf_counter()
+        K = self.pattern.matrix(np.asarray(blocks)).tocsc()
+        t1 = time.perf_counter()
+        ml = pyamg.smoothed_aggregation_solver(abs(K).tocsr(), symmetry="symmetric")
+        t2 = time.perf_counter()
+        out = []
+        for rhs in (np.asarray(r_u), np.asarray(col)):
+            count = [0]
+            x, info = spla.minres(K, rhs, M=ml.aspreconditioner(), rtol=1e-13, maxiter=2000,
+                                  callback=lambda _: count.__setitem__(0, count[0] + 1))
+            self.stats["iterations"] += count[0]
+            if info != 0:
+                raise np.linalg.LinAlgError(f"MINRES did not converge (info = {info})")
+            out.append(x)
+        t3 = time.perf_counter()
+        a, b = out
+        row = np.asarray(row)
+        q = (row @ a - float(r_c)) / (row @ b)
+        s = self.stats
+        s["calls"] += 1
+        s["assembly_s"] += t1 - t0
+        s["factor_s"] += t2 - t1  # AMG setup
+        s["solve_s"] += t3 - t2
+        s["host_s"] += time.perf_counter() - t0
+        return np.concatenate([a - b * q, [q]])
+
+
+def solver_for(model, name):
+    if name == "lu_colamd":
+        return BaselineLU(model, "lu")
+    if name == "minres_amg":
+        return BaselineMinresAMG(model, "minres")
+    return SparseSolver(model, name)
+
+
+def case_2d():
+    """Annulus r in (0.5, 1), 16 x 152 structured cells, P2; outer circle clamped; active stress on a sector."""
+    mesh = annulus(0.5, 1.0, structured=True, n_radial=16, n_theta=152)
+    control = ho.ActiveStress(ho.Region("sector", r_range=(0.5, 1.0), theta_range=(-0.8, 0.8)))
+    model = ho.StateModel(mesh, ho.NeoHookean(1.0, 5.0), degree=2, kappa=0.01, control=control)
+    T, dt, steps = 10.0, 0.02, 500
+    profile = lambda t: 0.2 * np.sin(np.pi * t / 2) ** 2  # smooth, starts at rest
+    return model, T, dt, steps, lambda t: profile(t)[:, None] * np.ones((1, model.control.size))
+
+
+def case_3d(h=0.063):
+    """Thick spherical shell r in (0.5, 1), Gmsh h = 0.063, P1; outer sphere clamped; body force on the cap z > 0.6."""
+    mesh = thick_shell(0.5, 1.0, h=h)
+    control = ho.BodyForce(ho.Region("box", lower=(-1.0, -1.0, 0.6), upper=(1.0, 1.0, 1.0)))
+    model = ho.StateModel(mesh, ho.NeoHookean(1.0, 5.0), degree=1, kappa=0.01, control=control)
+    T, dt, steps = 2.0, 0.01, 200
+    direction = np.tile([0.0, 0.0, -1.0], model.control.size // 3)  # push the cap inwards
+
+    def xi(t):
+        return 0.5 * np.sin(np.pi * t / 2)[:, None] ** 2 * direction[None, :]
+
+    return model, T, dt, steps, xi
+
+
+def run_variant(model, grid, xi, name):
+    solver = solver_for(model, name)
+    st = ho.TimeStepper(model, ho.Scheme(), solver)
+    t0 = time.perf_counter()
+    st.run(ho.TimeGrid(grid.t[:2]), xi[:2], diagnose=False)  # JIT compilation (and the ordering: set-up)
+    setup = time.perf_counter() - t0
+    solver._lu = None  # no factorization carried into the timed run
+    solver.reset_stats()
+    t0 = time.perf_counter()
+    sol = st.run(grid, xi, diagnose=False)
+    wall = time.perf_counter() - t0
+    s = dict(solver.stats)
+    its = int(np.sum(sol.newton_iterations))
+    steps = grid.num_steps
+    return {"method": name, "dofs": model.n, "steps": steps, "wall_s": wall, "setup_s": setup, "newton_its": its,
+            "s_per_step": wall / steps, "s_per_newton": wall / its, "us_per_dof_step": 1e6 * wall / (steps * model.n),
+            "linear_s": s["host_s"], "jax_s": wall - s["host_s"], "linear_frac": s["host_s"] / wall, **s,
+            "pressure_final": float(sol.pressure[-1]), "volume_drift": sol.volume_drift(),
+            "min_det_F": float(np.min(sol.min_det_F))}
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--case", choices=("2d", "3d"), default="2d")
+    ap.add_argument("--steps", type=int, default=None, help="measure only the first STEPS steps")
+    ap.add_argument("--methods", default="lu_colamd,lu,lu_reuse,minres,minres_amg")
+    ap.add_argument("--json", default=None)
+    args = ap.parse_args()
+    t0 = time.perf_counter()
+    model, T, dt, full_steps, xi_of = case_2d() if args.case == "2d" else case_3d()
+    steps = args.steps or full_steps
+    grid = ho.uniform_grid(T=dt * steps, dt=dt)
+    xi = xi_of(grid.t)
+    print(f"case {args.case}: {model.n} free dofs, {model.mesh.num_cells} cells, nnz(K) = {model.pattern.nnz}, "
+          f"{steps} of {full_steps} steps (dt = {dt}); set-up {time.perf_counter() - t0:.1f} s", flush=True)
+    rows = []
+    for name in args.methods.split(","):
+        try:
+            r = run_variant(model, grid, xi, name)
+        except (ho.SolverError, np.linalg.LinAlgError) as exc:
+            print(f"  {name:11s} FAILED: {exc}", flush=True)
+            continue
+        rows.append(r)
+        print(f"  {name:11s} {r['wall_s']:9.1f} s, {r['newton_its']} Newton its, {r['factorizations']} factorizations, "
+              f"{r['iterations']} inner its; p_end = {r['pressure_final']:.10g}", flush=True)
+    base = next((r for r in rows if r["method"] == "lu_colamd"), rows[0])
+    print()
+    print(f"{'method':11s} {'s/step':>8s} {'s/Newton':>9s} {'us/dof-step':>11s} {'linear %':>9s} {'factor s':>9s} "
+          f"{'solve s':>8s} {'assem s':>8s} {'JAX s':>8s} {'facts':>6s} {'/ ' + base['method']:>14s}")
+    for r in rows:
+        print(f"{r['method']:11s} {r['s_per_step']:8.3f} {r['s_per_newton']:9.3f} {r['us_per_dof_step']:11.2f} "
+              f"{100 * r['linear_frac']:8.1f}% {r['factor_s']:9.1f} {r['solve_s']:8.1f} {r['assembly_s']:8.2f} "
+              f"{r['jax_s']:8.1f} {r['factorizations']:6d} {r['wall_s'] / base['wall_s']:14.3f}")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(rows, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()
