@@ -95,13 +95,14 @@ def test_time_shift_of_a_control_keeps_J():
 
 
 def test_optimal_value_does_not_decrease_with_tau():
-    """The property itself, on a small well-posed case: maximize over xi at fixed tau (zero initial
+    """The property itself, on a small linear-ish case (alpha = 10 keeps the optimal control small;
+    with smaller alpha the optimizer runs away to element collapse): maximize over xi at fixed tau (zero initial
     state) for tau = 0.8, 1.2, 1.6; each optimum is converged to ||G|| <= 1e-6 ||G0||; near a
     nondegenerate maximum the value error is quadratic in that (~1e-12 relative), so the optimal
     values must be non-decreasing up to 1e-8 relative."""
     values = []
     for tau in (0.8, 1.2, 1.6):
-        J = _J(tau=tau, T=2.4, dt=0.05, alpha=0.1, omega=(0.25, 0.5), material=NeoHookean(0.05, 0.05))
+        J = _J(tau=tau, T=2.4, dt=0.05, alpha=10.0, omega=(0.25, 0.5), material=NeoHookean(0.05, 0.05))
         res = barzilai_borwein(J, J.zero(tau), fix_tau=True, gtol=1e-6, max_iter=200)
         assert res.converged and res.point.tau == tau
         values.append(res.objective)
