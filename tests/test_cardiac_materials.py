@@ -1,0 +1,302 @@
+"""Fibre-dependent laws (Guccione, Holzapfel-Ogden): derivatives, formulas, invariance, inputs.
+
+Finite-difference tolerances (float64, eps = 2.2e-16), errors relative to ``scale = |P| + |A|``
+(Frobenius; nonzero at F = I where P = 0), as in ``test_materials.py`` but with smaller steps:
+the exponentials ``exp(b (I4 - 1)^2)`` (b up to 16) make the higher derivatives of W large, and
+with the steps of ``test_materials.py`` the truncation error of dP/dF reached 1e-6 (measured, O(h^2)).
+
+- P by central differences of W, step h1 = 2e-6: truncation ~ h1^2/6 |d3W| ~ 7e-13 |d3W|,
+  round-off ~ eps |W| / h1 ~ 1e-10 |W|; |W| <= 1e-2 scale at the test points.
+- dP/dF by central second differences of W, step h2 = 2.5e-5: truncation ~ h2^2/12 |d4W|
+  ~ 5e-11 |d4W| with |d4W| up to ~1e3 scale here, round-off ~ eps |W| / h2^2 ~ 4e-7 |W| ~ 4e-9 scale.
+
+Asserted 1e-9 (P) and 1e-6 (dP/dF); measured at most 1.3e-11 and 1.4e-7 (Holzapfel-Ogden, fibre in
+tension). A wrong derivative (an O(1) relative error) fails.
+
+Holzapfel-Ogden's fibre switch ``max(I4 - 1, 0)^2`` has a jump in its second derivative at
+``I4 = 1``: finite differences there are meaningless, so the test points keep ``|I4 - 1| > 1e-2``
+(asserted), far beyond the stencil's reach (~ 4 h2 |F|).
+"""
+
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from hyperoc.errors import InputError
+from hyperoc.materials import (
+    Guccione,
+    HolzapfelOgden,
+    finite_difference_check,
+    first_piola,
+    material_from_config,
+    tangent_modulus,
+)
+
+MATERIALS = {
+    "guccione-p1": Guccione(),  # Land et al. 2015 problems 1/3, kappa = 1000 kPa
+    "guccione-p2": Guccione(C=10.0, bf=1.0, bt=1.0, bfs=1.0, kappa=50.0),
+    "holzapfel-ogden": HolzapfelOgden(),  # the 2009 fit, kappa = 1000 kPa
+    "holzapfel-ogden-soft-bulk": HolzapfelOgden(kappa=5.0),
+}
+
+
+def rotation(d, seed):
+    """A proper rotation (det +1); its rows serve as an orthonormal frame (f, s[, n])."""
+    rng = np.random.default_rng(seed)
+    Q, R = np.linalg.qr(rng.standard_normal((d, d)))
+    Q = Q * np.sign(np.diag(R))
+    if np.linalg.det(Q) < 0:
+        Q[:, 0] = -Q[:, 0]
+    return Q
+
+
+def stretch_along(frame, stretches):
+    """``F = sum_k lambda_k a_k (x) a_k`` for the frame rows a_k: principal stretches along the frame."""
+    return frame.T @ np.diag(stretches) @ frame
+
+
+def sample_points(d):
+    """(F, frame) pairs at myocardial strains (~10 %): a generic F with a random frame; the fibre
+    stretched (tension branch) and shortened (slack branch), each with a small random shear."""
+    rng = np.random.default_rng(100 + d)
+    frame = rotation(d, 3 * d)
+    shear = 0.03 * rng.standard_normal((d, d))
+    return {
+        "generic": (np.eye(d) + 0.08 * rng.standard_normal((d, d)), rotation(d, d + 5)),
+        "fibre-tension": (stretch_along(frame, [1.12, 0.94, 1.06][:d]) + shear, frame),
+        "fibre-slack": (stretch_along(frame, [0.9, 1.1, 0.97][:d]) + shear, frame),
+    }
+
+
+def fibre_invariants(F, frame):
+    C = F.T @ F
+    return [a @ C @ a for a in frame[:2]]
+
+
+@partial(jax.jit, static_argnums=0)
+def _energies(material, Fs, frame):
+    """W at a batch of deformation gradients (n, d, d), one frame."""
+    return jax.vmap(lambda G: material.energy_of_F(G, frame))(Fs)
+
+
+# Compiled once per (material, dimension) and shared by all tests (materials are hashable).
+_stress = jax.jit(first_piola, static_argnums=0)
+_tangent = jax.jit(tangent_modulus, static_argnums=0)
+
+
+def W(material, F, frame):
+    return float(_energies(material, jnp.asarray(F)[None], jnp.asarray(frame))[0])
+
+
+def autodiff_and_finite_differences(material, F, frame, h1=2e-6, h2=2.5e-5):
+    """(P, A) by autodiff and (P_fd, A_fd) by central differences of W (one batch of W values):
+
+    P_a = (W(F + h1 e_a) - W(F - h1 e_a)) / 2 h1;
+    A_ab = (W(F + h2 (e_a + e_b)) - W(F + h2 (e_a - e_b)) - W(F - h2 (e_a - e_b)) + W(F - h2 (e_a + e_b))) / 4 h2^2.
+    """
+    d = F.shape[0]
+    e = np.eye(d * d).reshape(d * d, d, d)
+    a, b = e[:, None], e[None, :]
+    stencil = [F + h1 * e, F - h1 * e] + [(F + h2 * (sa * a + sb * b)).reshape(-1, d, d)
+                                          for sa, sb in ((1, 1), (1, -1), (-1, 1), (-1, -1))]
+    Ws = np.asarray(_energies(material, jnp.asarray(np.concatenate(stencil)), jnp.asarray(frame)))
+    Wp, Wm, W4 = Ws[: d * d], Ws[d * d: 2 * d * d], Ws[2 * d * d:].reshape(4, d * d, d * d)
+    P_fd = ((Wp - Wm) / (2 * h1)).reshape(d, d)
+    A_fd = ((W4[0] - W4[1] - W4[2] + W4[3]) / (4 * h2 * h2)).reshape(d, d, d, d)
+    F, frame = jnp.asarray(F), jnp.asarray(frame)
+    return np.asarray(_stress(material, F, frame)), np.asarray(_tangent(material, F, frame)), P_fd, A_fd
+
+
+CASES = [(name, d, label) for name in MATERIALS for d in (2, 3) for label in sample_points(d)]
+
+
+@pytest.mark.parametrize("name,d,label", CASES)
+def test_autodiff_stress_and_tangent_match_finite_differences_of_energy(name, d, label):
+    material = MATERIALS[name]
+    F, frame = sample_points(d)[label]
+    assert np.linalg.det(F) > 0.5
+    if isinstance(material, HolzapfelOgden):
+        assert min(abs(i4 - 1.0) for i4 in fibre_invariants(F, frame)) > 1e-2  # away from the switch
+    P, A, P_fd, A_fd = autodiff_and_finite_differences(material, F, frame)
+    assert np.all(np.isfinite(P)) and np.all(np.isfinite(A))
+    scale = np.linalg.norm(P) + np.linalg.norm(A)
+    assert np.linalg.norm(P - P_fd) <= 1e-9 * scale, (np.linalg.norm(P - P_fd), scale)
+    assert np.linalg.norm(A - A_fd) <= 1e-6 * scale, (np.linalg.norm(A - A_fd), scale)
+    assert np.allclose(A, A.transpose(2, 3, 0, 1), rtol=0, atol=1e-13 * scale)  # a Hessian
+
+
+@pytest.mark.parametrize("name", list(MATERIALS))
+@pytest.mark.parametrize("d", [2, 3])
+def test_stress_free_reference_state(name, d):
+    """W(I) = 0 and P(I) = 0 for any frame (Q, the invariants' deviations and U' vanish at E = 0)."""
+    material = MATERIALS[name]
+    for seed in range(3):
+        frame = rotation(d, seed)
+        assert abs(W(material, np.eye(d), frame)) <= 1e-14
+        P = np.asarray(_stress(material, jnp.eye(d), jnp.asarray(frame)))
+        assert np.max(np.abs(P)) <= 1e-12, P
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_guccione_tangent_at_reference_matches_finite_differences(d):
+    """Guccione is smooth at E = 0, so the reference tangent is checked like any other point."""
+    material = MATERIALS["guccione-p1"]
+    P, A, P_fd, A_fd = autodiff_and_finite_differences(material, np.eye(d), rotation(d, 5))
+    scale = np.linalg.norm(A)
+    assert np.linalg.norm(P - P_fd) <= 1e-9 * scale and np.linalg.norm(A - A_fd) <= 1e-6 * scale
+
+
+def test_holzapfel_ogden_reference_tangent_is_the_slack_limit():
+    """At I4 = 1 the switch's second derivative jumps (0 -> 2); the documented value is the
+    compression limit 0: the tangent at F = I equals that of the law without fibre and sheet terms."""
+    material = MATERIALS["holzapfel-ogden"]
+    slack = HolzapfelOgden(af=0.0, as_=0.0)
+    frame = jnp.asarray(rotation(3, 8))
+    A = np.asarray(_tangent(material, jnp.eye(3), frame))
+    A0 = np.asarray(_tangent(slack, jnp.eye(3), frame))
+    assert np.all(np.isfinite(A)) and np.allclose(A, A0, rtol=1e-13, atol=0)
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_guccione_energy_is_the_component_formula(d):
+    """W = C/2 (exp(Q) - 1) + kappa/4 (J^2 - 1 - 2 ln J) with Q in the frame components E_ab = a.E b
+    (the code uses the projector form P = I - f f^T)."""
+    material = Guccione(C=2.0, bf=8.0, bt=2.0, bfs=4.0, kappa=30.0)
+    F, frame = sample_points(d)["generic"]
+    E = 0.5 * (F.T @ F - np.eye(d))
+    Eh = frame @ E @ frame.T  # components in (f, s[, n])
+    Q = material.bf * Eh[0, 0] ** 2 + material.bt * np.sum(Eh[1:, 1:] ** 2) + 2 * material.bfs * np.sum(Eh[0, 1:] ** 2)
+    J = np.linalg.det(F)
+    expected = 0.5 * material.C * np.expm1(Q) + material.kappa / 4 * (J**2 - 1 - 2 * np.log(J))
+    assert W(material, F, frame) == pytest.approx(expected, rel=1e-13)
+
+
+@pytest.mark.parametrize("label", ["generic", "fibre-tension", "fibre-slack"])
+def test_holzapfel_ogden_energy_is_the_documented_formula(label):
+    m = HolzapfelOgden(kappa=30.0)
+    F, frame = sample_points(3)[label]
+    C, J = F.T @ F, np.linalg.det(F)
+    f, s = frame[0], frame[1]
+    pos = lambda x: max(x, 0.0)
+    expected = (m.a / (2 * m.b) * np.expm1(m.b * (J ** (-2 / 3) * np.trace(C) - 3))
+                + m.af / (2 * m.bf) * np.expm1(m.bf * pos(f @ C @ f - 1) ** 2)
+                + m.as_ / (2 * m.bs) * np.expm1(m.bs * pos(s @ C @ s - 1) ** 2)
+                + m.afs / (2 * m.bfs) * np.expm1(m.bfs * (f @ C @ s) ** 2)
+                + m.kappa / 4 * (J**2 - 1 - 2 * np.log(J)))
+    assert W(m, F, frame) == pytest.approx(expected, rel=1e-13)
+
+
+@pytest.mark.parametrize("name", list(MATERIALS))
+@pytest.mark.parametrize("d", [2, 3])
+def test_objectivity_and_material_symmetry(name, d):
+    """W(QF) = W(F), P(QF) = Q P(F) (objectivity); W(F R^T, frame R^T) = W(F, frame) (rotating the
+    body together with its fibres); the fibre frame matters, W(F R^T, frame) != W(F, frame), except
+    for Guccione with bf = bt = bfs (problem 2 of Land et al.), where Q = bf |E|^2 is isotropic."""
+    material = MATERIALS[name]
+    F, frame = sample_points(d)["fibre-tension"]
+    Q, R = rotation(d, 11), rotation(d, 12)
+    P = np.asarray(_stress(material, jnp.asarray(F), jnp.asarray(frame)))
+    tol = 1e-12 * (abs(W(material, F, frame)) + np.linalg.norm(P) * np.linalg.norm(F))
+    assert abs(W(material, Q @ F, frame) - W(material, F, frame)) <= tol
+    assert abs(W(material, F @ R.T, frame @ R.T) - W(material, F, frame)) <= tol
+    if name == "guccione-p2":
+        assert abs(W(material, F @ R.T, frame) - W(material, F, frame)) <= tol
+    else:
+        assert abs(W(material, F @ R.T, frame) - W(material, F, frame)) > 1e3 * tol
+    P_rot = np.asarray(_stress(material, jnp.asarray(Q @ F), jnp.asarray(frame)))
+    assert np.linalg.norm(P_rot - Q @ P) <= 1e-12 * np.linalg.norm(P) * 10
+
+
+def test_guccione_is_transversely_isotropic_and_holzapfel_ogden_is_not():
+    """Rotating (s, n) about f leaves Guccione unchanged; Holzapfel-Ogden sees the sheet."""
+    F, frame = sample_points(3)["generic"]
+    t = 0.7
+    spun = frame.copy()
+    spun[1], spun[2] = np.cos(t) * frame[1] + np.sin(t) * frame[2], -np.sin(t) * frame[1] + np.cos(t) * frame[2]
+    g, ho = MATERIALS["guccione-p1"], MATERIALS["holzapfel-ogden"]
+    assert W(g, F, spun) == pytest.approx(W(g, F, frame), rel=1e-13)
+    assert abs(W(ho, F, spun) - W(ho, F, frame)) > 1e-6 * abs(W(ho, F, frame))
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_fibre_direction_is_stiffer(d):
+    """Uniaxial stretch lambda = 1.1 along a, F = I + (lambda - 1) a (x) a: the same J = lambda either way,
+    so Guccione's energies differ only in Q = b E_aa^2 with b = bf (along f) or bt (across):
+    exactly W = C/2 expm1(b E^2) + U(J), and the fibre direction carries more energy and normal
+    stress (the volumetric part, the same in both, dominates the stress at kappa = 1000 kPa).
+    Holzapfel-Ogden: f (af = 18.5 kPa) > s (as = 2.5 kPa) in energy and stress."""
+    lam, frame = 1.1, rotation(d, 21)
+    E, J = (lam**2 - 1) / 2, lam
+    along = lambda a: np.eye(d) + (lam - 1) * np.outer(a, a)
+    g = MATERIALS["guccione-p1"]
+    U = g.kappa / 4 * (J**2 - 1 - 2 * np.log(J))
+    Wf, Ws = W(g, along(frame[0]), frame), W(g, along(frame[1]), frame)
+    assert Wf == pytest.approx(0.5 * g.C * np.expm1(g.bf * E**2) + U, rel=1e-12)
+    assert Ws == pytest.approx(0.5 * g.C * np.expm1(g.bt * E**2) + U, rel=1e-12)
+    ho = MATERIALS["holzapfel-ogden"]
+    for m in (g, ho):
+        normal_stress = lambda a: float(a @ np.asarray(_stress(m, jnp.asarray(along(a)), jnp.asarray(frame))) @ a)
+        assert W(m, along(frame[0]), frame) > W(m, along(frame[1]), frame)
+        assert normal_stress(frame[0]) > normal_stress(frame[1]) + 0.1 > 0.1
+
+
+def test_holzapfel_ogden_fibres_bear_no_compression():
+    """With I4f, I4s < 1 the fibre and sheet terms are off: W equals the law with af = as = 0."""
+    frame = rotation(3, 31)
+    F = stretch_along(frame, [0.9, 0.95, 1.16])
+    assert max(fibre_invariants(F, frame)) < 1
+    ho = MATERIALS["holzapfel-ogden"]
+    assert W(ho, F, frame) == pytest.approx(W(HolzapfelOgden(af=0.0, as_=0.0), F, frame), rel=1e-14)
+    stretched = stretch_along(frame, [1.1, 1.0, 1.0])
+    assert W(ho, stretched, frame) > W(HolzapfelOgden(af=0.0), stretched, frame)
+
+
+@pytest.mark.parametrize("cfg,word", [
+    ({"law": "guccione", "C": -2.0}, "C"),
+    ({"law": "guccione", "C": 0.0}, "C"),
+    ({"law": "guccione", "bf": -8.0}, "bf"),
+    ({"law": "guccione", "bt": 0.0}, "bt"),
+    ({"law": "guccione", "bfs": float("nan")}, "bfs"),
+    ({"law": "guccione", "kappa": -1.0}, "kappa"),
+    ({"law": "guccione", "C": float("inf")}, "C"),
+    ({"law": "guccione", "mu": 1.0}, "unknown"),
+    ({"law": "holzapfel-ogden", "a": 0.0}, "a"),
+    ({"law": "holzapfel-ogden", "b": -1.0}, "b"),
+    ({"law": "holzapfel-ogden", "af": -1.0}, "af"),
+    ({"law": "holzapfel-ogden", "as": -0.5}, "as"),
+    ({"law": "holzapfel-ogden", "bfs": 0.0}, "bfs"),
+    ({"law": "holzapfel-ogden", "kappa": 0.0}, "kappa"),
+    ({"law": "holzapfel-ogden", "bs": "big"}, "bs"),
+])
+def test_bad_parameters_raise_input_error_naming_the_parameter(cfg, word):
+    with pytest.raises(InputError, match=word):
+        material_from_config(cfg)
+
+
+def test_direct_construction_is_validated():
+    with pytest.raises(InputError, match="Guccione: C must be"):
+        Guccione(C=-1.0).validate()
+    with pytest.raises(InputError, match="Holzapfel-Ogden: kappa must be"):
+        HolzapfelOgden(kappa=-3.0).validate()
+
+
+def test_missing_frame_is_an_input_error():
+    with pytest.raises(InputError, match="material frame"):
+        Guccione().energy_of_F(jnp.eye(3))
+    with pytest.raises(InputError, match="material frame"):
+        HolzapfelOgden().energy_of_F(jnp.eye(3), jnp.eye(3)[:1])  # fibre only, no sheet
+
+
+def test_config_builds_the_laws():
+    assert material_from_config({"law": "Guccione", "C": 10, "bf": 1, "bt": 1, "bfs": 1}) == Guccione(C=10.0, bf=1.0, bt=1.0, bfs=1.0)
+    ho = material_from_config({"law": "holzapfel-ogden", "as": 2.0, "kappa": 500})
+    assert ho == HolzapfelOgden(as_=2.0, kappa=500.0)
+
+
+def test_library_finite_difference_check_takes_a_frame():
+    F, frame = sample_points(2)["fibre-tension"]
+    err_P, err_A = finite_difference_check(MATERIALS["holzapfel-ogden"], F, frame=frame)
+    assert err_P < 1e-7 and err_A < 1e-6, (err_P, err_A)
