@@ -3,7 +3,8 @@
 The curated API (see the README for a tour)::
 
     mesh        interval, rectangle, box, Mesh; geometry: annulus, thick_shell, ventricle, from_file
-    materials   SaintVenantKirchhoff, Fung, Ogden, NeoHookean (W(E), derivatives by JAX)
+    materials   SaintVenantKirchhoff, Fung, Ogden, NeoHookean; Guccione, HolzapfelOgden (fibre frames)
+    fibres      transmural_coordinate, rule_based_fibres (helix angle rule)
     controls    BodyForce, ActiveStress, Region
     model       StateModel
     dynamics    Scheme, TimeStepper, solve_state, StateSolution; statics: solve_static
@@ -21,7 +22,8 @@ from .config import load_config
 from .dynamics import Scheme, StateSolution, TimeStepper, solve_state
 from .errors import HyperocError, InputError, SolverError
 from .geometry import annulus, from_file, thick_shell, ventricle
-from .materials import Fung, NeoHookean, Ogden, SaintVenantKirchhoff
+from .fibres import rule_based_fibres, transmural_coordinate
+from .materials import Fung, Guccione, HolzapfelOgden, NeoHookean, Ogden, SaintVenantKirchhoff
 from .mesh import Mesh, box, interval, rectangle
 from .model import StateModel
 from .objectives import ControlCost, Objective, PressureAt, PressureRise
@@ -36,7 +38,8 @@ __version__ = "0.1.0"
 __all__ = [
     "ActiveStress", "BodyForce", "Region", "load_config", "Scheme", "StateSolution", "TimeStepper", "solve_state",
     "HyperocError", "InputError", "SolverError", "annulus", "from_file", "thick_shell", "ventricle", "Fung",
-    "NeoHookean", "Ogden", "SaintVenantKirchhoff", "Mesh", "box", "interval", "rectangle", "StateModel",
+    "NeoHookean", "Ogden", "SaintVenantKirchhoff", "Guccione", "HolzapfelOgden", "rule_based_fibres",
+    "transmural_coordinate", "Mesh", "box", "interval", "rectangle", "StateModel",
     "ControlCost", "Objective", "PressureAt", "PressureRise", "barzilai_borwein", "lbfgsb", "ControlPoint",
     "ReducedFunctional", "solve_static", "TimeGrid", "TimeTransform", "uniform_grid", "taylor_test",
 ]

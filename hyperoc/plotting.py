@@ -22,8 +22,8 @@ __all__ = ["plot_pressure", "plot_control_spacetime", "plot_snapshots", "plot_hi
 _DPI = 150
 
 
-def _new_figure(width: float, height: float) -> Figure:
-    fig = Figure(figsize=(width, height), layout="constrained")
+def _new_figure(width: float, height: float, layout: str | None = "constrained") -> Figure:
+    fig = Figure(figsize=(width, height), layout=layout)
     FigureCanvasAgg(fig)
     return fig
 
@@ -167,7 +167,9 @@ def plot_snapshots(path, x, t, values, times, *, ylabel, title=None, ncols: int 
         raise ValueError("plot_snapshots: no times requested")
     ncols = min(ncols, len(levels))
     nrows = math.ceil(len(levels) / ncols)
-    fig = _new_figure(2.6 * ncols, 2.2 * nrows)
+    # A fixed layout: the constrained solver costs seconds on 16 panels and shared axes need none.
+    fig = _new_figure(2.6 * ncols, 2.2 * nrows, layout=None)
+    fig.subplots_adjust(left=0.08, right=0.98, bottom=0.07, top=0.93, wspace=0.08, hspace=0.35)
     axes = fig.subplots(nrows, ncols, sharex=True, sharey=True, squeeze=False).ravel()
     for ax, n in zip(axes, levels):
         ax.plot(x, values[n], color="C0")
