@@ -142,12 +142,39 @@ def run_variant(model, grid, xi, name):
             "min_det_F": float(np.min(sol.min_det_F))}
 
 
+def solver_only(model, dt, methods, reps):
+    """Host linear solve alone, on the step matrix at rest, variants interleaved (A B C A B C ...) so that
+    load drift on a shared machine hits them alike; each variant gets one untimed call first."""
+    import jax.numpy as jnp
+
+    st = ho.TimeStepper(model, ho.Scheme(), "dense" if model.n < 600 else "lu")
+    x = jnp.zeros(model.n + 1)
+    blocks, col, row = (np.asarray(a) for a in st.jacobian_parts(x, jnp.zeros(model.n), dt))
+    rhs = np.random.default_rng(0).standard_normal(model.n)
+    solvers = {name: solver_for(model, name) for name in methods}
+    times = {name: [] for name in methods}
+    for name, s in solvers.items():
+        s.host_solve(blocks, col, row, rhs, 0.0)
+    for _ in range(reps):
+        for name, s in solvers.items():
+            s._lu = None  # a fresh factorization every call (lu_reuse: the kept one is the point, skip it)
+            t0 = time.perf_counter()
+            s.host_solve(blocks * (1 + 1e-6 * len(times[name])), col, row, rhs, 0.0)
+            times[name].append(time.perf_counter() - t0)
+    base = np.median(times[methods[0]])
+    print(f"{'method':11s} {'median s':>9s} {'min s':>8s} {'/ ' + methods[0]:>14s}")
+    for name in methods:
+        print(f"{name:11s} {np.median(times[name]):9.3f} {np.min(times[name]):8.3f} {np.median(times[name]) / base:14.3f}")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--case", choices=("2d", "3d"), default="2d")
     ap.add_argument("--steps", type=int, default=None, help="measure only the first STEPS steps")
     ap.add_argument("--methods", default="lu_colamd,lu,lu_reuse,minres,minres_amg")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--solver-only", type=int, default=0, metavar="REPS",
+                    help="time only one host linear solve (fresh factorization) per variant, REPS times")
     args = ap.parse_args()
     t0 = time.perf_counter()
     model, T, dt, full_steps, xi_of = case_2d() if args.case == "2d" else case_3d()
@@ -156,6 +183,9 @@ def main():
     xi = xi_of(grid.t)
     print(f"case {args.case}: {model.n} free dofs, {model.mesh.num_cells} cells, nnz(K) = {model.pattern.nnz}, "
           f"{steps} of {full_steps} steps (dt = {dt}); set-up {time.perf_counter() - t0:.1f} s", flush=True)
+    if args.solver_only:
+        solver_only(model, dt, args.methods.split(","), args.solver_only)
+        return
     rows = []
     for name in args.methods.split(","):
         try:
