@@ -67,6 +67,20 @@ class Material:
         return self.energy(E, frame)
 
 
+def det(F):
+    """Determinant of a (..., d, d) array, d <= 3, by explicit formulas (cheap, smooth autodiff)."""
+    d = F.shape[-1]
+    if d == 1:
+        return F[..., 0, 0]
+    if d == 2:
+        return F[..., 0, 0] * F[..., 1, 1] - F[..., 0, 1] * F[..., 1, 0]
+    return (
+        F[..., 0, 0] * (F[..., 1, 1] * F[..., 2, 2] - F[..., 1, 2] * F[..., 2, 1])
+        - F[..., 0, 1] * (F[..., 1, 0] * F[..., 2, 2] - F[..., 1, 2] * F[..., 2, 0])
+        + F[..., 0, 2] * (F[..., 1, 0] * F[..., 2, 1] - F[..., 1, 1] * F[..., 2, 0])
+    )
+
+
 def _require(cond: bool, msg: str) -> None:
     if not cond:
         raise InputError(msg)
@@ -142,7 +156,7 @@ class NeoHookean(Material):
     def energy(self, E, frame=None):
         d = E.shape[0]
         C = 2.0 * E + jnp.eye(d)
-        logJ = 0.5 * jnp.log(jnp.linalg.det(C))
+        logJ = 0.5 * jnp.log(det(C))
         return 0.5 * self.mu * (jnp.trace(C) - d) - self.mu * logJ + 0.5 * self.lam * logJ**2
 
     def validate(self):
@@ -153,21 +167,9 @@ class NeoHookean(Material):
 
 # --- fibre-dependent laws (cardiac tissue, kPa) ----------------------------------------------------
 
-def _det(A):
-    """Determinant of a (d, d) matrix, d <= 3, by explicit formulas (smooth second derivatives)."""
-    d = A.shape[0]
-    if d == 1:
-        return A[0, 0]
-    if d == 2:
-        return A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
-    return (A[0, 0] * (A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1])
-            - A[0, 1] * (A[1, 0] * A[2, 2] - A[1, 2] * A[2, 0])
-            + A[0, 2] * (A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0]))
-
-
 def _volumetric(kappa, C):
     """``U(J) = kappa/4 (J^2 - 1 - 2 ln J)`` with ``J^2 = det C``; U(1) = U'(1) = 0, U''(1) = kappa."""
-    J2 = _det(C)
+    J2 = det(C)
     return 0.25 * kappa * (J2 - 1.0 - jnp.log(J2))
 
 
@@ -267,7 +269,7 @@ class HolzapfelOgden(Material):
         f, s = _frame_rows(frame, 2, "Holzapfel-Ogden")
         d = E.shape[0]
         C = 2.0 * E + jnp.eye(d)
-        I1bar = _det(C) ** (-1.0 / d) * jnp.trace(C)
+        I1bar = det(C) ** (-1.0 / d) * jnp.trace(C)
         # I4 - 1 = 2 a.E a and I8 = 2 f.E s for a unit, orthogonal frame: exactly 0 at E = 0.
         tension = lambda a: jnp.where(a @ E @ a > 0.0, 2.0 * (a @ E @ a), 0.0)
         return (self.a / (2 * self.b) * jnp.expm1(self.b * (I1bar - d))
@@ -354,23 +356,26 @@ def material_from_config(cfg: dict) -> Material:
     if law not in MATERIALS:
         raise InputError(f"unknown material law {law!r}; choose one of {sorted(set(MATERIALS))}")
     cls = MATERIALS[law]
+    clashes = [k for k in cfg if k in _ALIASES and _ALIASES[k] in cfg]
+    if clashes:
+        raise InputError(f"material {law!r}: give {clashes[0]!r} or {_ALIASES[clashes[0]]!r}, not both")
     cfg = {_ALIASES.get(k, k): v for k, v in cfg.items()}
     names = {f.name for f in fields(cls)}
     unknown = set(cfg) - names
     if unknown:
         raise InputError(f"material {law!r}: unknown parameter(s) {sorted(unknown)}; expected {sorted(names)}")
-    is_number = lambda x: isinstance(x, (int, float)) and not isinstance(x, bool)
+    is_number = lambda x: isinstance(x, (int, float)) and not isinstance(x, bool) and bool(np.isfinite(x))
     defaults = {f.name: f.default for f in fields(cls)}
     kwargs = {}
     for k, v in cfg.items():
         if isinstance(defaults[k], tuple):  # a list parameter (Ogden terms)
             if not (isinstance(v, (list, tuple)) and v and all(is_number(x) for x in v)):
-                raise InputError(f"material {law!r}: {k} must be a non-empty list of numbers, got {v!r}")
+                raise InputError(f"material {law!r}: {k} must be a non-empty list of finite numbers, got {v!r}")
             kwargs[k] = tuple(float(x) for x in v)
         elif is_number(v):
             kwargs[k] = float(v)
         else:
-            raise InputError(f"material {law!r}: {k} must be a number, got {type(v).__name__} {v!r}")
+            raise InputError(f"material {law!r}: {k} must be a finite number, got {type(v).__name__} {v!r}")
     return cls(**kwargs).validate()
 
 

@@ -22,26 +22,12 @@ from jax.experimental import sparse as jsparse
 from . import _jax  # noqa: F401
 from .assembly import SparsePattern, reduced_numbering
 from .errors import InputError
-from .materials import Material
+from .materials import Material, det
 from .mesh import Mesh
 from .quadrature import simplex_rule
 from .spaces import VectorSpace, reference_shape
 
 __all__ = ["StateModel", "det"]
-
-
-def det(F):
-    """Determinant of a (..., d, d) array with explicit formulas (cheap, smooth autodiff)."""
-    d = F.shape[-1]
-    if d == 1:
-        return F[..., 0, 0]
-    if d == 2:
-        return F[..., 0, 0] * F[..., 1, 1] - F[..., 0, 1] * F[..., 1, 0]
-    return (
-        F[..., 0, 0] * (F[..., 1, 1] * F[..., 2, 2] - F[..., 1, 2] * F[..., 2, 1])
-        - F[..., 0, 1] * (F[..., 1, 0] * F[..., 2, 2] - F[..., 1, 2] * F[..., 2, 0])
-        + F[..., 0, 2] * (F[..., 1, 0] * F[..., 2, 1] - F[..., 1, 1] * F[..., 2, 0])
-    )
 
 
 def _to_bcoo(mat):

@@ -229,3 +229,10 @@ def test_library_finite_difference_check_at_a_generic_state(name):
 def test_library_finite_difference_check_at_stress_free_state(name):
     err_P, err_A = finite_difference_check(MATERIALS[name], np.eye(3))
     assert err_P < 1e-6 and err_A < 1e-6, (err_P, err_A)
+
+
+@pytest.mark.parametrize("cfg", [{"law": "svk", "mu": float("inf")}, {"law": "svk", "mu": float("nan")},
+                                 {"law": "svk", "lambda": 1.0, "lam": 2.0}])
+def test_non_finite_or_ambiguous_parameters_raise_input_error(cfg):
+    with pytest.raises(InputError):
+        material_from_config(cfg)
