@@ -27,6 +27,7 @@ import pytest
 
 from hyperoc.errors import InputError
 from hyperoc.materials import (
+from test_materials import rotation  # a proper rotation; its rows serve as an orthonormal frame
     Guccione,
     HolzapfelOgden,
     finite_difference_check,
@@ -41,16 +42,6 @@ MATERIALS = {
     "holzapfel-ogden": HolzapfelOgden(),  # the 2009 fit, kappa = 1000 kPa
     "holzapfel-ogden-soft-bulk": HolzapfelOgden(kappa=5.0),
 }
-
-
-def rotation(d, seed):
-    """A proper rotation (det +1); its rows serve as an orthonormal frame (f, s[, n])."""
-    rng = np.random.default_rng(seed)
-    Q, R = np.linalg.qr(rng.standard_normal((d, d)))
-    Q = Q * np.sign(np.diag(R))
-    if np.linalg.det(Q) < 0:
-        Q[:, 0] = -Q[:, 0]
-    return Q
 
 
 def stretch_along(frame, stretches):
