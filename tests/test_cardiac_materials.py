@@ -27,7 +27,6 @@ import pytest
 
 from hyperoc.errors import InputError
 from hyperoc.materials import (
-from test_materials import rotation  # a proper rotation; its rows serve as an orthonormal frame
     Guccione,
     HolzapfelOgden,
     finite_difference_check,
@@ -35,6 +34,7 @@ from test_materials import rotation  # a proper rotation; its rows serve as an o
     material_from_config,
     tangent_modulus,
 )
+from test_materials import rotation  # a proper rotation; its rows serve as an orthonormal frame
 
 MATERIALS = {
     "guccione-p1": Guccione(),  # Land et al. 2015 problems 1/3, kappa = 1000 kPa
