@@ -42,3 +42,12 @@ def test_multistart_runs_every_start_and_resumes(tmp_path):
     again = optimize(cfg, tmp_path / "out", workers=2)
     assert all(s.get("resumed") for s in again["starts"])
     assert read_json(tmp_path / "out" / "summary.json")["objective"] == summary["objective"]
+
+
+def test_a_failing_start_is_reported_not_fatal(tmp_path):
+    """What a Dask worker runs for one start: an error becomes a 'failed' record with its message."""
+    from hyperoc.workflows import _run_start
+
+    cfg = parse_config(tomllib.loads(TEXT), tmp_path)
+    record = _run_start(cfg.sections, str(tmp_path), 5.0, str(tmp_path / "start_bad"))  # tau0 outside (0, T)
+    assert record["status"] == "failed" and "tau" in record["error"]
