@@ -29,16 +29,16 @@ HS = (0.02, 0.01, 0.005)
 DTS = (0.04, 0.02, 0.01)
 
 
-def reduced(h: float, dt: float) -> ho.ReducedFunctional:
+def reduced(h: float, dt: float, alpha: float = ALPHA) -> ho.ReducedFunctional:
     n = int(round(1.0 / h))
     model = ho.StateModel(ho.interval(n), ho.NeoHookean(0.05, 0.05), kappa=2e-3,
                           control=ho.BodyForce(ho.Region("box", lower=(0.25,), upper=(0.5,))))
     return ho.ReducedFunctional(model, ho.TimeTransform.for_step(T, dt, TAU0),
-                                ho.Objective(running=(ControlCost(ALPHA),), at_tau=PressureAt()))
+                                ho.Objective(running=(ControlCost(alpha),), at_tau=PressureAt()))
 
 
-def run(h: float, dt: float, method: str, max_iter: int) -> dict:
-    J = reduced(h, dt)
+def run(h: float, dt: float, method: str, max_iter: int, alpha: float = ALPHA) -> dict:
+    J = reduced(h, dt, alpha)
     opt = ho.barzilai_borwein if method == "bb" else ho.lbfgsb
     t0 = time.perf_counter()
     res = opt(J, J.zero(TAU0), gtol=1e-6, max_iter=max_iter)
@@ -56,6 +56,7 @@ def main():
     ap.add_argument("--max-iter", type=int, default=300)
     ap.add_argument("--methods", default="bb,lbfgsb")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--alpha", type=float, default=ALPHA, help="control cost weight (default %(default)s)")
     args = ap.parse_args()
     pairs = list(zip(HS, DTS)) if args.diagonal else [(h, dt) for h in HS for dt in DTS]
     rows = []
@@ -63,7 +64,7 @@ def main():
           f"{'states':>7s} {'adjoints':>8s} {'failed':>6s} {'wall s':>7s}", flush=True)
     for method in args.methods.split(","):
         for h, dt in pairs:
-            r = run(h, dt, method, args.max_iter)
+            r = run(h, dt, method, args.max_iter, args.alpha)
             rows.append(r)
             print(f"{method:7s} {h:6.3f} {dt:6.3f} {r['iterations']:6d} {str(r['converged']):>5s} {r['tau']:9.5f} "
                   f"{r['J']:12.6e} {r['G_final_rel']:9.2e} {r['state_solves']:7d} {r['adjoint_solves']:8d} "
