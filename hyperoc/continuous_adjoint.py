@@ -23,43 +23,15 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-import scipy.sparse.linalg as spla
 
 from . import _jax  # noqa: F401
 from .errors import InputError
 from .linsolve import SparseSolver
 from .objectives import ControlCost, PressureAt, PressureRise
 from .reduced import ControlPoint, ReducedFunctional
+from .timegrid import trapezoid_weights
 
 __all__ = ["continuous_gradient"]
-
-
-def _consistent_pressure_fn(J: ReducedFunctional):
-    """``p(y0, y1, xi, f)`` from the second time derivative of the constraint (JAX-differentiable)."""
-    model = J.model
-    Minv = spla.splu(model.mass.tocsc())
-    K, B = J.stepper._K, J.stepper._B
-
-    def minv(v):
-        return jax.pure_callback(lambda x: Minv.solve(np.asarray(x)), jax.ShapeDtypeStruct(v.shape, v.dtype), v)
-
-    @jax.custom_jvp
-    def apply_minv(v):
-        return minv(v)
-
-    @apply_minv.defjvp
-    def _(primals, tangents):
-        (v,), (dv,) = primals, tangents
-        return apply_minv(v), apply_minv(dv)
-
-    def pressure(y0, y1, xi, f):
-        G = model.volume_gradient(y0)
-        _, Hy1 = jax.jvp(model.volume_gradient, (y0,), (y1,))
-        rhs = B @ xi + f - model.kappa * (K @ y1) - model.internal_force(y0)
-        MinvG = apply_minv(G)
-        return (MinvG @ rhs + y1 @ Hy1) / (G @ MinvG)
-
-    return pressure
 
 
 def _running_cost_parts(J: ReducedFunctional):
@@ -87,8 +59,7 @@ def continuous_gradient(J: ReducedFunctional, m: ControlPoint) -> ControlPoint:
     n1, n2, _ = J.transform.steps
     f = st.external_loads(None, J.transform.grid(m.tau))
     p_lev = sol.pressure
-    pressure = _consistent_pressure_fn(J)
-    dp = jax.jit(jax.grad(pressure, argnums=(0, 1, 2)))
+    dp = jax.jit(jax.grad(st.consistent_pressure, argnums=(0, 1, 2)))
     jumps = {n1: -1.0 / at_tau.eps, n1 + n2: 1.0 / at_tau.eps} if isinstance(at_tau, PressureRise) else {n1: 1.0}
     B = model.control.load
     solver = SparseSolver(model)
@@ -122,17 +93,15 @@ def continuous_gradient(J: ReducedFunctional, m: ControlPoint) -> ControlPoint:
         zeta1_levels[n], zeta0_levels[n] = zeta1, zeta0
         w1 = model.mass @ zeta1
     # xi-part: c_xi + B^T zeta1 in t, as a dual vector with the state's trapezoid weights.
-    wt = np.zeros(N + 1)
-    wt[:-1] += dt / 2
-    wt[1:] += dt / 2
+    wt = trapezoid_weights(dt)
     Mw = model.control.mass
     dual_xi = wt[:, None] * (-alpha * (Mw @ sol.xi.T).T + (B.T @ zeta1_levels.T).T) + direct
     # tau-part through the Hamiltonian.
     H = np.array([_hamiltonian(model, sol, f, zeta0_levels[k], zeta1_levels[k], k, alpha, force, vol_grad)
                   for k in range(N + 1)])
     T, eps, tau = J.transform.T, J.transform.eps, m.tau
-    first = _trapezoid(H[: n1 + 1], dt[:n1]) / tau
-    last = _trapezoid(H[n1 + n2:], dt[n1 + n2:]) / (T - tau - eps)
+    first = trapezoid_weights(dt[:n1]) @ H[: n1 + 1] / tau
+    last = trapezoid_weights(dt[n1 + n2:]) @ H[n1 + n2:] / (T - tau - eps)
     return J.riesz(ControlPoint(dual_xi, first - last))
 
 
@@ -141,8 +110,7 @@ def _project_terminal(model, y0, w1):
     if not np.any(w1):
         return np.zeros(model.n)
     G = np.asarray(model.volume_gradient(jnp.asarray(y0)))
-    lu = spla.splu(model.mass.tocsc())
-    a, b = lu.solve(w1), lu.solve(G)
+    a, b = model.mass_lu.solve(w1), model.mass_lu.solve(G)
     return a - b * (G @ a) / (G @ b)
 
 
@@ -152,7 +120,3 @@ def _hamiltonian(model, sol, f, zeta0, zeta1, k, alpha, force, vol_grad) -> floa
            - np.asarray(force(jnp.asarray(y0))) - sol.pressure[k] * np.asarray(vol_grad(jnp.asarray(y0))))
     c = -0.5 * alpha * xi @ (model.control.mass @ xi)
     return float(c + zeta0 @ y1 + zeta1 @ rhs)
-
-
-def _trapezoid(values, dt) -> float:
-    return float(np.sum(0.5 * dt * (values[:-1] + values[1:])))

@@ -264,22 +264,22 @@ class TimeStepper:
         return jax.jit(self.step)
 
     # --- driver ---------------------------------------------------------------------------------
-    def initial_pressure(self, y0, y1, xi0, f0) -> float:
-        """p(0) from the consistent initial acceleration (second time derivative of the constraint).
+    def consistent_pressure(self, y0, y1, xi, f):
+        """The pressure consistent with the state (second time derivative of the constraint), traced.
 
-        ``G^T a + y1^T H y1 = 0`` with ``M a = L(xi0) - A(y0, y1) - p G`` gives
-        ``p = (G^T M^-1 (L - A) + y1^T H y1) / (G^T M^-1 G)``.
+        ``G^T a + y1^T H y1 = 0`` with ``M a = L(xi, f) - A(y0, y1) - p G`` gives
+        ``p = (G^T M^-1 (L - A) + y1^T H y1) / (G^T M^-1 G)``; differentiable in all arguments.
         """
-        import scipy.sparse.linalg as spla
-
         m = self.model
-        G = np.asarray(m.volume_gradient(jnp.asarray(y0)))
-        A = m.kappa * (m.laplace @ y1) + np.asarray(m.internal_force(jnp.asarray(y0)))
-        L = np.asarray(self.load(jnp.asarray(xi0), jnp.asarray(f0)))
-        _, Hy1 = jax.jvp(m.volume_gradient, (jnp.asarray(y0),), (jnp.asarray(y1),))
-        lu = spla.splu(m.mass.tocsc())
-        MinvG = lu.solve(G)
-        return float((MinvG @ (L - A) + y1 @ np.asarray(Hy1)) / (G @ MinvG))
+        G = m.volume_gradient(y0)
+        _, Hy1 = jax.jvp(m.volume_gradient, (y0,), (y1,))
+        rhs = self.load(xi, f) - m.kappa * (self._K @ y1) - m.internal_force(y0)
+        MinvG = m.apply_mass_inverse(G)
+        return (MinvG @ rhs + y1 @ Hy1) / (G @ MinvG)
+
+    def initial_pressure(self, y0, y1, xi0, f0) -> float:
+        """p(0) from the consistent initial acceleration (`consistent_pressure` at t = 0)."""
+        return float(self.consistent_pressure(*(jnp.asarray(a) for a in (y0, y1, xi0, f0))))
 
     def run(self, grid: TimeGrid, xi=None, *, u0=None, v0=None, external=None, progress: bool = False,
             diagnose: bool = True) -> StateSolution:

@@ -102,6 +102,28 @@ class StateModel:
         return self.pattern.matrix(self.laplace_blocks)
 
     @cached_property
+    def mass_lu(self):
+        """Sparse LU factorization of the mass matrix (consistent pressure, terminal projections)."""
+        import scipy.sparse.linalg as spla
+
+        return spla.splu(self.mass.tocsc())
+
+    def apply_mass_inverse(self, v):
+        """``M^-1 v`` inside traced code (a host solve; linear, so its JVP is itself)."""
+
+        @jax.custom_jvp
+        def solve(v):
+            return jax.pure_callback(lambda x: self.mass_lu.solve(np.asarray(x)),
+                                     jax.ShapeDtypeStruct(v.shape, v.dtype), v)
+
+        @solve.defjvp
+        def _(primals, tangents):
+            (v,), (dv,) = primals, tangents
+            return solve(v), solve(dv)
+
+        return solve(v)
+
+    @cached_property
     def jax_operators(self):
         """(M, K, B) as JAX sparse matrices for traced matvecs (B is None without control)."""
         B = _to_bcoo(self.control.load) if self.control is not None else None

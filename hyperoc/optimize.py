@@ -233,7 +233,7 @@ def lbfgsb(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gt
             res.failed_trials += 1
             return -state["best"] + abs(state["best"]) + 1.0, state["grad"]
         value, g = out
-        dual = _dual(J, g)  # dJ/dxi as a dual vector
+        dual = J.dual(g)  # dJ/dxi as a dual vector
         grad_z = -np.concatenate([(dual.xi / scale).ravel(), [dual.tau]])
         state["last"] = (m, value, g)
         state["best"], state["grad"] = max(state["best"], value), grad_z
@@ -272,9 +272,3 @@ def lbfgsb(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gt
     res.wall_time = time.perf_counter() - start
     res.evaluations = {"state_solves": J.counts["state"], "adjoint_solves": J.counts["adjoint"], "cache_hits": evaluate.hits}
     return res
-
-
-def _dual(J: ReducedFunctional, g: ControlPoint) -> ControlPoint:
-    """Inverse of the Riesz map: the derivative dJ as a dual vector."""
-    Mx = (J.model.control.mass @ g.xi.T).T
-    return ControlPoint(J.s_weights[:, None] * Mx, g.tau)

@@ -23,7 +23,7 @@ from .dynamics import Scheme, StateSolution, TimeStepper
 from .errors import InputError
 from .model import StateModel
 from .objectives import Objective, Trajectory
-from .timegrid import TimeTransform
+from .timegrid import TimeTransform, trapezoid_weights
 
 __all__ = ["ControlPoint", "ReducedFunctional"]
 
@@ -90,11 +90,7 @@ class ReducedFunctional:
     @cached_property
     def s_weights(self) -> np.ndarray:
         """Trapezoid weights of the s-levels, (N+1,)."""
-        ds = self.transform.ds()
-        w = np.zeros(ds.size + 1)
-        w[:-1] += ds / 2
-        w[1:] += ds / 2
-        return w
+        return trapezoid_weights(self.transform.ds())
 
     @cached_property
     def _control_mass_lu(self):
@@ -105,8 +101,7 @@ class ReducedFunctional:
 
     def inner(self, a: ControlPoint, b: ControlPoint) -> float:
         """``<a, b> = int_0^2 (a.xi, b.xi)_{L2(omega)} ds + a.tau b.tau`` (trapezoid in s)."""
-        Mb = (self.model.control.mass @ b.xi.T).T
-        return float(np.sum(self.s_weights[:, None] * a.xi * Mb) + a.tau * b.tau)
+        return float(np.sum(a.xi * self.dual(b).xi) + a.tau * b.tau)
 
     def norm(self, a: ControlPoint) -> float:
         return float(np.sqrt(max(self.inner(a, a), 0.0)))
@@ -115,6 +110,11 @@ class ReducedFunctional:
         """Riesz representative of a derivative (dual vector) for `inner`."""
         xi = self._control_mass_lu.solve(np.ascontiguousarray(dual.xi.T)).T / self.s_weights[:, None]
         return ControlPoint(xi, dual.tau)
+
+    def dual(self, g: ControlPoint) -> ControlPoint:
+        """Inverse of `riesz`: the dual vector ``d`` with ``d.xi . v.xi + d.tau v.tau = <g, v>``."""
+        Mx = (self.model.control.mass @ g.xi.T).T
+        return ControlPoint(self.s_weights[:, None] * Mx, g.tau)
 
     # --- evaluation ------------------------------------------------------------------------------
     def _check(self, m: ControlPoint) -> None:

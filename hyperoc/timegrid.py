@@ -16,7 +16,16 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["TimeGrid", "TimeTransform", "uniform_grid"]
+__all__ = ["TimeGrid", "TimeTransform", "uniform_grid", "trapezoid_weights"]
+
+
+def trapezoid_weights(steps) -> np.ndarray:
+    """Weights (N+1,) of the trapezoid rule on levels separated by ``steps`` (N,)."""
+    steps = np.asarray(steps, dtype=np.float64)
+    w = np.zeros(steps.size + 1)
+    w[:-1] += steps / 2
+    w[1:] += steps / 2
+    return w
 
 
 @dataclass(frozen=True, eq=False)
