@@ -20,6 +20,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .errors import InputError
+from .fibres import transmural_coordinate
 from .mesh import Mesh
 from .spaces import VectorSpace
 
@@ -28,16 +29,24 @@ __all__ = ["Region", "BodyForce", "ActiveStress", "ControlData", "circumferentia
 
 @dataclass(frozen=True)
 class Region:
-    """A set of cells: a mesh tag, an axis-aligned box, an annular sector, or the whole domain.
+    """A set of cells: the whole domain, a mesh tag, an axis-aligned box, an annular sector, an
+    apical cap or a transmural band.
 
     A cell belongs to the region when its centroid does (tags select cells directly).
 
     Parameters
     ----------
-    kind : "all" | "tag" | "box" | "sector"
+    kind : "all" | "tag" | "box" | "sector" | "cap" | "band"
     tag : subdomain name (kind "tag").
     lower, upper : box corners, length dim (kind "box").
     r_range, theta_range : radii and polar angles in radians in the (x, y) plane (kind "sector").
+    z_max : height (length units) below which the cells form an apical cap ``z <= z_max`` (kind
+        "cap", 3D, long axis z with the apex at the bottom); must lie below the top of the mesh (the
+        base of a ventricle).
+    transmural : ``(a, b)`` with ``0 <= a < b <= 1``: the cells whose transmural coordinate ``d``
+        (`hyperoc.fibres.transmural_coordinate`, 0 on ``inner``, 1 on ``outer``) at the centroid lies in
+        ``[a, b]`` (kind "band"; e.g. ``(0, 1/3)`` the subendocardial third).
+    inner, outer : boundary names of the two walls (kind "band").
     """
 
     kind: str = "all"
@@ -46,8 +55,13 @@ class Region:
     upper: tuple | None = None
     r_range: tuple | None = None
     theta_range: tuple | None = None
+    z_max: float | None = None
+    transmural: tuple | None = None
+    inner: str = "endocardium"
+    outer: str = "epicardium"
 
     def cell_mask(self, mesh: Mesh) -> np.ndarray:
+        """Boolean (nc,) mask of the cells of the region; `InputError` if it is malformed or empty."""
         c = mesh.cell_centroids()
         if self.kind == "all":
             mask = np.ones(mesh.num_cells, bool)
@@ -67,11 +81,34 @@ class Region:
             th = np.arctan2(c[:, 1], c[:, 0])
             (r0, r1), (a0, a1) = self.r_range or (0, np.inf), self.theta_range or (-np.pi, np.pi)
             mask = (r >= r0) & (r <= r1) & (th >= a0) & (th <= a1)
+        elif self.kind == "cap":
+            mask = c[:, 2] <= self._cap_level(mesh)
+        elif self.kind == "band":
+            a, b = self._band()
+            d = transmural_coordinate(mesh, self.inner, self.outer)[mesh.cells].mean(axis=1)
+            mask = (d >= a) & (d <= b)
         else:
-            raise InputError(f"control region: unknown kind {self.kind!r} (all, tag, box, sector)")
+            raise InputError(f"control region: unknown kind {self.kind!r} (all, tag, box, sector, cap, band)")
         if not mask.any():
             raise InputError(f"control region {self.describe()} contains no cell of the mesh (is it outside the domain?)")
         return mask
+
+    def _cap_level(self, mesh: Mesh) -> float:
+        if mesh.dim != 3:
+            raise InputError(f"control region: a cap needs a 3D mesh (long axis z), got dimension {mesh.dim}")
+        if self.z_max is None or not np.isfinite(self.z_max):
+            raise InputError(f"control region: a cap needs a finite z_max, got {self.z_max}")
+        top = float(mesh.points[:, 2].max())
+        if self.z_max >= top:
+            raise InputError(f"control region: cap z_max = {self.z_max:g} is at or above the base (top of the mesh "
+                             f"z = {top:g}); use kind = 'all' for the whole wall")
+        return float(self.z_max)
+
+    def _band(self) -> tuple[float, float]:
+        band = self.transmural
+        if band is None or len(band) != 2 or not (0.0 <= band[0] < band[1] <= 1.0):
+            raise InputError(f"control region: a band needs transmural = [a, b] with 0 <= a < b <= 1, got {band}")
+        return float(band[0]), float(band[1])
 
     def describe(self) -> str:
         if self.kind == "box":
@@ -80,6 +117,10 @@ class Region:
             return f"tag {self.tag!r}"
         if self.kind == "sector":
             return f"sector r in {self.r_range}, theta in {self.theta_range}"
+        if self.kind == "cap":
+            return f"cap z <= {self.z_max:g}"
+        if self.kind == "band":
+            return f"band transmural in {list(self.transmural)}"
         return "all"
 
 
@@ -94,6 +135,8 @@ class ControlData:
     nodes : (n_nodes,) indices of the space nodes carrying control values.
     components : values per node (dim for a body force, 1 for active stress).
     cell_mask : (nc,) the cells of omega.
+    cell_nodes : (nc_omega, nloc) indices into ``nodes`` of the nodes of each cell of omega.
+    fibres : (nc_omega, dim) unit fibre at each cell centroid of omega (active stress), or None.
     """
 
     load: sp.csr_matrix
@@ -101,6 +144,8 @@ class ControlData:
     nodes: np.ndarray
     components: int
     cell_mask: np.ndarray
+    cell_nodes: np.ndarray
+    fibres: np.ndarray | None = None
 
     @property
     def size(self) -> int:
@@ -113,6 +158,11 @@ class ControlData:
     def nodal(self, xi: np.ndarray) -> np.ndarray:
         """Control vector(s) (..., n_ctrl) as nodal values (..., n_nodes, components)."""
         return np.asarray(xi).reshape(*np.shape(xi)[:-1], self.nodes.size, self.components)
+
+    def cell_values(self, xi: np.ndarray) -> np.ndarray:
+        """Control vector(s) (..., n_ctrl) as the mean of each omega cell's nodal values,
+        (..., nc_omega, components) (P1: the value at the centroid)."""
+        return self.nodal(xi)[..., self.cell_nodes, :].mean(axis=-2)
 
 
 def _cell_blocks_to_matrix(rows_e, cols_e, blocks, shape) -> sp.csr_matrix:
@@ -130,7 +180,7 @@ def _control_numbering(space: VectorSpace, mask: np.ndarray, components: int):
     local[nodes] = np.arange(nodes.size)
     cn = local[space.cell_nodes[mask]]  # (nc_omega, nloc)
     cdofs = (cn[:, :, None] * components + np.arange(components)).reshape(len(cn), -1)
-    return nodes, cdofs
+    return nodes, cn, cdofs
 
 
 def _scalar_mass_blocks(space: VectorSpace, mask: np.ndarray) -> np.ndarray:
@@ -147,14 +197,14 @@ class BodyForce:
     def build(self, space: VectorSpace, to_reduced: np.ndarray) -> ControlData:
         mask = self.region.cell_mask(space.mesh)
         d = space.components
-        nodes, cdofs = _control_numbering(space, mask, d)
+        nodes, cell_nodes, cdofs = _control_numbering(space, mask, d)
         Ms = _scalar_mass_blocks(space, mask)
         blocks = np.einsum("cab,ij->caibj", Ms, np.eye(d)).reshape(len(Ms), d * space.nloc, d * space.nloc)
         sdofs = to_reduced[space.cell_dofs[mask]]
         n_state = int(to_reduced.max()) + 1
         load = _cell_blocks_to_matrix(sdofs, cdofs, blocks, (n_state, nodes.size * d))
         mass = _cell_blocks_to_matrix(cdofs, cdofs, blocks, (nodes.size * d,) * 2)
-        return ControlData(load, mass, nodes, d, mask)
+        return ControlData(load, mass, nodes, d, mask, cell_nodes)
 
 
 def circumferential_fibres(x: np.ndarray) -> np.ndarray:
@@ -168,16 +218,25 @@ def circumferential_fibres(x: np.ndarray) -> np.ndarray:
 class ActiveStress:
     """Active stress along fibres ``<f(xi), phi> = int_omega xi (fhat (x) fhat) : grad phi`` (scalar xi).
 
-    ``fibres`` maps quadrature points (..., dim) to unit vectors (..., dim); default: the x axis in
-    1D, circumferential in 2D/3D. The sign is the paper's (``sec-app-control``).
+    ``xi`` is a stress (the material's units, kPa for the cardiac laws). The sign is the paper's
+    (``sec-app-control``): the load acts like a stress ``-xi fhat (x) fhat`` added to the first
+    Piola-Kirchhoff stress, so ``xi > 0`` pushes along the fibres and a contraction (fibre tension
+    ``T_a > 0``) is ``xi = -T_a``.
+
+    ``fibres(x, cells)`` maps points x (n, nq, dim) of the mesh cells ``cells`` (n,) to unit vectors
+    (n, nq, dim), e.g. `hyperoc.fibres.FibreFrames.fibre` (row 0 of the material frame); default:
+    the x axis in 1D, circumferential in 2D/3D.
     """
 
     region: Region = field(default_factory=Region)
     fibres: Callable | None = None
 
-    def fibre_field(self, x: np.ndarray) -> np.ndarray:
+    def fibre_field(self, x: np.ndarray, cells: np.ndarray) -> np.ndarray:
+        """Unit fibres (n, nq, dim) at points x (n, nq, dim) of the cells ``cells`` (n,)."""
         if self.fibres is not None:
-            f = np.asarray(self.fibres(x), dtype=np.float64)
+            f = np.asarray(self.fibres(x, cells), dtype=np.float64)
+            if f.shape != x.shape:
+                raise InputError(f"active stress: fibres must return vectors of shape {x.shape}, got {f.shape}")
         elif x.shape[-1] == 1:
             f = np.ones_like(x)
         else:
@@ -186,9 +245,11 @@ class ActiveStress:
 
     def build(self, space: VectorSpace, to_reduced: np.ndarray) -> ControlData:
         mask = self.region.cell_mask(space.mesh)
-        nodes, cdofs = _control_numbering(space, mask, 1)
+        cells = np.flatnonzero(mask)
+        nodes, cell_nodes, cdofs = _control_numbering(space, mask, 1)
         q = space.quadrature(2 * space.degree)
-        f = self.fibre_field(q.x[mask])  # (nc, nq, d)
+        f = self.fibre_field(q.x[mask], cells)  # (nc_omega, nq, d)
+        f_centroid = self.fibre_field(space.mesh.cell_centroids()[mask][:, None, :], cells)[:, 0]
         # B[(a, i), b] = sum_q w N_b f_i f_J dN_a/dX_J
         fdN = np.einsum("cqj,cqaj->cqa", f, q.dN[mask])
         blocks = np.einsum("cq,cqa,cqi,qb->caib", q.wdx[mask], fdN, f, q.N)
@@ -197,4 +258,4 @@ class ActiveStress:
         n_state = int(to_reduced.max()) + 1
         load = _cell_blocks_to_matrix(sdofs, cdofs, blocks, (n_state, nodes.size))
         mass = _cell_blocks_to_matrix(cdofs, cdofs, _scalar_mass_blocks(space, mask), (nodes.size,) * 2)
-        return ControlData(load, mass, nodes, 1, mask)
+        return ControlData(load, mass, nodes, 1, mask, cell_nodes, f_centroid)

@@ -23,6 +23,7 @@ The frame field is what `hyperoc.model.StateModel` takes as ``frames`` and passe
 from __future__ import annotations
 
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 
 import meshio
@@ -35,7 +36,7 @@ from .io import atomic_write_bytes
 from .mesh import Mesh
 from .spaces import VectorSpace
 
-__all__ = ["transmural_coordinate", "rule_based_fibres", "write_fibres"]
+__all__ = ["FibreFrames", "transmural_coordinate", "rule_based_fibres", "write_fibres"]
 
 
 def _p1_stiffness_blocks(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
@@ -104,56 +105,106 @@ def _circumferential(n_t: np.ndarray, axis: np.ndarray) -> np.ndarray:
     return c / norm[:, None]
 
 
+@dataclass(frozen=True, eq=False)
+class FibreFrames:
+    """Rule-based (f, s, n) frames on a 3D mesh, evaluated at any points of any subset of its cells.
+
+    Per cell the transmural ``n_t``, circumferential ``c`` and longitudinal ``l`` directions are
+    constant; the helix angle ``alpha(d) = alpha_endo + (alpha_epi - alpha_endo) d`` uses the P1
+    transmural coordinate ``d`` interpolated at each point, and
+
+        f = cos(alpha) c + sin(alpha) l,   s = n_t,   n = f x s.
+
+    Attributes
+    ----------
+    transmural : (nv,) nodal transmural coordinate d (dimensionless, 0 on ``inner``, 1 on ``outer``).
+    sheet, circumferential, longitudinal : (nc, 3) unit vectors ``n_t``, ``c``, ``l`` per cell.
+    grad_d : (nc, 3) ``grad d`` per cell (1/length); ``x0`` (nc, 3) first vertex, ``d0`` (nc,) d there.
+    centroids : (nc, 3) cell centroids (where `cell_frames` evaluates).
+    helix : (alpha_endo, alpha_epi) in radians.
+    """
+
+    transmural: np.ndarray
+    sheet: np.ndarray
+    circumferential: np.ndarray
+    longitudinal: np.ndarray
+    grad_d: np.ndarray
+    x0: np.ndarray
+    d0: np.ndarray
+    centroids: np.ndarray
+    helix: tuple
+
+    @property
+    def num_cells(self) -> int:
+        return len(self.sheet)
+
+    def _cells(self, x: np.ndarray, cells) -> np.ndarray:
+        cells = np.arange(self.num_cells) if cells is None else np.asarray(cells, dtype=np.int64).reshape(-1)
+        if x.ndim < 2 or x.shape[0] != cells.size or x.shape[-1] != 3:
+            raise InputError(f"fibre frames: expected points (number of cells = {cells.size}, ..., 3), got {x.shape}")
+        if cells.size and (cells.min() < 0 or cells.max() >= self.num_cells):
+            raise InputError(f"fibre frames: cell indices must lie in [0, {self.num_cells}), got {cells.min()}..{cells.max()}")
+        return cells
+
+    def __call__(self, x, cells=None) -> np.ndarray:
+        """Frames (n, ..., 3, 3) with rows ``(f, s, n)`` at points x (n, ..., 3) of the cells ``cells``
+        (n,) (default: every cell, n = num_cells), e.g. the quadrature points of `StateModel`."""
+        x = np.asarray(x, dtype=np.float64)
+        cells = self._cells(x, cells)
+        expand = (slice(None),) + (None,) * (x.ndim - 2)
+        # P1 interpolation: d(x) = d_0 + grad d . (x - x_0) within each (affine) cell.
+        d = self.d0[cells][expand] + np.einsum("c...j,cj->c...", x - self.x0[cells][expand], self.grad_d[cells])
+        a_endo, a_epi = self.helix
+        alpha = (a_endo + (a_epi - a_endo) * d)[..., None]
+        f = np.cos(alpha) * self.circumferential[cells][expand] + np.sin(alpha) * self.longitudinal[cells][expand]
+        s = np.broadcast_to(self.sheet[cells][expand], f.shape)
+        return np.stack([f, s, np.cross(f, s)], axis=-2)
+
+    def fibre(self, x, cells=None) -> np.ndarray:
+        """Unit fibre directions (n, ..., 3) at points x (n, ..., 3) of ``cells``: row 0 of the frame
+        (the ``fibres`` argument of `hyperoc.controls.ActiveStress`)."""
+        return self(x, cells)[..., 0, :]
+
+    def cell_frames(self) -> np.ndarray:
+        """Frames (nc, 3, 3) at the cell centroids (output, glyphs)."""
+        return self(self.centroids[:, None, :])[:, 0]
+
+
 def rule_based_fibres(mesh: Mesh, *, helix_endo: float = 60.0, helix_epi: float = -60.0, long_axis=(0.0, 0.0, 1.0),
-                      inner: str = "endocardium", outer: str = "epicardium"):
+                      inner: str = "endocardium", outer: str = "epicardium") -> FibreFrames:
     """Fibre, sheet and sheet-normal directions with a transmurally varying helix angle (degrees).
 
-    Returns a callable ``frames(x)`` for points x of shape (nc, ..., 3) whose leading axis runs over
-    the cells of ``mesh`` (the quadrature points of `StateModel`, or cell centroids as (nc, 1, 3)).
-    It returns (nc, ..., 3, 3) frames with rows ``(f, s, n)``: ``n_t``, ``c``, ``l`` are constant per
-    cell, and the helix angle uses ``d`` interpolated (P1) at each point. The callable also carries
-    ``frames.transmural`` (nodal d) for output.
+    Returns `FibreFrames`: ``frames(x)`` for points x (nc, ..., 3) whose leading axis runs over the
+    cells of ``mesh`` (the quadrature points of `StateModel`, or cell centroids as (nc, 1, 3)), or
+    ``frames(x, cells)`` for points of the cells ``cells`` only; (n, ..., 3, 3) frames with rows
+    ``(f, s, n)``. ``frames.transmural`` (nodal d) is kept for output and transmural regions.
     """
     if mesh.dim != 3:
         raise InputError(f"rule_based_fibres needs a 3D mesh, got dimension {mesh.dim}")
     axis = np.asarray(long_axis, dtype=np.float64).reshape(3)
     if not np.linalg.norm(axis) > 0:
         raise InputError(f"rule_based_fibres: long_axis must be a nonzero vector, got {long_axis}")
+    if not (np.isfinite(helix_endo) and np.isfinite(helix_epi)):
+        raise InputError(f"rule_based_fibres: helix angles must be finite, got {helix_endo}, {helix_epi}")
     d = transmural_coordinate(mesh, inner, outer)
     _, dN = _p1_stiffness_blocks(mesh)
     n_t = _transmural_directions(mesh, d, dN)
     c = _circumferential(n_t, axis / np.linalg.norm(axis))
-    l = np.cross(n_t, c)
-    x0, d_cell = mesh.points[mesh.cells[:, 0]], d[mesh.cells]
-    a_endo, a_epi = np.deg2rad(helix_endo), np.deg2rad(helix_epi)
-
-    def frames(x):
-        x = np.asarray(x, dtype=np.float64)
-        if x.ndim < 2 or x.shape[0] != len(d_cell) or x.shape[-1] != 3:
-            raise InputError(f"fibre frames: expected points (num_cells = {len(d_cell)}, ..., 3), got {x.shape}")
-        expand = (slice(None),) + (None,) * (x.ndim - 2)
-        # P1 interpolation: d(x) = d_0 + grad d . (x - x_0) within each (affine) cell.
-        grad = np.einsum("caj,ca->cj", dN, d_cell)
-        dx = d_cell[:, 0][expand] + np.einsum("c...j,cj->c...", x - x0[expand], grad)
-        alpha = (a_endo + (a_epi - a_endo) * dx)[..., None]
-        f = np.cos(alpha) * c[expand] + np.sin(alpha) * l[expand]
-        s = np.broadcast_to(n_t[expand], f.shape)
-        return np.stack([f, s, np.cross(f, s)], axis=-2)
-
-    frames.transmural = d
-    return frames
+    d_cell = d[mesh.cells]
+    return FibreFrames(transmural=d, sheet=n_t, circumferential=c, longitudinal=np.cross(n_t, c),
+                       grad_d=np.einsum("caj,ca->cj", dN, d_cell), x0=mesh.points[mesh.cells[:, 0]], d0=d_cell[:, 0],
+                       centroids=mesh.cell_centroids(), helix=(float(np.deg2rad(helix_endo)), float(np.deg2rad(helix_epi))))
 
 
-def write_fibres(path, mesh: Mesh, frames) -> Path:
+def write_fibres(path, mesh: Mesh, frames: FibreFrames) -> Path:
     """Write a VTU file (atomically) with cell vectors ``fibre``, ``sheet``, ``normal`` evaluated at
-    the cell centroids, and the point field ``transmural`` when ``frames`` carries it (ParaView:
-    Glyph filter on the cell data)."""
+    the cell centroids and the point field ``transmural`` (ParaView: Glyph filter on the cell data)."""
     if mesh.dim != 3:
         raise InputError(f"write_fibres needs a 3D mesh, got dimension {mesh.dim}")
     path = Path(path)
-    F = np.asarray(frames(mesh.cell_centroids()[:, None, :]))[:, 0]
+    F = frames.cell_frames()
     cell_data = {name: [F[:, k]] for k, name in enumerate(("fibre", "sheet", "normal"))}
-    point_data = {"transmural": frames.transmural} if hasattr(frames, "transmural") else {}
+    point_data = {"transmural": frames.transmural}
     out = meshio.Mesh(mesh.points, [("tetra", mesh.cells)], point_data=point_data, cell_data=cell_data)
     with tempfile.TemporaryDirectory(dir=path.parent) as tmp:
         staged = Path(tmp) / path.name
