@@ -1,7 +1,7 @@
 """TOML configuration: schema, validation with one clear message, and builders.
 
-A configuration has the sections ``[mesh] [material] [dynamics] [control] [objective] [optimize]
-[output]`` (see ``examples/*.toml``). Every entry is checked for its type and range before any
+A configuration has the sections ``[mesh] [material] [fibres] [dynamics] [control] [objective]
+[optimize] [output]`` (see ``examples/*.toml``). Every entry is checked for its type and range before any
 computation starts; a problem raises `InputError` naming the section and key, which the CLI turns
 into one line on stderr and exit status 2.
 """
@@ -18,7 +18,8 @@ from .controls import ActiveStress, BodyForce, Region
 from .dynamics import Scheme
 from .errors import InputError
 from .expr import expression_field, parse_expression
-from .materials import material_from_config
+from .fibres import FibreFrames, rule_based_fibres
+from .materials import Guccione, HolzapfelOgden, material_from_config
 from .mesh import Mesh, box, interval, rectangle
 from .model import StateModel
 from .objectives import objective_from_config
@@ -38,7 +39,14 @@ SCHEMA = {
         "dirichlet_tag": (str, "gamma_d"), "neumann_tag": (str, "gamma_n"), "control_tag": (str, "omega"),
     },
     "material": {"law": (str, "svk"), "mu": (NUMBER, ...), "lambda": (NUMBER, ...), "beta": (NUMBER, ...),
-                 "gamma": (NUMBER, ...), "W0": (NUMBER, ...), "coefficients": (list, ...), "exponents": (list, ...)},
+                 "gamma": (NUMBER, ...), "W0": (NUMBER, ...), "coefficients": (list, ...), "exponents": (list, ...),
+                 # cardiac laws (kPa): Guccione C, bf, bt, bfs; Holzapfel-Ogden a, b, af, bf, as, bs, afs, bfs
+                 "C": (NUMBER, ...), "bf": (NUMBER, ...), "bt": (NUMBER, ...), "bfs": (NUMBER, ...),
+                 "a": (NUMBER, ...), "b": (NUMBER, ...), "af": (NUMBER, ...), "as": (NUMBER, ...),
+                 "bs": (NUMBER, ...), "afs": (NUMBER, ...), "kappa": (NUMBER, ...)},
+    # rule-based fibres (hyperoc.fibres.rule_based_fibres): helix angles in degrees, long axis apex -> base
+    "fibres": {"kind": (str, "none"), "helix_endo": (NUMBER, 60.0), "helix_epi": (NUMBER, -60.0),
+               "long_axis": (list, [0.0, 0.0, 1.0]), "inner": (str, "endocardium"), "outer": (str, "epicardium")},
     "dynamics": {"T": (NUMBER, 15.0), "dt": (NUMBER, 0.02), "kappa": (NUMBER, 2e-4), "density": (NUMBER, 1.0),
                  "theta": (NUMBER, 0.5), "multiplier": (str, "step"), "solver": (str, "auto"),
                  "newton_rtol": (NUMBER, 1e-11), "newton_max_iter": (int, 30), "traction": (list, ...)},
@@ -118,16 +126,34 @@ class Config:
             return geometry.from_file(path, dirichlet=c["dirichlet_tag"], neumann=c["neumann_tag"], control=c["control_tag"])
         raise InputError(f"config: [mesh] kind {kind!r} unknown (interval, rectangle, box, annulus, shell, ventricle, file)")
 
-    def control_operator(self):
+    def fibres(self, mesh: Mesh) -> FibreFrames | None:
+        """Fibre frames of ``[fibres]`` on ``mesh`` (kind "rule_based"), or None (kind "none")."""
+        c = self["fibres"]
+        if c["kind"] == "none":
+            return None
+        if c["kind"] != "rule_based":
+            raise InputError(f"config: [fibres] kind {c['kind']!r} unknown (none, rule_based)")
+        axis = c["long_axis"]
+        if len(axis) != 3 or not all(isinstance(v, NUMBER) and not isinstance(v, bool) for v in axis):
+            raise InputError(f"config: [fibres] long_axis must be a list of 3 numbers, got {axis!r}")
+        if mesh.dim != 3:
+            raise InputError(f"config: [fibres] rule_based needs a 3D mesh, got dimension {mesh.dim}")
+        return rule_based_fibres(mesh, helix_endo=float(c["helix_endo"]), helix_epi=float(c["helix_epi"]),
+                                 long_axis=tuple(float(v) for v in axis), inner=c["inner"], outer=c["outer"])
+
+    def control_operator(self, frames: FibreFrames | None = None):
+        """The control of ``[control]``; active stress follows ``frames``' fibres when given."""
         c = self["control"]
         region = _region(c.get("region"))
         if c["kind"] == "body_force":
             return BodyForce(region)
         if c["kind"] == "active_stress":
-            return ActiveStress(region)
+            return ActiveStress(region, fibres=None if frames is None else frames.fibre)
         raise InputError(f"config: [control] kind {c['kind']!r} unknown (body_force, active_stress)")
 
     def model(self) -> StateModel:
+        """The `StateModel` of the config; the frames of ``[fibres]`` serve both a fibre-dependent
+        material and the active stress (its fibre = row 0 of the frame)."""
         d = self["dynamics"]
         mesh = self.mesh()
         traction = d.get("traction")
@@ -135,9 +161,13 @@ class Config:
             raise InputError(f"config: [dynamics] traction must be a list of {mesh.dim} numbers")
         if self["mesh"]["degree"] not in (1, 2):
             raise InputError(f"config: [mesh] degree must be 1 or 2, got {self['mesh']['degree']}")
-        return StateModel(mesh, material_from_config(self["material"]), degree=self["mesh"]["degree"],
-                          kappa=float(d["kappa"]), density=float(d["density"]), control=self.control_operator(),
-                          traction=traction, dirichlet="gamma_d", neumann="gamma_n")
+        material = material_from_config(self["material"])
+        frames = self.fibres(mesh)
+        if frames is None and isinstance(material, (Guccione, HolzapfelOgden)):
+            raise InputError(f"config: [material] law {self['material']['law']!r} needs fibres: add [fibres] kind = 'rule_based'")
+        return StateModel(mesh, material, degree=self["mesh"]["degree"], kappa=float(d["kappa"]),
+                          density=float(d["density"]), control=self.control_operator(frames), traction=traction,
+                          dirichlet="gamma_d", neumann="gamma_n", frames=frames)
 
     def scheme(self) -> Scheme:
         d = self["dynamics"]
@@ -193,21 +223,32 @@ class Config:
         return out.reshape(t.size, -1)
 
 
+# [control.region] key -> accepted value ("numbers" = a list of numbers)
+_REGION_KEYS = {"tag": str, "inner": str, "outer": str, "z_max": "number", "lower": "numbers", "upper": "numbers",
+                "r_range": "numbers", "theta_range": "numbers", "transmural": "numbers"}
+
+
 def _region(cfg) -> Region:
     if cfg is None:
         return Region()
     cfg = dict(cfg)
     kind = cfg.pop("kind", "box")
-    allowed = {"tag", "lower", "upper", "r_range", "theta_range"}
-    if set(cfg) - allowed:
-        raise InputError(f"config: [control.region] unknown key(s) {sorted(set(cfg) - allowed)}")
+    if not isinstance(kind, str):
+        raise InputError("config: [control.region] kind must be a string")
+    if set(cfg) - set(_REGION_KEYS):
+        raise InputError(f"config: [control.region] unknown key(s) {sorted(set(cfg) - set(_REGION_KEYS))}; "
+                         f"allowed: {sorted(_REGION_KEYS)}")
+    is_number = lambda v: isinstance(v, NUMBER) and not isinstance(v, bool)
+    conv = {}
     for key, value in cfg.items():
-        if key == "tag":
-            if not isinstance(value, str):
-                raise InputError("config: [control.region] tag must be a string")
-        elif not (isinstance(value, list) and all(isinstance(v, NUMBER) and not isinstance(v, bool) for v in value)):
+        expected = _REGION_KEYS[key]
+        if expected is str and not isinstance(value, str):
+            raise InputError(f"config: [control.region] {key} must be a string")
+        if expected == "number" and not is_number(value):
+            raise InputError(f"config: [control.region] {key} must be a number")
+        if expected == "numbers" and not (isinstance(value, list) and all(is_number(v) for v in value)):
             raise InputError(f"config: [control.region] {key} must be a list of numbers")
-    conv = {k: (tuple(float(x) for x in v) if isinstance(v, list) else v) for k, v in cfg.items()}
+        conv[key] = tuple(float(v) for v in value) if expected == "numbers" else (float(value) if expected == "number" else value)
     return Region(kind=kind, **conv)
 
 

@@ -8,10 +8,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 from .dynamics import StateSolution
+from .fibres import FibreFrames
 from .io import write_json, write_npz, write_time_series
+from .materials import det
 from .plotting import plot_control_spacetime, plot_history, plot_pressure, plot_snapshots
 
 __all__ = ["write_state_outputs", "PAPER_SNAPSHOT_TIMES"]
@@ -36,13 +40,48 @@ def _vtk_cells(sol: StateSolution) -> tuple[np.ndarray, str]:
     return cells, _CELL_TYPES[(space.dim, space.degree)]
 
 
+def cell_det_F(sol: StateSolution, levels: np.ndarray) -> np.ndarray:
+    """``min det F`` over the quadrature points of each cell at the given levels, (len(levels), nc)."""
+    model = sol.model
+    fn = jax.jit(lambda u: jnp.min(det(model.deformation_gradient(u)), axis=1))
+    return np.stack([np.asarray(fn(jnp.asarray(sol.y0[n]))) for n in levels])
+
+
+def _cell_series(sol: StateSolution, levels: np.ndarray, frames: FibreFrames | None) -> dict:
+    """Cell fields of the ParaView series, each (len(levels), nc[, k]).
+
+    ``det_F`` (min over the cell's quadrature points); with ``frames`` the unit vectors ``fibre``,
+    ``sheet``, ``normal`` at the centroids (constant in time); with an active-stress control the tensor
+    ``active_stress = xi_c fhat (x) fhat`` (9 components in 3D, stress units, zero outside omega;
+    ``xi_c`` the mean of the cell's nodal control values, ``fhat`` the control's fibre at the centroid).
+    """
+    model, nc = sol.model, sol.model.mesh.num_cells
+    fields = {"det_F": cell_det_F(sol, levels)}
+    if frames is not None:
+        R = frames.cell_frames()
+        for k, name in enumerate(("fibre", "sheet", "normal")):
+            fields[name] = np.broadcast_to(R[:, k], (levels.size, nc, 3))
+    control = model.control
+    if sol.xi is not None and control is not None and control.fibres is not None:
+        f = control.fibres
+        xi_c = control.cell_values(sol.xi[levels])[..., 0]  # (nl, nc_omega)
+        stress = np.zeros((levels.size, nc, model.dim * model.dim))
+        stress[:, control.cell_mask] = (xi_c[..., None, None] * np.einsum("ci,cj->cij", f, f)).reshape(levels.size, -1, model.dim**2)
+        fields["active_stress"] = stress
+    return fields
+
+
 def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = None, eps: float | None = None,
                         snapshot_times=None, series_every: int | None = None, extra_summary: dict | None = None,
-                        history: dict | None = None) -> dict:
+                        history: dict | None = None, frames: FibreFrames | None = None) -> dict:
     """Write results.npz, summary.json, pressure.png, the ParaView series and (1D) snapshot figures.
 
-    results.npz holds ``t, p, p_steps, volume, nodes, displacement, velocity`` (all levels) and the
-    control ``xi`` with its node coordinates ``xi_nodes`` when there is a control. Returns the summary.
+    results.npz holds ``t, p, p_steps, volume, nodes, displacement, velocity`` (all levels), the
+    per-step monitors ``newton_iterations, min_det_F`` and the control ``xi`` with its node
+    coordinates ``xi_nodes`` when there is a control. The series ``paraview/state`` has the point
+    fields ``displacement``, ``velocity``, ``control`` (the control's space-time field, zero outside
+    omega) and the cell fields of `_cell_series` (``frames``: the fibre frames, for output only).
+    Returns the summary.
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -65,14 +104,16 @@ def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = No
         full = np.zeros((levels.size, model.space.num_nodes, xi_nodal.shape[-1]))
         full[:, model.control.nodes] = xi_nodal[levels]
         point_data["control"] = full
-    series = write_time_series(out / "paraview", "state", model.space.nodes, cells, cell_type, sol.t[levels], point_data)
+    series = write_time_series(out / "paraview", "state", model.space.nodes, cells, cell_type, sol.t[levels], point_data,
+                               cell_data=_cell_series(sol, levels, frames))
     files["time_series"] = str(Path(series).relative_to(out))
     if model.dim == 1:
         files.update(_write_1d_figures(out, sol, u, v, xi_nodal, snapshot_times or PAPER_SNAPSHOT_TIMES))
     if history:
         plot_history(out / "history.png", history)
         files["history_plot"] = "history.png"
-    summary = {**sol.summary(), "files": files, **(extra_summary or {})}
+    summary = {**sol.summary(), "newton_iterations_mean": float(np.mean(sol.newton_iterations)), "files": files,
+               **(extra_summary or {})}
     write_json(out / "summary.json", summary)
     return summary
 

@@ -32,7 +32,8 @@ def simulate(cfg: Config, out, *, progress: bool = False) -> dict:
     stepper = TimeStepper(model, cfg.scheme(), cfg["dynamics"]["solver"])
     sol = stepper.run(grid, xi, progress=progress)
     o = cfg["output"]
-    return write_state_outputs(Path(out), sol, snapshot_times=o.get("snapshot_times"), series_every=o.get("series_every"))
+    return write_state_outputs(Path(out), sol, snapshot_times=o.get("snapshot_times"), series_every=o.get("series_every"),
+                               frames=cfg.fibres(model.mesh))
 
 
 def build_reduced(cfg: Config, tau0: float, model=None) -> ReducedFunctional:
@@ -87,7 +88,7 @@ def write_optimization_outputs(out: Path, cfg: Config, J: ReducedFunctional, res
     o = cfg["output"]
     return write_state_outputs(out, sol, tau=res.point.tau, eps=J.transform.eps or None, history=hist,
                                snapshot_times=o.get("snapshot_times"), series_every=o.get("series_every"),
-                               extra_summary={"optimization": summary, "tau": summary["tau"],
+                               frames=cfg.fibres(J.model.mesh), extra_summary={"optimization": summary, "tau": summary["tau"],
                                               "objective": summary["objective"], "iterations": summary["iterations"],
                                               "converged": summary["converged"],
                                               "grad_norm_history": summary["grad_norm_history"],
