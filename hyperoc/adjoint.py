@@ -11,10 +11,18 @@ Going backwards with ``lambda = (dJ/dy0_{n+1}, dJ/dy1_{n+1})`` (totals, future i
 All partial derivatives are vector-Jacobian products of the same JAX residual that Newton solves,
 so the gradient is exact for the discrete J up to the Newton and linear-solver tolerances. This is
 the discrete counterpart of the paper's ``ende3``-``ende4``; ``dJ/dtau = sum_n dJ/ddt_n ddt_n/dtau``.
+
+Checkpointing (`Adjoint.record`, `Adjoint.backward_checkpointed`): the forward pass keeps the level
+state ``(y0, y1)`` only at the checkpoint levels ``0, k, 2k, ...`` (plus the few levels the
+objective reads) and the N step multipliers (one scalar each). The backward pass takes the segments
+``[c_j, c_{j+1}]`` last to first, recomputes each from its checkpoint with the stepper's own compiled
+step (Newton warm-started from the same ``p_{c_j - 1/2}``, hence the same states) and runs `sweep`
+over it. Memory: ``ceil(N/k) + k + 1`` level states instead of ``N + 1``; cost: one more forward solve.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from functools import cached_property
 
 import jax
@@ -24,8 +32,36 @@ import numpy as np
 from . import _jax  # noqa: F401
 from .dynamics import TimeStepper
 from .errors import InputError
+from .timegrid import TimeGrid
 
-__all__ = ["Adjoint"]
+__all__ = ["Adjoint", "Checkpoints"]
+
+
+@dataclass(eq=False)
+class Checkpoints:
+    """A forward solve that kept only some level states (made by `Adjoint.record`).
+
+    grid : TimeGrid, N steps; xi : (N+1, n_ctrl) controls; loads : (N+1, n) external loads (a
+    broadcast view when constant); V0 : the constrained volume ``int det F`` (length^d);
+    bounds : (C+1,) segment bounds ``0 = c_0 < c_1 < ... < c_C = N``, segment j covering the steps
+    ``c_j .. c_{j+1} - 1``; states : C pairs ``(y0, y1)`` at the levels ``c_0 .. c_{C-1}``, (n,) each;
+    p_steps : (N,) step multipliers (all kept); kept : ``{level: (y0, y1)}`` for the extra levels
+    asked for (those the objective reads).
+    """
+
+    grid: TimeGrid
+    xi: np.ndarray
+    loads: np.ndarray
+    V0: float
+    bounds: np.ndarray
+    states: list
+    p_steps: np.ndarray
+    kept: dict
+
+    @property
+    def stored_states(self) -> int:
+        """Level states held between the forward and the backward pass, ``C + len(kept)``."""
+        return len(self.states) + len(self.kept)
 
 
 class Adjoint:
@@ -54,14 +90,13 @@ class Adjoint:
 
     @cached_property
     def _scan(self):
-        def run(lamN, gY0, gY1, xs):
+        def run(lam, gY0, gY1, xs):
             def body(carry, inp):
                 (l0, l1), out = self.step(carry, inp[:-2])
                 g0, g1 = inp[-2:]
                 return (l0 + g0, l1 + g1), out
 
-            _, out = jax.lax.scan(body, lamN, xs + (gY0[:-1], gY1[:-1]), reverse=True)
-            return out
+            return jax.lax.scan(body, lam, xs + (gY0, gY1), reverse=True)
 
         return jax.jit(run)
 
@@ -69,25 +104,89 @@ class Adjoint:
     def _jit_step(self):
         return jax.jit(self.step)
 
-    def backward(self, Y0, Y1, P, Xi, F, dt, V0, gY0, gY1, gP):
-        """Totals ``(dJ/dxi (N+1, n_ctrl), dJ/ddt (N,))`` from the state and J's partial derivatives."""
-        N = dt.shape[0]
-        Vs = jnp.full(N, V0)
-        xs = (Y0[1:], P, Y0[:-1], Y1[:-1], Xi[:-1], Xi[1:], F[:-1], F[1:], dt, Vs, gP)
-        lamN = (gY0[-1], gY1[-1])
-        if self.stepper.solver.traced:
-            gxi0, gxi1, gdt = self._scan(lamN, gY0, gY1, tuple(jnp.asarray(a) for a in xs))
-        else:
-            gxi0, gxi1, gdt = self._python_loop(lamN, gY0, gY1, xs)
-        gXi = jnp.zeros_like(Xi).at[:-1].add(gxi0).at[1:].add(gxi1)
-        return np.asarray(gXi), np.asarray(gdt)
+    def sweep(self, lam, Y0, Y1, P, Xi, F, dt, V0, gY0, gY1, gP):
+        """Backward recursion over the L steps of the level range ``a .. b = a + L``.
 
-    def _python_loop(self, lamN, gY0, gY1, xs):
+        lam : totals ``(dJ/dy0_b, dJ/dy1_b)``, (n,) each; Y0, Y1 : (L+1, n) states, Xi : (L+1, n_ctrl)
+        controls, F : (L+1, n) external loads at the levels a..b; P, dt, gP : (L,) step multipliers,
+        steps, ``dJ/dp`` (partial); gY0, gY1 : (L, n) partials ``dJ/dy0``, ``dJ/dy1`` at the levels a..b-1.
+        Returns the totals at level a, ``dJ/dxi`` (L+1, n_ctrl) from the steps of the range (the end
+        levels also receive contributions from the neighbouring ranges) and ``dJ/ddt`` (L,).
+        """
+        L = dt.shape[0]
+        xs = (Y0[1:], P, Y0[:-1], Y1[:-1], Xi[:-1], Xi[1:], F[:-1], F[1:], dt, jnp.full(L, V0), gP)
+        if self.stepper.solver.traced:
+            lam, (gxi0, gxi1, gdt) = self._scan(lam, jnp.asarray(gY0), jnp.asarray(gY1), tuple(jnp.asarray(a) for a in xs))
+        else:
+            lam, (gxi0, gxi1, gdt) = self._python_loop(lam, gY0, gY1, xs)
+        gXi = jnp.zeros_like(Xi).at[:-1].add(gxi0).at[1:].add(gxi1)
+        return lam, np.asarray(gXi), np.asarray(gdt)
+
+    def backward(self, Y0, Y1, P, Xi, F, dt, V0, gY0, gY1, gP):
+        """Totals ``(dJ/dxi (N+1, n_ctrl), dJ/ddt (N,))`` from the whole stored state and J's partials
+        (gY0, gY1 : (N+1, n), gP : (N,)): one `sweep` over all steps."""
+        _, gXi, gdt = self.sweep((gY0[-1], gY1[-1]), Y0, Y1, P, Xi, F, dt, V0, gY0[:-1], gY1[:-1], gP)
+        return gXi, gdt
+
+    # --- checkpointing ----------------------------------------------------------------------------
+    def advance(self, y0, y1, p_prev, t, xi, loads, V0):
+        """The stepper's own loop (compiled scan, or jitted step driven from Python) over the levels
+        ``t`` (L+1,) from ``(y0, y1)`` with previous multiplier ``p_prev`` (Newton's initial guess);
+        xi (L+1, n_ctrl), loads (L+1, n). Returns the stepper's outputs (Y0, Y1 (L, n), P, iterations,
+        status, min det F, max |grad u| (L,)) for the levels after the first."""
+        st = self.stepper
+        if st.solver.traced:
+            return st._scan(jnp.asarray(y0), jnp.asarray(y1), jnp.asarray(p_prev), jnp.asarray(xi), jnp.asarray(loads),
+                            jnp.asarray(np.diff(t)), V0)
+        return st._python_loop(y0, y1, p_prev, xi, loads, TimeGrid(t), V0, False)
+
+    def record(self, grid: TimeGrid, xi, loads, u0, v0, every: int, keep=()) -> Checkpoints:
+        """Forward solve keeping the level states at ``0, every, 2 every, ...`` and at the levels
+        ``keep``; raises `SolverError` (step, cause) like `TimeStepper.run` when a step fails."""
+        N = grid.num_steps
+        bounds = np.append(np.arange(0, N, every), N)
+        V0 = float(self.stepper.model.jitted["volume"](jnp.asarray(u0)))
+        y0, y1 = jnp.asarray(u0, dtype=jnp.float64), jnp.asarray(v0, dtype=jnp.float64)
+        kept = {0: (y0, y1)} if 0 in keep else {}
+        states, P, its, status, mindet = [], [], [], [], []
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            states.append((y0, y1))
+            out = self.advance(y0, y1, P[-1][-1] if P else np.float64(0.0), grid.t[a:b + 1], xi[a:b + 1],
+                               loads[a:b + 1], V0)
+            for store, o in zip((P, its, status, mindet), (out[2], out[3], out[4], out[5])):
+                store.append(np.asarray(o))
+            if np.any(status[-1] != 0):
+                self.stepper._raise_on_failure(np.concatenate(status), grid, np.concatenate(its), np.concatenate(mindet))
+            kept.update({k: (jnp.asarray(out[0][k - a - 1]), jnp.asarray(out[1][k - a - 1])) for k in keep if a < k <= b})
+            y0, y1 = jnp.asarray(out[0][-1]), jnp.asarray(out[1][-1])
+        return Checkpoints(grid, xi, loads, V0, bounds, states, np.concatenate(P), kept)
+
+    def backward_checkpointed(self, ck: Checkpoints, g_kept: dict, gP):
+        """Totals ``(dJ/dxi (N+1, n_ctrl), dJ/ddt (N,))`` as `backward`, from checkpoints: J's partials
+        ``g_kept = {level: (dJ/dy0, dJ/dy1)}`` (zero at the other levels) and ``gP`` (N,)."""
+        n, N = ck.states[0][0].shape[0], ck.grid.num_steps
+        zero = jnp.zeros(n)
+        lam = g_kept.get(N, (zero, zero))
+        gXi, gdt = np.zeros_like(ck.xi), np.zeros(N)
+        for j in reversed(range(len(ck.states))):
+            a, b = ck.bounds[j], ck.bounds[j + 1]
+            y0, y1 = ck.states[j]
+            Y0n, Y1n, P = self.advance(y0, y1, ck.p_steps[a - 1] if a else np.float64(0.0), ck.grid.t[a:b + 1],
+                                       ck.xi[a:b + 1], ck.loads[a:b + 1], ck.V0)[:3]
+            g = [g_kept.get(k, (zero, zero)) for k in range(a, b)]
+            lam, gxi, gdt[a:b] = self.sweep(lam, jnp.concatenate([y0[None], jnp.asarray(Y0n)]),
+                                            jnp.concatenate([y1[None], jnp.asarray(Y1n)]), P, ck.xi[a:b + 1],
+                                            ck.loads[a:b + 1], ck.grid.dt[a:b], ck.V0,
+                                            jnp.stack([g0 for g0, _ in g]), jnp.stack([g1 for _, g1 in g]), gP[a:b])
+            gXi[a:b + 1] += gxi
+        return gXi, gdt
+
+    def _python_loop(self, lam, gY0, gY1, xs):
         N = xs[0].shape[0]
-        carry = lamN
+        carry = lam
         outs = [None] * N
         for n in reversed(range(N)):
             (l0, l1), out = self._jit_step(carry, tuple(jnp.asarray(a[n]) for a in xs))
             carry = (l0 + gY0[n], l1 + gY1[n])
             outs[n] = out
-        return tuple(jnp.stack([o[k] for o in outs]) for k in range(3))
+        return carry, tuple(jnp.stack([o[k] for o in outs]) for k in range(3))

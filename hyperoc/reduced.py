@@ -5,6 +5,10 @@ nodes at every s-level, shape (N+1, n_ctrl)); tau sets the t-grid through the st
 gradient is the exact gradient of the discrete J (`hyperoc.adjoint`), its xi-part returned as the
 Riesz representative in ``L2(0, 2; L2(omega))`` (trapezoid weights in s times the L2(omega) Gram
 matrix), so that optimizers see mesh- and step-independent quantities.
+
+With ``checkpoint_every=k`` the value and the gradient never hold the whole trajectory: the forward
+pass keeps every k-th level state, the levels the objective reads and the step multipliers, and the
+adjoint recomputes each segment from its checkpoint (`hyperoc.adjoint.Checkpoints`).
 """
 
 from __future__ import annotations
@@ -18,14 +22,59 @@ import numpy as np
 import scipy.sparse.linalg as spla
 
 from . import _jax  # noqa: F401
-from .adjoint import Adjoint
+from .adjoint import Adjoint, Checkpoints
 from .dynamics import Scheme, StateSolution, TimeStepper
 from .errors import InputError
 from .model import StateModel
 from .objectives import Objective, Trajectory
 from .timegrid import TimeTransform, trapezoid_weights
 
-__all__ = ["ControlPoint", "ReducedFunctional"]
+__all__ = ["ControlPoint", "ReducedFunctional", "LevelStates"]
+
+
+class LevelStates:
+    """Some level states of a trajectory, indexed like the (N+1, n) array they stand for.
+
+    ``states[k]`` (an int, negative from the end) returns the stored level k, (n,); a slice stacks
+    its levels. With checkpointing, objective terms see ``traj.y0`` and ``traj.y1`` as these: terms
+    that read single levels (``traj.y1[-1]``, ``traj.y0[traj.tau_index]``) work unchanged, terms that
+    use the whole array do not (they need ``checkpoint_every=None``).
+
+    num_levels : N+1; levels : the stored level indices (ascending); values : (len(levels), n).
+    """
+
+    def __init__(self, num_levels: int, levels, values):
+        self.num_levels, self.values = num_levels, values
+        self.rows = {int(k): i for i, k in enumerate(levels)}
+
+    def __len__(self) -> int:
+        return self.num_levels
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            return jnp.stack([self._level(k) for k in range(*index.indices(self.num_levels))])
+        if not isinstance(index, (int, np.integer)):
+            raise InputError("with checkpoint_every, objective terms index traj.y0 / traj.y1 by static levels "
+                             f"(ints or slices), got {type(index).__name__}")
+        k = int(index) + (self.num_levels if index < 0 else 0)
+        if not 0 <= k < self.num_levels:
+            raise IndexError(f"level {index} out of range for {self.num_levels} levels")
+        return self._level(k)
+
+    def _level(self, k: int):
+        return self.values[self.rows[k]]
+
+
+class _LevelRecorder(LevelStates):
+    """Notes the levels an objective reads (zeros stand in for the states)."""
+
+    def __init__(self, num_levels: int, n: int):
+        super().__init__(num_levels, (), None)
+        self.n, self.read = n, set()
+
+    def _level(self, k: int):
+        self.read.add(k)
+        return jnp.zeros(self.n)
 
 
 @dataclass(frozen=True, eq=False)
@@ -62,10 +111,19 @@ class ReducedFunctional:
     u0, v0 : initial state (reduced vectors), zero by default.
     gradient : "exact" (gradient of the discrete J, default) or "continuous" (the paper's
         optimize-then-discretize gradient, `hyperoc.continuous_adjoint`; for comparison).
+    checkpoint_every : None (default: the value and the gradient store all N+1 level states
+        ``(y0, y1)``, 2 (N+1) n floats) or an int k >= 1: store the level states at ``0, k, 2k, ...``
+        only, plus the levels the objective reads, and recompute each segment of k steps from its
+        checkpoint during the adjoint sweep. Memory ``ceil(N/k) + k + 1`` level states (least near
+        ``k = sqrt(N)``), at the cost of one more forward solve per gradient (Newton included); the
+        gradient equals the stored one to round-off (same compiled step, same Newton warm start).
+        The objective's terms must read ``traj.y0`` / ``traj.y1`` by static levels (see
+        `LevelStates`); exact gradient only. `state` still returns the whole trajectory (for reports).
     """
 
     def __init__(self, model: StateModel, transform: TimeTransform, objective: Objective, *,
-                 scheme: Scheme = Scheme(), solver="auto", u0=None, v0=None, gradient: str = "exact"):
+                 scheme: Scheme = Scheme(), solver="auto", u0=None, v0=None, gradient: str = "exact",
+                 checkpoint_every: int | None = None):
         if gradient not in ("exact", "continuous"):
             raise InputError(f"gradient must be 'exact' or 'continuous', got {gradient!r}")
         self.gradient_method = gradient
@@ -81,10 +139,27 @@ class ReducedFunctional:
         self.N = transform.num_steps
         self.counts = {"state": 0, "adjoint": 0}
         self._cache_key, self._cache = None, None
+        self.checkpoint_every = checkpoint_every
         from jax.experimental import sparse as jsparse
 
         # Built eagerly: a cached property first touched inside a traced function would leak tracers.
         self._control_mass = jsparse.BCOO.from_scipy_sparse(model.control.mass.tocoo())
+
+    @property
+    def checkpoint_every(self) -> int | None:
+        """Checkpoint spacing k (None: store every level); may be changed between evaluations."""
+        return self._checkpoint_every
+
+    @checkpoint_every.setter
+    def checkpoint_every(self, k: int | None) -> None:
+        if k is not None:
+            if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
+                raise InputError(f"checkpoint_every must be None or an integer >= 1, got {k!r}")
+            if self.gradient_method != "exact":
+                raise InputError("checkpoint_every is implemented for the exact gradient only")
+            k = int(k)
+        self._checkpoint_every = k
+        self._record_key, self._record = None, None
 
     # --- geometry of the control space -----------------------------------------------------------
     @cached_property
@@ -138,17 +213,62 @@ class ReducedFunctional:
         return Trajectory(jnp.asarray(sol.y0), jnp.asarray(sol.y1), jnp.asarray(sol.p_steps), jnp.asarray(sol.xi),
                           jnp.asarray(sol.dt), n1, n1 + n2, self._control_mass, self.stepper._M)
 
-    @cached_property
-    def _objective_and_partials(self):
+    def _objective_functions(self, states):
+        """Jitted ``J(y0, y1, p, xi, dt)`` and its value and partial derivatives; ``states`` turns the
+        y0 / y1 arguments into what the terms see (the arrays themselves, or `LevelStates`)."""
         n1, n2, _ = self.transform.steps
 
         def value(y0, y1, p, xi, dt):
-            traj = Trajectory(y0, y1, p, xi, dt, n1, n1 + n2, self._control_mass, self.stepper._M)
+            traj = Trajectory(states(y0), states(y1), p, xi, dt, n1, n1 + n2, self._control_mass, self.stepper._M)
             return self.objective.value(traj)
 
         return jax.jit(value), jax.jit(jax.value_and_grad(value, argnums=(0, 1, 2, 3, 4)))
 
+    @cached_property
+    def _objective_and_partials(self):
+        return self._objective_functions(lambda y: y)
+
+    @cached_property
+    def objective_levels(self) -> tuple[int, ...]:
+        """The levels at which the objective reads y0 or y1 (found by tracing it once, no solve)."""
+        n1, n2, _ = self.transform.steps
+        N, n, nc = self.N, self.model.n, self.model.control.size
+        recorders = _LevelRecorder(N + 1, n), _LevelRecorder(N + 1, n)
+        f64 = lambda *shape: jax.ShapeDtypeStruct(shape, jnp.float64)
+        try:
+            jax.eval_shape(lambda p, xi, dt: self.objective.value(
+                Trajectory(*recorders, p, xi, dt, n1, n1 + n2, self._control_mass, self.stepper._M)),
+                f64(N), f64(N + 1, nc), f64(N))
+        except (TypeError, AttributeError) as err:
+            raise InputError(f"checkpoint_every: the objective uses traj.y0 / traj.y1 as whole arrays ({err}); "
+                             "index single levels (traj.y1[-1]) or use checkpoint_every=None") from err
+        return tuple(sorted(recorders[0].read | recorders[1].read))
+
+    @cached_property
+    def _checkpointed_objective(self):
+        return self._objective_functions(lambda y: LevelStates(self.N + 1, self.objective_levels, y))
+
+    def record(self, m: ControlPoint) -> Checkpoints:
+        """Checkpointed forward solve for m (``checkpoint_every`` set; cached for the last point)."""
+        self._check(m)
+        key = (m.tau, m.xi.tobytes())
+        if key != self._record_key:
+            grid = self.transform.grid(m.tau)
+            loads = self.stepper.external_loads(None, grid)
+            ck = self.adjoint.record(grid, m.xi, loads, self.u0, self.v0, self.checkpoint_every, self.objective_levels)
+            self.counts["state"] += 1
+            self._record_key, self._record = key, ck
+        return self._record
+
+    def _checkpointed_arrays(self, ck: Checkpoints):
+        levels = self.objective_levels
+        kept = lambda i: jnp.stack([ck.kept[k][i] for k in levels]) if levels else jnp.zeros((0, self.model.n))
+        return kept(0), kept(1), jnp.asarray(ck.p_steps), jnp.asarray(ck.xi), jnp.asarray(ck.grid.dt)
+
     def __call__(self, m: ControlPoint) -> float:
+        if self.checkpoint_every is not None:
+            value, _ = self._checkpointed_objective
+            return float(value(*self._checkpointed_arrays(self.record(m))))
         sol = self.state(m)
         value, _ = self._objective_and_partials
         return float(value(*self._arrays(sol)))
@@ -158,14 +278,21 @@ class ReducedFunctional:
 
     def value_and_derivative(self, m: ControlPoint) -> tuple[float, ControlPoint]:
         """J(m) and dJ(m) as a dual vector: ``dJ.dm = sum(d.xi * dm.xi) + d.tau dm.tau``."""
-        sol = self.state(m)
-        _, vg = self._objective_and_partials
-        J, (gY0, gY1, gP, gXi, gdt) = vg(*self._arrays(sol))
-        F = self.stepper.external_loads(None, self.transform.grid(m.tau))
-        V0 = float(sol.volume[0])
-        gXi_state, gdt_state = self.adjoint.backward(jnp.asarray(sol.y0), jnp.asarray(sol.y1), jnp.asarray(sol.p_steps),
-                                                     jnp.asarray(sol.xi), jnp.asarray(F), jnp.asarray(sol.dt), V0,
-                                                     gY0, gY1, gP)
+        if self.checkpoint_every is not None:
+            ck = self.record(m)
+            _, vg = self._checkpointed_objective
+            J, (gY0, gY1, gP, gXi, gdt) = vg(*self._checkpointed_arrays(ck))
+            g_kept = {k: (gY0[i], gY1[i]) for i, k in enumerate(self.objective_levels)}
+            gXi_state, gdt_state = self.adjoint.backward_checkpointed(ck, g_kept, gP)
+        else:
+            sol = self.state(m)
+            _, vg = self._objective_and_partials
+            J, (gY0, gY1, gP, gXi, gdt) = vg(*self._arrays(sol))
+            F = self.stepper.external_loads(None, self.transform.grid(m.tau))
+            V0 = float(sol.volume[0])
+            gXi_state, gdt_state = self.adjoint.backward(jnp.asarray(sol.y0), jnp.asarray(sol.y1), jnp.asarray(sol.p_steps),
+                                                         jnp.asarray(sol.xi), jnp.asarray(F), jnp.asarray(sol.dt), V0,
+                                                         gY0, gY1, gP)
         self.counts["adjoint"] += 1
         dxi = np.asarray(gXi) + gXi_state
         ddt = np.asarray(gdt) + gdt_state
