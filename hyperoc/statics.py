@@ -1,9 +1,35 @@
-"""Quasi-static equilibrium under the volume constraint (no inertia, no damping).
+"""Quasi-static equilibrium (no inertia, no damping), with or without the volume constraint.
 
-Find ``(u, p)`` with ``R(u) + p G(u) = B xi + f`` and ``vol(u) = V``: the same residual and
-Newton as a time step with ``M = 0`` and ``kappa = 0``. Used for space-convergence studies on
-manufactured solutions and for static benchmarks; ``V`` defaults to the reference volume.
-Loads can be applied in increments (``steps > 1``) for large deformations.
+Constrained (default): find ``(u, p)`` with
+
+    R(u) + p G(u) = B xi + f + sum_j f_j(u),      vol(u) = V,
+
+the same residual and Newton as a time step with ``M = 0`` and ``kappa = 0``; ``V`` defaults to
+the reference volume. ``f_j(u)`` are follower pressures (`hyperoc.follower.FollowerPressure`), loads
+that act on the deformed boundary; their load stiffness ``-df_j/du`` enters the Newton tangent.
+
+Unconstrained (``constrained=False``, e.g. the Land et al. 2015 benchmarks, where only the material's
+volumetric penalty controls the volume): find u with ``R(u) = B xi + f + sum_j f_j(u)``. The bordered
+solvers of `hyperoc.linsolve` are reused exactly: the unknown is written ``u = w + t e`` with the
+fixed unit vector ``e = (1, ..., 1) / sqrt(n)`` and the gauge ``e . w = 0``, so Newton solves
+
+    [ K(u)   K(u) e ] [dw]   [-r(u)  ]
+    [ e^T       0   ] [dt] = [-e . w ],
+
+whose Schur complement ``e^T K^-1 K e = 1`` never vanishes, and ``du = dw + dt e`` is the plain
+Newton step ``K du = -r``. (Newton's stopping test looks at ``dw`` only; ``dt`` is the mean of
+``du`` times sqrt(n).)
+
+All loads (``load``, ``xi``, the follower pressures) are ramped linearly over ``steps`` load steps,
+as is the target volume; each step starts from the previous equilibrium.
+
+Newton globalization. `hyperoc.newton.newton` backtracks on ``|r|^2``. For nearly incompressible
+laws (penalty ``kappa >> C``) that merit is badly suited: a Newton step of size ``|du|`` leaves a
+volumetric residual ``~ kappa |grad du|^2`` that can exceed the residual it corrects by orders of
+magnitude although the next iterate is much closer to the solution (Land problem 1: ``kappa / C =
+500``, |r| grows 2000x after the first step, after which Newton converges quadratically), so the
+backtracking stalls at its smallest step. ``line_search=False`` takes full Newton steps instead
+(`_full_newton`), as is common in cardiac mechanics codes with load stepping.
 """
 
 from __future__ import annotations
@@ -16,7 +42,7 @@ import numpy as np
 
 from . import _jax  # noqa: F401
 from .dynamics import Scheme
-from .errors import SolverError
+from .errors import InputError, SolverError
 from .linsolve import make_solver
 from .model import StateModel
 from .newton import newton
@@ -26,7 +52,8 @@ __all__ = ["StaticSolution", "solve_static"]
 
 @dataclass(eq=False)
 class StaticSolution:
-    """Equilibrium ``u`` (n,) reduced, multiplier ``p``, volume, Newton iterations per load step."""
+    """Equilibrium ``u`` (n,) reduced, multiplier ``p`` (0 when unconstrained), volume ``int det F``,
+    Newton iterations per load step."""
 
     model: StateModel
     u: np.ndarray
@@ -38,55 +65,127 @@ class StaticSolution:
         return self.model.expand(self.u)
 
 
-def _compiled_solve(model: StateModel, lin, scheme: Scheme):
-    """The jitted Newton solve of one load step, cached on the model per (solver kind, scheme)."""
+def _full_newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, max_iter: int):
+    """Newton without backtracking, ``x <- x + dx``; returns ``(x, iterations, status)``.
+
+    Same stopping test and status codes as `hyperoc.newton.newton`: 0 converged
+    (``|du|_inf <= rtol |u + du|_inf + atol``), 1 not converged in ``max_iter``, 2 non-finite iterate.
+    """
+
+    def body(state):
+        x, it, _ = state
+        r = residual(x)
+        du, dp = solver.solve(*jacobian_parts(x), -r[:-1], -r[-1])
+        x_new = x + jnp.concatenate([du, dp[None]])
+        converged = jnp.max(jnp.abs(du)) <= rtol * jnp.max(jnp.abs(x_new[:-1])) + atol
+        return x_new, it + 1, jnp.where(~jnp.all(jnp.isfinite(x_new)), 2, jnp.where(converged, 0, 1))
+
+    x, it, status = jax.lax.while_loop(lambda s: (s[2] == 1) & (s[1] < max_iter), body, (x0, 0, 1))
+    return x, it, status
+
+
+def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, constrained: bool,
+                    line_search: bool):
+    """The jitted Newton solve of one load step, cached on the model per (solver kind, scheme,
+    follower loads, constraint on/off, line search on/off).
+
+    ``solve(x0, fk, Vk, s)`` takes the unknown ``x`` ((u, p), or (w, t) unconstrained), the fixed
+    load ``fk`` (n,), the volume ``Vk`` and the load factor ``s`` of the follower pressures.
+    """
     cache = model.__dict__.setdefault("_static_solves", {})
-    key = (type(lin).__name__, getattr(lin, "method", None), scheme)
+    key = (type(lin).__name__, getattr(lin, "method", None), scheme, tuple(map(id, followers)), constrained,
+           line_search)
     if key in cache:
         return cache[key]
+    e = jnp.full(model.n, model.n ** -0.5)
 
-    def residual(x, fk, Vk):
-        r = model.internal_force(x[:-1]) + x[-1] * model.volume_gradient(x[:-1]) - fk
-        return jnp.concatenate([r, (model.volume(x[:-1]) - Vk)[None]])
+    def displacement(x):
+        return x[:-1] if constrained else x[:-1] + x[-1] * e
 
-    def jacobian_parts(x):
-        G = model.volume_gradient(x[:-1])
-        return model.tangent_blocks(x[:-1], 1.0, x[-1]), G, G
+    def force_balance(u, p, fk, s):
+        r = model.internal_force(u) + p * model.volume_gradient(u) - fk
+        return r - sum((fol.force(u, s) for fol in followers), jnp.zeros(model.n))
+
+    def residual(x, fk, Vk, s):
+        u = displacement(x)
+        if constrained:
+            return jnp.concatenate([force_balance(u, x[-1], fk, s), (model.volume(u) - Vk)[None]])
+        return jnp.concatenate([force_balance(u, 0.0, fk, s), (e @ x[:-1])[None]])
+
+    def jacobian_parts(x, fk, s):
+        u = displacement(x)
+        p = x[-1] if constrained else 0.0
+        blocks = model.tangent_blocks(u, 1.0, p)
+        for fol in followers:
+            blocks = fol.add_stiffness(blocks, u, s)
+        if constrained:
+            G = model.volume_gradient(u)
+            return blocks, G, G
+        Ke = jax.jvp(lambda v: force_balance(v, 0.0, fk, s), (u,), (e,))[1]
+        return blocks, Ke, e
 
     @jax.jit
-    def solve(x0, fk, Vk):
-        x, it, status = newton(lambda x: residual(x, fk, Vk), jacobian_parts, lin, x0,
-                               rtol=scheme.rtol, atol=scheme.atol, max_iter=scheme.max_iter)
-        return x, it, status, model.min_det_F(x[:-1])
+    def solve(x0, fk, Vk, s):
+        x, it, status = (newton if line_search else _full_newton)(
+            lambda x: residual(x, fk, Vk, s), lambda x: jacobian_parts(x, fk, s), lin, x0,
+            rtol=scheme.rtol, atol=scheme.atol, max_iter=scheme.max_iter)
+        return x, it, status, model.min_det_F(displacement(x))
 
     cache[key] = solve
     return solve
 
 
 def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None = None, steps: int = 1,
-                 scheme: Scheme = Scheme(), solver="auto", u0=None) -> StaticSolution:
-    """Equilibrium with external load vector ``load`` (n,) and control ``xi``, ramped in ``steps``.
+                 scheme: Scheme = Scheme(), solver="auto", u0=None, follower=(), constrained: bool = True,
+                 line_search: bool = True) -> StaticSolution:
+    """Equilibrium under the load vector ``load`` (n,), control ``xi`` and follower pressures, ramped in ``steps``.
 
-    Raises `SolverError` naming the load step when Newton fails or an element inverts.
+    Parameters
+    ----------
+    follower : a `hyperoc.follower.FollowerPressure` or a sequence of them (pressures on the deformed
+        boundary, each ramped as ``s * pressure`` at load step ``s = k / steps``).
+    constrained : True (default): global volume constraint ``vol(u) = volume`` with multiplier p;
+        False: no constraint, no multiplier (``volume`` must then be None).
+    line_search : backtracking Newton (`hyperoc.newton.newton`, default) or full Newton steps (see the
+        module docstring: needed for nearly incompressible penalties).
+    solver : a linear solver or its name (`hyperoc.linsolve.make_solver`); with follower pressures the
+        tangent is not symmetric, so ``"minres"`` is refused.
+
+    Raises `SolverError` naming the load step when Newton fails or an element inverts (``det F <= 0``).
     """
+    followers = (follower,) if not isinstance(follower, (tuple, list)) else tuple(follower)
+    if not constrained and volume is not None:
+        raise InputError("solve_static: a target volume needs the volume constraint (constrained=True)")
     lin = make_solver(model, solver) if isinstance(solver, str) else solver
+    if followers and getattr(lin, "method", None) == "minres":
+        raise InputError("solve_static: follower pressures make the tangent non-symmetric; MINRES does not apply")
     B = model.jax_operators[2]
     f = jnp.zeros(model.n) if load is None else jnp.asarray(load)
     if xi is not None:
         f = f + B @ jnp.asarray(xi)
     u = np.zeros(model.n) if u0 is None else np.asarray(u0, dtype=np.float64)
-    V = float(model.jitted["volume"](jnp.asarray(u))) if volume is None else float(volume)
-
-    solve = _compiled_solve(model, lin, scheme)
     V_start = float(model.jitted["volume"](jnp.asarray(u)))
-    x = jnp.concatenate([jnp.asarray(u), jnp.zeros(1)])
+    V = V_start if volume is None else float(volume)
+
+    solve = _compiled_solve(model, lin, scheme, followers, constrained, line_search)
+    if constrained:
+        x = jnp.concatenate([jnp.asarray(u), jnp.zeros(1)])
+    else:
+        t = u.sum() * model.n ** -0.5
+        x = jnp.concatenate([jnp.asarray(u - t * model.n ** -0.5), jnp.full(1, t)])
     iters = []
     for k in range(1, steps + 1):
         s = k / steps
-        x, it, status, mindet = solve(x, s * f, V_start + s * (V - V_start))
+        try:
+            x, it, status, mindet = solve(x, s * f, V_start + s * (V - V_start), s)
+        except jax.errors.JaxRuntimeError as err:  # a host linear solve failed (singular tangent)
+            raise SolverError(k - 1, s, "newton", f"load step {k}/{steps}, linear solve failed: "
+                              f"{str(err).strip().splitlines()[-1]}") from err
         iters.append(int(it))
         if int(status) != 0 or not float(mindet) > 0:
             cause = {1: "newton", 2: "nonfinite"}.get(int(status), "detF")
             raise SolverError(k - 1, s, cause, f"load step {k}/{steps}, min det F = {float(mindet):.3g}")
-    u = np.asarray(x[:-1])
-    return StaticSolution(model, u, float(x[-1]), float(model.jitted["volume"](jnp.asarray(u))), np.array(iters))
+    x = np.asarray(x)
+    u = x[:-1] if constrained else x[:-1] + x[-1] * model.n ** -0.5
+    p = float(x[-1]) if constrained else 0.0
+    return StaticSolution(model, u, p, float(model.jitted["volume"](jnp.asarray(u))), np.array(iters))
