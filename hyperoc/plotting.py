@@ -49,8 +49,9 @@ def _as_spacetime(name: str, values, nt: int, nx: int) -> np.ndarray:
     return array
 
 
-def plot_pressure(path, t, p, *, tau=None, eps=None, volume=None, title=None) -> Path:
-    """Plot the pressure p(t), with the free time tau marked, and optionally the volume drift.
+def plot_pressure(path, t, p, *, tau=None, eps=None, volume=None, cavity=None, title=None) -> Path:
+    """Plot the pressure p(t), with the free time tau marked, and optionally the volume drift and the
+    cavity volume.
 
     Parameters
     ----------
@@ -65,7 +66,9 @@ def plot_pressure(path, t, p, *, tau=None, eps=None, volume=None, title=None) ->
     eps : float, optional
         Width of the window after tau.
     volume : (nt,) array_like, optional
-        Enclosed/body volume; adds a panel with the relative drift ``volume / volume[0] - 1``.
+        Body volume ``int det F``; adds a panel with the relative drift ``volume / volume[0] - 1``.
+    cavity : (nt,) array_like, optional
+        Cavity volume (e.g. of a ventricle, `hyperoc.report.cavity_volume`); adds a panel with it.
     title : str, optional
 
     Returns
@@ -74,7 +77,7 @@ def plot_pressure(path, t, p, *, tau=None, eps=None, volume=None, title=None) ->
     """
     t = _as_1d("t", t)
     p = _as_1d("p", p, len(t))
-    panels = 1 if volume is None else 2
+    panels = 1 + (volume is not None) + (cavity is not None)
     fig = _new_figure(6.4, 3.2 * panels)
     axes = fig.subplots(panels, 1, sharex=True, squeeze=False)[:, 0]
     axes[0].plot(t, p, color="C0", label="p(t)")
@@ -89,14 +92,18 @@ def plot_pressure(path, t, p, *, tau=None, eps=None, volume=None, title=None) ->
         volume = _as_1d("volume", volume, len(t))
         axes[1].plot(t, volume / volume[0] - 1.0, color="C1")
         axes[1].set_ylabel(r"$V(t)/V(0) - 1$")
+    if cavity is not None:
+        axes[-1].plot(t, _as_1d("cavity", cavity, len(t)), color="C2")
+        axes[-1].set_ylabel("cavity volume")
     axes[-1].set_xlabel("t")
     if title:
         fig.suptitle(title)
     return _save(fig, path)
 
 
-def plot_control_spacetime(path, t, x, xi, *, title=None) -> Path:
-    """Space-time map of a 1D control, x horizontal and t vertical, colors centered at 0.
+def plot_control_spacetime(path, t, x, xi, *, xlabel="x", tau=None, title=None) -> Path:
+    """Space-time map of a 1D control (or of slice means of a 2D/3D one), x horizontal and t
+    vertical, colors centered at 0.
 
     Parameters
     ----------
@@ -108,6 +115,10 @@ def plot_control_spacetime(path, t, x, xi, *, title=None) -> Path:
         Spatial nodes.
     xi : (nt, nx) array_like
         Control values ``xi[n, i] = xi(t_n, x_i)``.
+    xlabel : str
+        Label of the space axis.
+    tau : float, optional
+        Free time; a dashed horizontal line.
     title : str, optional
 
     Returns
@@ -122,7 +133,9 @@ def plot_control_spacetime(path, t, x, xi, *, title=None) -> Path:
     ax = fig.subplots()
     mesh = ax.pcolormesh(x, t, xi, shading="nearest", cmap="RdBu_r", vmin=-bound, vmax=bound)
     fig.colorbar(mesh, ax=ax, label=r"$\xi$")
-    ax.set_xlabel("x")
+    if tau is not None:
+        ax.axhline(tau, color="k", linestyle="--", linewidth=1.0)
+    ax.set_xlabel(xlabel)
     ax.set_ylabel("t")
     if title:
         ax.set_title(title)

@@ -16,9 +16,10 @@ from .dynamics import StateSolution
 from .fibres import FibreFrames
 from .io import write_json, write_npz, write_time_series
 from .materials import det
+from .mesh import Mesh
 from .plotting import plot_control_spacetime, plot_history, plot_pressure, plot_snapshots
 
-__all__ = ["write_state_outputs", "PAPER_SNAPSHOT_TIMES"]
+__all__ = ["write_state_outputs", "cavity_volume", "cell_det_F", "PAPER_SNAPSHOT_TIMES"]
 
 # Times of the paper's Figures figDisp / figVelo / figControl.
 PAPER_SNAPSHOT_TIMES = (0.02, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 4.5, 5.0, 5.5, 6.0, 6.5, 7.0, 7.46, 7.48)
@@ -38,6 +39,29 @@ def _vtk_cells(sol: StateSolution) -> tuple[np.ndarray, str]:
     if space.degree == 2 and space.dim == 1:
         cells = cells[:, [0, 1, 2]]
     return cells, _CELL_TYPES[(space.dim, space.degree)]
+
+
+def cavity_volume(mesh: Mesh, u: np.ndarray, boundary: str = "endocardium", rim: str = "gamma_d") -> np.ndarray:
+    """Volume (length^3) enclosed by the deformed surface ``boundary`` (e.g. a ventricle's endocardium),
+    closed by the plane of its rim on ``rim`` (the clamped base), at each level: (nt,).
+
+    ``V = sum_f s_f (a_f - O) . ((b_f - O) x (c_f - O)) / 6`` over the deformed facets (a, b, c), with
+    ``O`` the mean of the rim vertices (the closing plane contributes nothing when the rim is planar and
+    fixed) or of all the surface's vertices when there is no rim. The orientations ``s_f = +-1`` make
+    every reference term positive: exact when the reference cavity is star-shaped about ``O`` (an
+    ellipsoidal cavity about a point of its base). ``u`` (nt, nv, 3) are the vertex displacements.
+    """
+    facets = mesh.boundary(boundary)
+    X = mesh.points
+    rim_vertices = np.intersect1d(np.unique(facets), mesh.boundary_vertices(rim)) if rim in mesh.boundaries else []
+    origin = X[rim_vertices if len(rim_vertices) else np.unique(facets)].mean(axis=0)
+
+    def tet_volumes(x):  # (..., nv, 3) -> (..., nf)
+        a, b, c = (x[..., facets[:, k], :] - origin for k in range(3))
+        return np.einsum("...i,...i->...", a, np.cross(b, c)) / 6.0
+
+    sign = np.sign(tet_volumes(X))
+    return np.einsum("tf,f->t", tet_volumes(X + np.asarray(u)), sign)
 
 
 def cell_det_F(sol: StateSolution, levels: np.ndarray) -> np.ndarray:
@@ -74,11 +98,14 @@ def _cell_series(sol: StateSolution, levels: np.ndarray, frames: FibreFrames | N
 def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = None, eps: float | None = None,
                         snapshot_times=None, series_every: int | None = None, extra_summary: dict | None = None,
                         history: dict | None = None, frames: FibreFrames | None = None) -> dict:
-    """Write results.npz, summary.json, pressure.png, the ParaView series and (1D) snapshot figures.
+    """Write results.npz, summary.json, pressure.png, the ParaView series and figures.
 
     results.npz holds ``t, p, p_steps, volume, nodes, displacement, velocity`` (all levels), the
-    per-step monitors ``newton_iterations, min_det_F`` and the control ``xi`` with its node
-    coordinates ``xi_nodes`` when there is a control. The series ``paraview/state`` has the point
+    per-step monitors ``newton_iterations, min_det_F``, the control ``xi`` with its node
+    coordinates ``xi_nodes`` when there is a control, and in 3D with an ``endocardium`` boundary the
+    `cavity_volume`. pressure.png shows p (tau marked), the body-volume drift and the cavity volume;
+    control.png the control's space-time map (1D; 2D/3D scalar controls: means over slices of the
+    last coordinate, the long axis of a ventricle); 1D adds snapshot figures. The series ``paraview/state`` has the point
     fields ``displacement``, ``velocity``, ``control`` (the control's space-time field, zero outside
     omega) and the cell fields of `_cell_series` (``frames``: the fibre frames, for output only).
     Returns the summary.
@@ -93,10 +120,16 @@ def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = No
     if sol.xi is not None and model.control is not None:
         xi_nodal = model.control.nodal(sol.xi)
         arrays.update(xi=xi_nodal, xi_nodes=model.control.coordinates(model.space))
-    write_npz(out / "results.npz", **arrays)
 
     files = {"results": "results.npz", "pressure_plot": "pressure.png"}
-    plot_pressure(out / "pressure.png", sol.t, sol.pressure, tau=tau, eps=eps, volume=sol.volume)
+    cavity, cavity_summary = None, {}
+    if model.dim == 3 and "endocardium" in model.mesh.boundaries:
+        cavity = cavity_volume(model.mesh, u[:, : model.mesh.points.shape[0]])
+        arrays["cavity_volume"] = cavity
+        cavity_summary = {"cavity_volume_0": float(cavity[0]),
+                          "cavity_volume_change_max": float(np.max(np.abs(cavity / cavity[0] - 1.0)))}
+    write_npz(out / "results.npz", **arrays)
+    plot_pressure(out / "pressure.png", sol.t, sol.pressure, tau=tau, eps=eps, volume=sol.volume, cavity=cavity)
     cells, cell_type = _vtk_cells(sol)
     levels = _series_levels(sol.t.size, series_every)
     point_data = {"displacement": u[levels], "velocity": v[levels]}
@@ -109,13 +142,30 @@ def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = No
     files["time_series"] = str(Path(series).relative_to(out))
     if model.dim == 1:
         files.update(_write_1d_figures(out, sol, u, v, xi_nodal, snapshot_times or PAPER_SNAPSHOT_TIMES))
+    elif xi_nodal is not None and xi_nodal.shape[-1] == 1:
+        z = model.control.coordinates(model.space)[:, -1]
+        centers, means = _slice_means(z, xi_nodal[..., 0])
+        plot_control_spacetime(out / "control.png", sol.t, centers, means, xlabel=f"{'yz'[model.dim - 2]} (slice mean)",
+                               tau=tau)
+        files["control_plot"] = "control.png"
     if history:
         plot_history(out / "history.png", history)
         files["history_plot"] = "history.png"
-    summary = {**sol.summary(), "newton_iterations_mean": float(np.mean(sol.newton_iterations)), "files": files,
-               **(extra_summary or {})}
+    summary = {**sol.summary(), "newton_iterations_mean": float(np.mean(sol.newton_iterations)), **cavity_summary,
+               "files": files, **(extra_summary or {})}
     write_json(out / "summary.json", summary)
     return summary
+
+
+def _slice_means(z: np.ndarray, values: np.ndarray, n_slices: int = 20) -> tuple[np.ndarray, np.ndarray]:
+    """Means of nodal values (nt, n) over ``n_slices`` equal slices of the coordinate z (n,) that
+    hold nodes: slice centers (k,) and means (nt, k)."""
+    edges = np.linspace(z.min(), z.max(), n_slices + 1)
+    which = np.clip(np.searchsorted(edges, z, side="right") - 1, 0, n_slices - 1)
+    count = np.bincount(which, minlength=n_slices)
+    sums = np.stack([np.bincount(which, weights=row, minlength=n_slices) for row in values])
+    used = count > 0
+    return (0.5 * (edges[:-1] + edges[1:]))[used], sums[:, used] / count[used]
 
 
 def _write_1d_figures(out: Path, sol: StateSolution, u, v, xi_nodal, times) -> dict:

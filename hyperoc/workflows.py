@@ -43,9 +43,13 @@ def build_reduced(cfg: Config, tau0: float, model=None) -> ReducedFunctional:
 
 
 def optimize_single(cfg: Config, tau0: float, *, checkpoint=None, method: str | None = None, progress: bool = False,
-                    model=None) -> tuple[ReducedFunctional, OptimizationResult]:
-    """One optimization from ``(xi, tau) = (0, tau0)`` with the method of ``[optimize]``."""
-    J = build_reduced(cfg, tau0, model)
+                    J: ReducedFunctional | None = None) -> tuple[ReducedFunctional, OptimizationResult]:
+    """One optimization from ``(xi, tau) = (0, tau0)`` with the method of ``[optimize]``.
+
+    ``J``: the config's reduced functional (default: `build_reduced`); passing one reuses its
+    compiled state and adjoint solves.
+    """
+    J = J or build_reduced(cfg, tau0)
     o = cfg["optimize"]
     method = method or o["method"]
     bar = _progress_bar(progress, o["max_iter"], f"optimize (tau0={tau0:g})")
@@ -167,14 +171,15 @@ def _multistart(cfg: Config, out: Path, starts, scheduler, workers) -> list:
     return [results[k] for k in sorted(results)]
 
 
-def check_gradient(cfg: Config, *, seed: int = 0) -> dict:
+def check_gradient(cfg: Config, *, seed: int = 0, J: ReducedFunctional | None = None) -> dict:
     """Taylor tests of the exact gradient at a nonzero control, for xi, tau and joint directions.
 
     The point is ``xi = 0.1 * xi_scale * (smooth random field)`` and the configured tau0 (or T/2),
-    so that J depends on tau (at xi = 0 the state is trivial and J is flat in tau).
+    so that J depends on tau (at xi = 0 the state is trivial and J is flat in tau). ``J``: as in
+    `optimize_single`.
     """
     tau0 = cfg.tau_starts()[0]
-    J = build_reduced(cfg, tau0)
+    J = J or build_reduced(cfg, tau0)
     dirs = random_directions(J, J.zero(tau0), seed=seed)
     m = ControlPoint(0.1 * dirs["xi"].xi, tau0)
     out = {}
