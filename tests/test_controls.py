@@ -61,3 +61,9 @@ value = "sin(pi * t) * x"
 def test_region_errors(region):
     with pytest.raises(InputError):
         StateModel(interval(4), SaintVenantKirchhoff(), control=BodyForce(region))
+
+
+def test_active_stress_fibres_must_match_the_points():
+    bad = ActiveStress(Region(), fibres=lambda x, cells: x[..., :1])
+    with pytest.raises(InputError, match="fibres must return vectors"):
+        StateModel(rectangle(2), SaintVenantKirchhoff(), control=bad)

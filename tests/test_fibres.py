@@ -200,3 +200,14 @@ def test_state_model_with_fibre_frames_on_the_ventricle(ventricle, vent_fibres, 
     if isinstance(material, Guccione):
         K = np.asarray(jax.jit(model.tangent_blocks)(u, 1.0, 0.0))
         assert np.all(np.isfinite(K)) and np.allclose(K, K.transpose(0, 2, 1), rtol=0, atol=1e-12 * np.abs(K).max())
+
+
+def test_frames_on_a_subset_of_cells_match_the_full_field(ventricle, vent_fibres):
+    """``frames(x[cells], cells)`` is ``frames(x)[cells]`` (the active stress evaluates its fibres on the
+    cells of its region only); ``fibre`` is row 0; indices out of range are an InputError."""
+    x = quadrature_points(ventricle)
+    cells = np.arange(3, ventricle.num_cells, 7)
+    np.testing.assert_array_equal(vent_fibres(x[cells], cells), vent_fibres(x)[cells])
+    np.testing.assert_array_equal(vent_fibres.fibre(x[cells], cells), vent_fibres(x)[cells][..., 0, :])
+    with pytest.raises(InputError, match="cell indices"):
+        vent_fibres(x[:2], [0, ventricle.num_cells])
