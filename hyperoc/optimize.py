@@ -132,7 +132,7 @@ def _safe_eval(evaluate, m):
 def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e-6, gtol_abs: float = 0.0,
                      max_iter: int = 200, tau_margin: float | None = None, armijo: float = 0.5,
                      max_backtracks: int = 30, xi_bounds=(None, None), fix_tau: bool = False,
-                     checkpoint=None, callback=None) -> OptimizationResult:
+                     steps: str = "joint", checkpoint=None, callback=None) -> OptimizationResult:
     """The paper's Algorithm 1 (maximization): one Armijo step along G0, then Barzilai-Borwein steps.
 
     With ``xi_bounds`` the iterates are projected onto the box (projected BB, the paper's Remark
@@ -142,7 +142,15 @@ def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e
     is ``alpha = <s, s> / <s, -y>`` (s = m_k - m_{k-1}, y = G_k - G_{k-1}); when it is not positive
     (J locally not concave along s) the iteration takes an Armijo step from ``|s| / |y|``.
     A trial point where the state solver fails is rejected and its step halved.
+
+    ``steps = "joint"`` is the paper's single step for (xi, tau). ``steps = "blockwise"`` takes one
+    BB step for xi and one for tau (``<s_xi, s_xi> / <s_xi, -y_xi>`` and ``s_tau / -y_tau``): a
+    diagonal preconditioner for the usual case where the curvature of J in tau (seconds^-2, from
+    p'') and in xi (about alpha) differ by orders of magnitude, which the joint step can only
+    resolve by many iterations.
     """
+    if steps not in ("joint", "blockwise"):
+        raise InputError(f"steps must be 'joint' or 'blockwise', got {steps!r}")
     start = time.perf_counter()
     tau_range = _tau_range(J, tau_margin, fix_tau, m0.tau)
     evaluate = EvaluationCache(J, checkpoint)
@@ -156,19 +164,16 @@ def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e
     _record(res, J, value, g, m, 0.0, gnorm)
     target = max(gtol * gnorm, gtol_abs)
     m_prev = g_prev = None
-    alpha = 1.0
+    alpha = (1.0, 1.0)
     for k in range(1, max_iter + 1):
         if gnorm <= target:
             res.converged, res.message = True, f"||G|| <= {target:.3g}"
             break
-        curv = 0.0
+        concave = False
         if m_prev is not None:
-            s, y = m - m_prev, g - g_prev
-            curv = -J.inner(s, y)
-            # BB1 step; where J is not concave along s, the scale-free |s|/|y| with a monotone search.
-            alpha = J.inner(s, s) / curv if curv > 0 else J.norm(s) / max(J.norm(y), 1e-300)
+            alpha, concave = _bb_steps(J, m - m_prev, g - g_prev, steps == "blockwise", alpha)
         step = _ascent_step(J, evaluate, m, value, g, alpha, tau_range, xi_bounds, armijo, max_backtracks,
-                            monotone=(m_prev is None or curv <= 0), res=res)
+                            monotone=not concave, res=res)
         if step is None:
             res.message = "no admissible step (state solver fails or no ascent along G)"
             break
@@ -176,7 +181,7 @@ def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e
         m, value, g, alpha = step
         gnorm = stationarity(J, m, g, tau_range, xi_bounds)
         res.iterations = k
-        _record(res, J, value, g, m, alpha, gnorm)
+        _record(res, J, value, g, m, alpha[0], gnorm)
         if callback is not None:
             callback(k, m, value, g)
     else:
@@ -188,17 +193,40 @@ def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e
     return res
 
 
+def _bb_steps(J, s: ControlPoint, y: ControlPoint, blockwise: bool, previous: tuple) -> tuple[tuple[float, float], bool]:
+    """BB1 step sizes ``(alpha_xi, alpha_tau)`` from ``s = m_k - m_{k-1}``, ``y = G_k - G_{k-1}``, and
+    whether J is concave along s (every used curvature ``<s, -y>`` positive).
+
+    Where J is not concave along s the step is the scale-free ``|s| / |y|`` (then searched
+    monotonically); a block that did not move (tau fixed, xi held by its bounds) keeps its
+    ``previous`` step.
+    """
+    def bb(ss, sy, yy, old):
+        if ss == 0.0:
+            return old, True
+        return (ss / -sy, True) if sy < 0 else (np.sqrt(ss / max(yy, 1e-300)), False)
+
+    if not blockwise:
+        a, concave = bb(J.inner(s, s), J.inner(s, y), J.inner(y, y), previous[0])
+        return (a, a), concave
+    sx, yx = ControlPoint(s.xi, 0.0), ControlPoint(y.xi, 0.0)
+    a_xi, c_xi = bb(J.inner(sx, sx), J.inner(sx, yx), J.inner(yx, yx), previous[0])
+    a_tau, c_tau = bb(s.tau**2, s.tau * y.tau, y.tau**2, previous[1])
+    return (a_xi, a_tau), c_xi and c_tau
+
+
 def _ascent_step(J, evaluate, m, value, g, alpha, tau_range, xi_bounds, armijo, max_backtracks, monotone, res):
-    """Trial ``P(m + alpha G)``; backtrack on solver failure, and on lack of ascent when
-    ``monotone`` (Armijo: sufficient increase ``1e-4 <G, trial - m>``)."""
+    """Trial ``P(m + (alpha_xi G_xi, alpha_tau G_tau))``; backtrack both steps on solver failure,
+    and on lack of ascent when ``monotone`` (Armijo: sufficient increase ``1e-4 <G, trial - m>``)."""
+    a_xi, a_tau = alpha
     for _ in range(max_backtracks):
-        trial = _project(J, m + g * alpha, tau_range, xi_bounds)
+        trial = _project(J, m + ControlPoint(a_xi * g.xi, a_tau * g.tau), tau_range, xi_bounds)
         out = _safe_eval(evaluate, trial)
         if out is None:
             res.failed_trials += 1
         elif not monotone or out[0] >= value + 1e-4 * J.inner(g, trial - m):
-            return trial, out[0], out[1], alpha
-        alpha *= armijo
+            return trial, out[0], out[1], (a_xi, a_tau)
+        a_xi, a_tau = a_xi * armijo, a_tau * armijo
     return None
 
 
