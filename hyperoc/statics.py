@@ -21,7 +21,8 @@ Newton step ``K du = -r``. (Newton's stopping test looks at ``dw`` only; ``dt`` 
 ``du`` times sqrt(n).)
 
 All loads (``load``, ``xi``, the follower pressures) are ramped linearly over ``steps`` load steps,
-as is the target volume; each step starts from the previous equilibrium.
+as is the target volume; each step starts from the previous equilibrium. With ``cutbacks > 0`` a
+failed increment is halved and retried (adaptive load stepping).
 
 Newton globalization. `hyperoc.newton.newton` backtracks on ``|r|^2``. For nearly incompressible
 laws (penalty ``kappa >> C``) that merit is badly suited: a Newton step of size ``|du|`` leaves a
@@ -137,7 +138,7 @@ def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, co
 
 def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None = None, steps: int = 1,
                  scheme: Scheme = Scheme(), solver="auto", u0=None, follower=(), constrained: bool = True,
-                 line_search: bool = True) -> StaticSolution:
+                 line_search: bool = True, cutbacks: int = 0) -> StaticSolution:
     """Equilibrium under the load vector ``load`` (n,), control ``xi`` and follower pressures, ramped in ``steps``.
 
     Parameters
@@ -148,10 +149,14 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
         False: no constraint, no multiplier (``volume`` must then be None).
     line_search : backtracking Newton (`hyperoc.newton.newton`, default) or full Newton steps (see the
         module docstring: needed for nearly incompressible penalties).
+    cutbacks : how many times in total a failed load increment may be halved and retried from the
+        last equilibrium (the increment then grows back, doubling after each success, up to
+        ``1 / steps``); 0 = fail at once. ``newton_iterations`` has one entry per accepted increment.
     solver : a linear solver or its name (`hyperoc.linsolve.make_solver`); with follower pressures the
         tangent is not symmetric, so ``"minres"`` is refused.
 
-    Raises `SolverError` naming the load step when Newton fails or an element inverts (``det F <= 0``).
+    Raises `SolverError` naming the load step (index of the failed increment, and its load factor as
+    ``time``) when Newton fails or an element inverts (``det F <= 0``) and no cutback is left.
     """
     followers = (follower,) if not isinstance(follower, (tuple, list)) else tuple(follower)
     if not constrained and volume is not None:
@@ -173,18 +178,24 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
     else:
         t = u.sum() * model.n ** -0.5
         x = jnp.concatenate([jnp.asarray(u - t * model.n ** -0.5), jnp.full(1, t)])
-    iters = []
-    for k in range(1, steps + 1):
-        s = k / steps
+    iters, s_done, ds, cuts, k = [], 0.0, 1.0 / steps, 0, 0
+    while s_done < 1.0:
+        s = s_done + ds if s_done + ds < 1.0 - 1e-12 else 1.0
         try:
-            x, it, status, mindet = solve(x, s * f, V_start + s * (V - V_start), s)
+            x_new, it, status, mindet = solve(x, s * f, V_start + s * (V - V_start), s)
+            status, detail = int(status), f"min det F = {float(mindet):.3g}"
+            cause = None if status == 0 and float(mindet) > 0 else {1: "newton", 2: "nonfinite"}.get(status, "detF")
         except jax.errors.JaxRuntimeError as err:  # a host linear solve failed (singular tangent)
-            raise SolverError(k - 1, s, "newton", f"load step {k}/{steps}, linear solve failed: "
-                              f"{str(err).strip().splitlines()[-1]}") from err
-        iters.append(int(it))
-        if int(status) != 0 or not float(mindet) > 0:
-            cause = {1: "newton", 2: "nonfinite"}.get(int(status), "detF")
-            raise SolverError(k - 1, s, cause, f"load step {k}/{steps}, min det F = {float(mindet):.3g}")
+            cause, detail = "newton", f"linear solve failed: {str(err).strip().splitlines()[-1]}"
+        if cause is None:
+            x, s_done, k = x_new, s, k + 1
+            iters.append(int(it))
+            ds = min(2 * ds, 1.0 / steps)  # back towards the nominal increment after a success
+        elif cuts < cutbacks:
+            ds, cuts = ds / 2, cuts + 1
+        else:
+            raise SolverError(k, s, cause, f"load step {k + 1}/{steps} (load factor {s:.6g}"
+                              f"{f', after {cuts} cutbacks' if cuts else ''}), {detail}")
     x = np.asarray(x)
     u = x[:-1] if constrained else x[:-1] + x[-1] * model.n ** -0.5
     p = float(x[-1]) if constrained else 0.0

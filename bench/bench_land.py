@@ -1,0 +1,114 @@
+"""Land et al. (2015) problems 1 and 2 under mesh refinement and penalty variation (hyperoc.benchmarks).
+
+Problem 1: beam 10 x 1 x 1 mm, ``10 n x n x n`` cubes of six P2 tetrahedra; reported: z of the deformed
+point (10, 0.5, 1). Problem 2: idealized LV (Gmsh, target edge h mm), P2; reported: z of the deformed
+endocardial and epicardial apex. Both: Guccione with the volumetric penalty ``kappa`` (kPa), no global
+volume constraint, follower pressure, full Newton steps with load stepping (halving on failure).
+
+For each kappa the values converge as h -> 0 to the compressible solution with that bulk modulus; as
+kappa -> infinity that solution tends to the incompressible benchmark at O(1/kappa). The script prints
+one Markdown table per (problem, kappa) with successive differences and the observed order, and a
+first-order extrapolation in 1/kappa from the two largest kappa at the finest common level.
+
+    nice python bench/bench_land.py --json results/land.json            # default study
+    nice python bench/bench_land.py --problems 1 --json results/land-beam.json   # one problem
+    python bench/bench_land.py --beam-levels 1,2 --lv-sizes 4 --kappas 1000   # quick look
+
+Seconds are wall time per solve, JIT compilation included.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+
+import numpy as np
+
+from hyperoc.benchmarks import beam_deflection, ventricle_apex
+
+
+def _floats(text: str) -> list[float]:
+    return [float(v) for v in text.split(",") if v]
+
+
+def _table(title: str, rows: list[dict], level_key: str, value_keys: list[str]) -> str:
+    """Markdown table with, per value, the difference to the previous level and the observed order
+    ``log(d_{k-1} / d_k) / log(h_{k-1} / h_k)`` from three successive levels."""
+    head = f"| {level_key} | h (mm) | dofs | " + " | ".join(f"{k} (mm) | diff | order" for k in value_keys)
+    head += " | Newton its (total / max per step) | load steps | s |"
+    lines = [f"**{title}**", "", head, "|" + "---|" * (head.count("|") - 1)]
+    for i, r in enumerate(rows):
+        cells = [str(r["params"][level_key]), f"{r['h']:.3g}", str(r["dofs"])]
+        for key in value_keys:
+            v = [row["values"][key] for row in rows[: i + 1]]
+            d = [abs(v[j] - v[j - 1]) for j in range(1, len(v))]
+            order = ""
+            if len(d) >= 2 and d[-1] > 0 and d[-2] > 0:
+                order = f"{math.log(d[-2] / d[-1]) / math.log(rows[i - 1]['h'] / r['h']):.2f}"
+            cells += [f"{v[-1]:.5f}", f"{d[-1]:.2e}" if d else "", order]
+        its = r["newton_iterations"]
+        cells += [f"{sum(its)} / {max(its)}", str(len(its)), f"{r['seconds']:.1f}"]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _extrapolate(by_kappa: dict, key: str) -> str:
+    """``z_inf ~ z(k2) + (z(k2) - z(k1)) k1 / (k2 - k1)`` (linear in 1/kappa) from the two largest kappa."""
+    k1, k2 = sorted(by_kappa)[-2:]
+    z1, z2 = by_kappa[k1], by_kappa[k2]
+    return f"{key}: kappa {k1:g} -> {z1:.5f}, {k2:g} -> {z2:.5f}, linear in 1/kappa -> {z2 + (z2 - z1) * k1 / (k2 - k1):.5f}"
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--problems", default="1,2", help="which benchmark problems to run")
+    ap.add_argument("--beam-levels", default="1,2,3", help="beam refinement n (10n x n x n cubes)")
+    ap.add_argument("--lv-sizes", default="4,3,2", help="ventricle target edge lengths (mm)")
+    ap.add_argument("--kappas", default="1000,10000", help="penalty bulk moduli kappa (kPa)")
+    ap.add_argument("--beam-steps", type=int, default=10)
+    ap.add_argument("--lv-steps", type=int, default=20)
+    ap.add_argument("--json", default=None, help="write all results here")
+    args = ap.parse_args()
+    kappas = _floats(args.kappas)
+    results = []
+
+    def record(res):
+        row = {"values": res.values, "h": res.h, "dofs": res.dofs, "newton_iterations": res.newton_iterations.tolist(),
+               "seconds": res.seconds, "min_det_F": res.min_det_F, "max_volume_change": res.max_volume_change,
+               "mean_volume_change": res.mean_volume_change,
+               "params": res.params}
+        results.append(row)
+        print(json.dumps(row), flush=True)
+        return row
+
+    tables, extrap = [], []
+    problems = {int(v) for v in _floats(args.problems)}
+    for number, name, levels, run, level_key, keys in (
+        (1, "Problem 1 (beam)", [int(v) for v in _floats(args.beam_levels)],
+         lambda lv, k: beam_deflection(lv, kappa=k, steps=args.beam_steps), "n", ["z_tip"]),
+        (2, "Problem 2 (ventricle)", _floats(args.lv_sizes),
+         lambda lv, k: ventricle_apex(lv, kappa=k, steps=args.lv_steps), "mesh_size", ["z_endo", "z_epi"]),
+    ):
+        if number not in problems:
+            continue
+        finest = {}
+        for kappa in kappas:
+            rows = [record(run(lv, kappa)) for lv in levels]
+            tables.append(_table(f"{name}, P2, kappa = {kappa:g} kPa", rows, level_key, keys))
+            finest[kappa] = rows[-1]["values"]
+        if len(kappas) >= 2:
+            extrap += [f"{name}, finest level: " + _extrapolate({k: v[key] for k, v in finest.items()}, key)
+                       for key in keys]
+
+    print("\n" + "\n\n".join(tables) + "\n")
+    print("\n".join(f"- {line}" for line in extrap))
+    if args.json:
+        os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
+        with open(args.json, "w") as fh:
+            json.dump({"results": results, "tables": tables, "kappa_extrapolation": extrap}, fh, indent=1)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,150 @@
+"""Land et al. (2015) cardiac mechanics benchmarks, problems 1 and 2, as quasi-static solves.
+
+S. Land et al., "Verification of cardiac mechanics software: benchmark problems and solutions for
+testing active and passive material behaviour", Proc. R. Soc. A 471: 20150641 (2015),
+doi:10.1098/rspa.2015.0641. Units: mm, kPa (forces in mN).
+
+Problem 1 (beam). ``[0, 10] x [0, 1] x [0, 1]`` mm, clamped (u = 0) at x = 0, transversely
+isotropic Guccione law with fibres along x, ``C = 2`` kPa, ``bf = 8``, ``bt = 2``, ``bfs = 4``;
+a pressure of 0.004 kPa on the deformed bottom face z = 0 (a follower load). Reported: the
+z-coordinate of the deformed position of the material point (10, 0.5, 1).
+
+Problem 2 (ventricle). The idealized LV of `hyperoc.geometry.ventricle` (endocardial semi-axes
+7 / 17 mm, epicardial 10 / 20 mm, base plane z = 5 mm), base fixed, isotropic Guccione law
+``C = 10`` kPa, ``bf = bt = bfs = 1`` (``Q = tr(E^2)``), endocardial pressure 10 kPa (follower).
+Reported: the z-coordinates of the deformed endocardial apex (0, 0, -17) and epicardial apex
+(0, 0, -20).
+
+What is solved and what it converges to. The benchmark material is incompressible; here it is
+the compressible Guccione law of `hyperoc.materials.Guccione` with the volumetric penalty
+``kappa/4 (J^2 - 1 - 2 ln J)`` (``kappa`` = small-strain bulk modulus, kPa) and *no* global volume
+constraint (``solve_static(..., constrained=False)``). For a fixed ``kappa`` the P2 solutions
+converge as h -> 0 to the solution ``u_kappa`` of that compressible problem; ``u_kappa`` tends to
+the incompressible solution as ``kappa -> infinity``, at first order in ``1 / kappa`` (the volume
+change is ``O(p / kappa)``). Pure-displacement elements lock as ``kappa / C`` grows (P1 severely,
+P2 mildly), so a study must vary both h and kappa; ``bench/bench_land.py`` does.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import jax.numpy as jnp
+import numpy as np
+
+from .errors import InputError
+from .follower import FollowerPressure
+from .geometry import ventricle
+from .materials import Guccione, det
+from .mesh import Mesh, box
+from .model import StateModel
+from .statics import solve_static
+
+__all__ = ["BEAM", "VENTRICLE", "BenchmarkResult", "beam_mesh", "beam_problem", "ventricle_problem",
+           "node_position", "beam_deflection", "ventricle_apex"]
+
+#: Problem 1 parameters (Land et al. 2015): Guccione moduli (kPa, dimensionless) and pressure (kPa).
+BEAM = {"C": 2.0, "bf": 8.0, "bt": 2.0, "bfs": 4.0, "pressure": 0.004, "point": (10.0, 0.5, 1.0)}
+#: Problem 2 parameters: Guccione moduli, endocardial pressure (kPa), apex points (mm).
+VENTRICLE = {"C": 10.0, "bf": 1.0, "bt": 1.0, "bfs": 1.0, "pressure": 10.0,
+             "endo_apex": (0.0, 0.0, -17.0), "epi_apex": (0.0, 0.0, -20.0)}
+
+
+@dataclass
+class BenchmarkResult:
+    """One benchmark solve.
+
+    values : reported quantities (mm), by name.
+    h : largest edge length of the mesh (mm).
+    dofs : free displacement dofs.
+    newton_iterations : per accepted load increment (`solve_static` with ``cutbacks``).
+    seconds : wall time of the solve (JIT compilation included).
+    min_det_F, max_volume_change : ``min det F`` and ``max |det F - 1|`` over quadrature points.
+    mean_volume_change : ``int |det F - 1| dX / |Omega|`` (how far the penalty is from incompressible).
+    """
+
+    values: dict
+    h: float
+    dofs: int
+    newton_iterations: np.ndarray
+    seconds: float
+    min_det_F: float
+    max_volume_change: float
+    mean_volume_change: float
+    params: dict = field(default_factory=dict)
+
+
+def _fibres_along_x(x):
+    """Constant frame ``(f, s, n) = (e_x, e_y, e_z)`` at points x (..., 3) -> (..., 3, 3)."""
+    return np.broadcast_to(np.eye(3), x.shape[:-1] + (3, 3))
+
+
+def beam_mesh(n: int) -> Mesh:
+    """The 10 x 1 x 1 mm beam with ``10 n x n x n`` cubes (six tetrahedra each).
+
+    Boundaries: ``gamma_d`` = the face x = 0 (clamped) and ``z_bottom`` = the face z = 0 (loaded);
+    `hyperoc.mesh.box` names the z = 0 face ``front``.
+    """
+    if n < 1:
+        raise InputError(f"beam_mesh: need n >= 1, got {n}")
+    mesh = box(10 * n, n, n, size=(10.0, 1.0, 1.0), dirichlet="left")
+    return mesh.with_boundary("z_bottom", mesh.boundary("front"))
+
+
+def beam_problem(n: int, *, kappa: float, degree: int = 2) -> tuple[StateModel, FollowerPressure]:
+    """Problem 1 on `beam_mesh` (n): the model and its follower pressure on the bottom face."""
+    p = BEAM
+    material = Guccione(C=p["C"], bf=p["bf"], bt=p["bt"], bfs=p["bfs"], kappa=kappa)
+    model = StateModel(beam_mesh(n), material, degree=degree, frames=_fibres_along_x)
+    return model, FollowerPressure(model, "z_bottom", p["pressure"])
+
+
+def ventricle_problem(h: float, *, kappa: float, degree: int = 2) -> tuple[StateModel, FollowerPressure]:
+    """Problem 2 on `hyperoc.geometry.ventricle` (h, mm): the model (base fixed) and the endocardial pressure."""
+    p = VENTRICLE
+    material = Guccione(C=p["C"], bf=p["bf"], bt=p["bt"], bfs=p["bfs"], kappa=kappa)
+    model = StateModel(ventricle(h), material, degree=degree, frames=_fibres_along_x)
+    return model, FollowerPressure(model, "endocardium", p["pressure"])
+
+
+def node_position(model: StateModel, u, point, tol: float = 1e-9) -> np.ndarray:
+    """Deformed position ``X + u(X)`` (dim,) of the material point ``X = point``, which must be a node
+    of the model's space (a mesh vertex or, for P2, an edge midpoint) within ``tol`` (mm)."""
+    X = np.asarray(point, dtype=np.float64)
+    dist = np.linalg.norm(model.space.nodes - X, axis=1)
+    a = int(np.argmin(dist))
+    if dist[a] > tol:
+        raise InputError(f"the point {tuple(X)} is not a node of the mesh (nearest at {dist[a]:.3g})")
+    return X + model.expand(u)[a]
+
+
+def _solve(model, follower, steps, cutbacks, solver, points: dict, params: dict) -> BenchmarkResult:
+    t0 = time.perf_counter()
+    sol = solve_static(model, follower=follower, constrained=False, steps=steps, solver=solver,
+                       line_search=False, cutbacks=cutbacks)
+    seconds = time.perf_counter() - t0
+    J = np.asarray(det(model.deformation_gradient(jnp.asarray(sol.u))))  # (nc, nq)
+    values = {name: float(node_position(model, sol.u, X)[2]) for name, X in points.items()}
+    return BenchmarkResult(values, model.mesh.h(), model.n, sol.newton_iterations, seconds,
+                           float(J.min()), float(np.abs(J - 1).max()),
+                           float(np.sum(model.quad.wdx * np.abs(J - 1)) / model.mesh.volume()), params)
+
+
+def beam_deflection(n: int, *, kappa: float = 1000.0, degree: int = 2, steps: int = 10, cutbacks: int = 8,
+                    solver="auto") -> BenchmarkResult:
+    """Problem 1: ``values["z_tip"]`` = z of the deformed point (10, 0.5, 1) (mm; 1 at rest)."""
+    model, load = beam_problem(n, kappa=kappa, degree=degree)
+    return _solve(model, load, steps, cutbacks, solver, {"z_tip": BEAM["point"]},
+                  {"problem": 1, "n": n, "kappa": kappa, "degree": degree, "steps": steps, "cutbacks": cutbacks})
+
+
+def ventricle_apex(h: float, *, kappa: float = 1000.0, degree: int = 2, steps: int = 10, cutbacks: int = 8,
+                   solver="auto") -> BenchmarkResult:
+    """Problem 2: ``values["z_endo"]``, ``values["z_epi"]`` = z of the deformed endocardial and
+    epicardial apex (mm; -17 and -20 at rest)."""
+    model, load = ventricle_problem(h, kappa=kappa, degree=degree)
+    return _solve(model, load, steps, cutbacks, solver,
+                  {"z_endo": VENTRICLE["endo_apex"], "z_epi": VENTRICLE["epi_apex"]},
+                  {"problem": 2, "mesh_size": h, "kappa": kappa, "degree": degree, "steps": steps,
+                   "cutbacks": cutbacks})
