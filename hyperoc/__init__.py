@@ -23,6 +23,7 @@ from .dynamics import Scheme, StateSolution, TimeStepper, solve_state
 from .errors import HyperocError, InputError, SolverError
 from .geometry import annulus, from_file, thick_shell, ventricle
 from .fibres import rule_based_fibres, transmural_coordinate
+from .follower import FollowerPressure  # noqa: F401  (quasi-static follower load; see hyperoc.statics)
 from .materials import Fung, Guccione, HolzapfelOgden, NeoHookean, Ogden, SaintVenantKirchhoff
 from .mesh import Mesh, box, interval, rectangle
 from .model import StateModel
