@@ -88,15 +88,27 @@ class Adjoint:
         r_y0, r_y1, r_xi0, r_xi1, r_dt = vjp_r(w)
         return (v_y0 - r_y0, v_y1 - r_y1), (-r_xi0, -r_xi1, v_dt - r_dt)
 
+    @staticmethod
+    def _inputs(Y0, Y1, P, Xi, F, dt, V0, gP):
+        """Per-step inputs of `step` for a level range (see `sweep`)."""
+        return (Y0[1:], P, Y0[:-1], Y1[:-1], Xi[:-1], Xi[1:], F[:-1], F[1:], dt, jnp.full(dt.shape[0], V0), gP)
+
+    @staticmethod
+    def _control_totals(Xi, gxi0, gxi1):
+        """``dJ/dxi`` at the levels from the per-step derivatives in ``xi_n`` and ``xi_{n+1}``."""
+        return jnp.zeros_like(Xi).at[:-1].add(gxi0).at[1:].add(gxi1)
+
     @cached_property
     def _scan(self):
-        def run(lam, gY0, gY1, xs):
+        def run(lam, Y0, Y1, P, Xi, F, dt, V0, gY0, gY1, gP):
             def body(carry, inp):
                 (l0, l1), out = self.step(carry, inp[:-2])
                 g0, g1 = inp[-2:]
                 return (l0 + g0, l1 + g1), out
 
-            return jax.lax.scan(body, lam, xs + (gY0, gY1), reverse=True)
+            xs = self._inputs(Y0, Y1, P, Xi, F, dt, V0, gP) + (gY0, gY1)
+            lam, (gxi0, gxi1, gdt) = jax.lax.scan(body, lam, xs, reverse=True)
+            return lam, self._control_totals(Xi, gxi0, gxi1), gdt
 
         return jax.jit(run)
 
@@ -113,13 +125,13 @@ class Adjoint:
         Returns the totals at level a, ``dJ/dxi`` (L+1, n_ctrl) from the steps of the range (the end
         levels also receive contributions from the neighbouring ranges) and ``dJ/ddt`` (L,).
         """
-        L = dt.shape[0]
-        xs = (Y0[1:], P, Y0[:-1], Y1[:-1], Xi[:-1], Xi[1:], F[:-1], F[1:], dt, jnp.full(L, V0), gP)
         if self.stepper.solver.traced:
-            lam, (gxi0, gxi1, gdt) = self._scan(lam, jnp.asarray(gY0), jnp.asarray(gY1), tuple(jnp.asarray(a) for a in xs))
+            args = (Y0, Y1, P, Xi, F, dt)
+            lam, gXi, gdt = self._scan(lam, *(jnp.asarray(a) for a in args), V0, jnp.asarray(gY0), jnp.asarray(gY1),
+                                       jnp.asarray(gP))
         else:
-            lam, (gxi0, gxi1, gdt) = self._python_loop(lam, gY0, gY1, xs)
-        gXi = jnp.zeros_like(Xi).at[:-1].add(gxi0).at[1:].add(gxi1)
+            lam, (gxi0, gxi1, gdt) = self._python_loop(lam, gY0, gY1, self._inputs(Y0, Y1, P, Xi, F, dt, V0, gP))
+            gXi = self._control_totals(Xi, gxi0, gxi1)
         return lam, np.asarray(gXi), np.asarray(gdt)
 
     def backward(self, Y0, Y1, P, Xi, F, dt, V0, gY0, gY1, gP):
@@ -131,7 +143,8 @@ class Adjoint:
     # --- checkpointing ----------------------------------------------------------------------------
     def advance(self, y0, y1, p_prev, t, xi, loads, V0):
         """The stepper's own loop (compiled scan, or jitted step driven from Python) over the levels
-        ``t`` (L+1,) from ``(y0, y1)`` with previous multiplier ``p_prev`` (Newton's initial guess);
+        ``t`` (L+1,) from ``(y0, y1)`` with previous multiplier ``p_prev`` (Newton's initial guess; a
+        Python float, as `TimeStepper.run` passes it, so that the compiled scans are shared);
         xi (L+1, n_ctrl), loads (L+1, n). Returns the stepper's outputs (Y0, Y1 (L, n), P, iterations,
         status, min det F, max |grad u| (L,)) for the levels after the first."""
         st = self.stepper
@@ -151,7 +164,7 @@ class Adjoint:
         states, P, its, status, mindet = [], [], [], [], []
         for a, b in zip(bounds[:-1], bounds[1:]):
             states.append((y0, y1))
-            out = self.advance(y0, y1, P[-1][-1] if P else np.float64(0.0), grid.t[a:b + 1], xi[a:b + 1],
+            out = self.advance(y0, y1, float(P[-1][-1]) if P else 0.0, grid.t[a:b + 1], xi[a:b + 1],
                                loads[a:b + 1], V0)
             for store, o in zip((P, its, status, mindet), (out[2], out[3], out[4], out[5])):
                 store.append(np.asarray(o))
@@ -171,13 +184,15 @@ class Adjoint:
         for j in reversed(range(len(ck.states))):
             a, b = ck.bounds[j], ck.bounds[j + 1]
             y0, y1 = ck.states[j]
-            Y0n, Y1n, P = self.advance(y0, y1, ck.p_steps[a - 1] if a else np.float64(0.0), ck.grid.t[a:b + 1],
+            Y0n, Y1n, P = self.advance(y0, y1, float(ck.p_steps[a - 1]) if a else 0.0, ck.grid.t[a:b + 1],
                                        ck.xi[a:b + 1], ck.loads[a:b + 1], ck.V0)[:3]
-            g = [g_kept.get(k, (zero, zero)) for k in range(a, b)]
+            gY0, gY1 = np.zeros((b - a, n)), np.zeros((b - a, n))
+            for k, (g0, g1) in g_kept.items():
+                if a <= k < b:
+                    gY0[k - a], gY1[k - a] = g0, g1
             lam, gxi, gdt[a:b] = self.sweep(lam, jnp.concatenate([y0[None], jnp.asarray(Y0n)]),
                                             jnp.concatenate([y1[None], jnp.asarray(Y1n)]), P, ck.xi[a:b + 1],
-                                            ck.loads[a:b + 1], ck.grid.dt[a:b], ck.V0,
-                                            jnp.stack([g0 for g0, _ in g]), jnp.stack([g1 for _, g1 in g]), gP[a:b])
+                                            ck.loads[a:b + 1], ck.grid.dt[a:b], ck.V0, gY0, gY1, gP[a:b])
             gXi[a:b + 1] += gxi
         return gXi, gdt
 

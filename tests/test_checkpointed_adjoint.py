@@ -70,11 +70,11 @@ def test_traced_1d():
     """Tridiagonal solver (lax.scan path), an objective reading y0(tau) and y1(T)."""
     model = StateModel(interval(20), SaintVenantKirchhoff(0.05, 0.05), kappa=2e-3,
                        control=BodyForce(Region("box", lower=(0.75,), upper=(1.0,))))
-    J = ReducedFunctional(model, TimeTransform.for_step(2.0, 0.1, 1.0, 0.2),
-                          Objective(at_tau=PressureRise(0.2), terminal=(_LevelReads(),)))
-    assert J.stepper.solver.traced and J.N == 20
-    assert J.objective_levels == (10, 20)
-    _assert_same(J, _point(J, 1.0, 0.05), ks=(1, 3, J.N))  # 3 does not divide N = 20
+    J = ReducedFunctional(model, TimeTransform.for_step(1.75, 0.25, 0.75, 0.25),
+                          Objective(at_tau=PressureRise(0.25), terminal=(_LevelReads(),)))
+    assert J.stepper.solver.traced and J.N == 7
+    assert J.objective_levels == (3, 7)
+    _assert_same(J, _point(J, 0.75, 0.05), ks=(1, 3, J.N))  # 3 does not divide N = 7 (scans of 3 and 1 steps)
 
 
 def test_python_loop_3d_sparse():

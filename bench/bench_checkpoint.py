@@ -1,0 +1,160 @@
+"""One gradient evaluation with and without a checkpointed adjoint: seconds and peak memory.
+
+Each variant runs in a fresh subprocess (JAX buffers are invisible to tracemalloc), which reports
+the process's peak resident set (``ru_maxrss``) at the end, the seconds of a first gradient
+(JIT compilation included) and of a second one at another point (compiled), and the bytes of the
+level states held between the forward and the adjoint sweep, from their shapes:
+``2 (N+1) n 8`` bytes when every level is stored, ``2 (ceil(N/k) + len(kept)) n 8`` with
+``checkpoint_every = k`` (plus one segment of ``2 (k+1) n 8`` bytes during the backward sweep).
+Ratios are against the store-everything run of the same case, in this same script.
+
+Cases:
+  1d  the paper's 1D experiment (SVK, P1, h = 0.01, kappa 2e-4, body force on [0.75, 1], phi1 =
+      p(tau), alpha 2e-3) on a long grid T = 15, dt = 0.005 (3000 steps), tridiagonal solver
+      (one compiled lax.scan per segment length); ``--n1d 1000`` repeats it with h = 0.001.
+  lv  idealized left ventricle (Land et al. 2015 geometry, ``hyperoc.geometry.ventricle(h)``),
+      Guccione (C = 2 kPa, bf 8, bt 2, bfs 4, volumetric kappa 100 kPa), rule-based fibres
+      (+60 / -60 deg), active stress along the fibres on the whole wall, phi1 = pressure rise
+      (p(tau + eps) - p(tau)) / eps with eps = 1 ms, alpha 5e-4; P1, T = 8 ms, dt = 0.5 ms (16
+      steps), sparse LU (jitted step driven from Python); xi = -5 sin(pi t / T) kPa. Units mm, ms, kPa.
+  lv-sizes  the LV gradient (store everything) for three mesh sizes (h = 4, 3, 2.5 mm): how time
+      grows with dofs.
+
+    nice -n 10 python bench/bench_checkpoint.py            # all cases (~ minutes on 2 shared cores)
+    python bench/bench_checkpoint.py --cases 1d            # one case
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import resource
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+CK_1D = (None, 1, 10, 55, 300, 3000)
+CK_LV = (None, 4)  # 4 = sqrt(16 steps)
+LV_H = (4.0, 3.0, 2.5)
+LV_STEPS = dict(T=8.0, dt=0.5, tau=4.0, eps=1.0)
+
+
+def build_1d(n: int):
+    import hyperoc as ho
+
+    model = ho.StateModel(ho.interval(n), ho.SaintVenantKirchhoff(mu=0.05, lam=0.05), kappa=2e-4,
+                          control=ho.BodyForce(ho.Region("box", lower=(0.75,), upper=(1.0,))))
+    transform = ho.TimeTransform.for_step(15.0, 0.005, 7.5)
+    objective = ho.Objective(running=(ho.ControlCost(2e-3),), at_tau=ho.PressureAt())
+    t = np.linspace(0.0, 15.0, transform.num_steps + 1)
+    shape = 0.05 * np.sin(2 * np.pi * t / 3)[:, None]
+    return model, transform, objective, "auto", 7.5, shape
+
+
+def build_lv(h: float):
+    import hyperoc as ho
+    from hyperoc.fibres import rule_based_fibres
+    from hyperoc.geometry import ventricle
+
+    mesh = ventricle(h)
+    frames = rule_based_fibres(mesh, helix_endo=60.0, helix_epi=-60.0)
+    model = ho.StateModel(mesh, ho.Guccione(C=2.0, bf=8.0, bt=2.0, bfs=4.0, kappa=100.0), kappa=1.0, density=1.0,
+                          control=ho.ActiveStress(ho.Region(), fibres=frames.fibre), frames=frames)
+    s = LV_STEPS
+    transform = ho.TimeTransform.for_step(s["T"], s["dt"], s["tau"], s["eps"])
+    objective = ho.Objective(running=(ho.ControlCost(5e-4),), at_tau=ho.PressureRise(s["eps"]))
+    t = np.linspace(0.0, s["T"], transform.num_steps + 1)
+    shape = -5.0 * np.sin(np.pi * t / s["T"])[:, None]  # kPa: fibre tension rising and falling
+    return model, transform, objective, "lu", s["tau"], shape
+
+
+def child(case: str, size: float, k: int | None) -> dict:
+    """Build the case, two gradients (compile + run, run), report; runs in its own process."""
+    import hyperoc as ho
+
+    model, transform, objective, solver, tau, shape = build_1d(int(size)) if case == "1d" else build_lv(size)
+    J = ho.ReducedFunctional(model, transform, objective, solver=solver, checkpoint_every=k)
+    xi = shape * np.ones((1, model.control.size))
+    times = []
+    for scale in (1.0, 1.01):  # a new point: the state cache is not hit
+        t0 = time.perf_counter()
+        J.value_and_gradient(ho.ControlPoint(scale * xi, tau))
+        times.append(time.perf_counter() - t0)
+    N, n = J.N, model.n
+    stored = N + 1 if k is None else J.record(ho.ControlPoint(1.01 * xi, tau)).stored_states
+    return {"case": case, "size": size, "k": k, "dofs": n, "steps": N, "first_s": times[0], "gradient_s": times[1],
+            "stored_bytes": 2 * stored * n * 8, "segment_bytes": 0 if k is None else 2 * (min(k, N) + 1) * n * 8,
+            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+
+
+_DONE: dict = {}
+
+
+def run(case: str, size: float, k: int | None) -> dict:
+    """One variant in a fresh process (each (case, size, k) once per script run)."""
+    key = (case, float(size), k)
+    if key not in _DONE:
+        cmd = [sys.executable, __file__, "--child", case, str(size), "none" if k is None else str(k)]
+        out = subprocess.run(cmd, capture_output=True, text=True)
+        if out.returncode != 0:
+            raise SystemExit(f"{key} failed:\n{out.stderr[-2000:]}")
+        _DONE[key] = json.loads(out.stdout.strip().splitlines()[-1])
+    return _DONE[key]
+
+
+def table(rows: list, base: dict) -> str:
+    head = ("| k | dofs | steps | stored states (MB) | + segment (MB) | peak RSS (MB) | RSS / baseline | gradient (s) | "
+            "time / baseline | first incl. JIT (s) |\n|---|---|---|---|---|---|---|---|---|---|")
+    lines = [head]
+    for r in rows:
+        k = "all (None)" if r["k"] is None else str(r["k"])
+        lines.append(f"| {k} | {r['dofs']} | {r['steps']} | {r['stored_bytes'] / 1e6:.2f} | {r['segment_bytes'] / 1e6:.2f} | {r['peak_rss_mb']:.0f} | "
+                     f"{r['peak_rss_mb'] / base['peak_rss_mb']:.3f} | {r['gradient_s']:.3f} | "
+                     f"{r['gradient_s'] / base['gradient_s']:.2f} | {r['first_s']:.1f} |")
+    return "\n".join(lines)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cases", nargs="+", default=["1d", "lv", "lv-sizes"], choices=["1d", "lv", "lv-sizes"])
+    ap.add_argument("--n1d", type=int, nargs="+", default=[100], help="1D element counts (100 = the paper's h)")
+    ap.add_argument("--lv-h", type=float, default=3.0, help="LV mesh size (mm) for the checkpoint comparison")
+    ap.add_argument("--json", help="write all rows to this file")
+    ap.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.child:
+        case, size, k = args.child
+        print(json.dumps(child(case, float(size), None if k == "none" else int(k))))
+        return
+    rows = []
+    for case in args.cases:
+        if case == "1d":
+            for n in args.n1d:
+                rs = [run("1d", n, k) for k in CK_1D]
+                rows += rs
+                print(f"\n### 1D, n = {n} elements (T = 15, dt = 0.005), sqrt(N) = {math.sqrt(rs[0]['steps']):.0f}\n")
+                print(table(rs, rs[0]), flush=True)
+        elif case == "lv":
+            rs = [run("lv", args.lv_h, k) for k in CK_LV]
+            rows += rs
+            print(f"\n### LV, h = {args.lv_h} mm\n")
+            print(table(rs, rs[0]), flush=True)
+        else:
+            rs = [run("lv", h, None) for h in sorted({*LV_H, args.lv_h}, reverse=True)]
+            rows += rs
+            print("\n### LV gradient vs mesh size (store everything)\n")
+            print("| h (mm) | dofs | steps | gradient (s) | first incl. JIT (s) | peak RSS (MB) | s per dof-step (us) |\n"
+                  "|---|---|---|---|---|---|---|")
+            for r in rs:
+                print(f"| {r['size']} | {r['dofs']} | {r['steps']} | {r['gradient_s']:.2f} | {r['first_s']:.1f} | "
+                      f"{r['peak_rss_mb']:.0f} | {1e6 * r['gradient_s'] / (r['dofs'] * r['steps']):.1f} |", flush=True)
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(rows, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()
