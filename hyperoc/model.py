@@ -34,6 +34,27 @@ def _to_bcoo(mat):
     return jsparse.BCOO.from_scipy_sparse(mat.tocoo())
 
 
+def _voigt(d: int):
+    """Independent strain pairs ``(I, J)``, ``I <= J`` (diagonal first), the (d, d) map back to
+    the pair index, and 1 (diagonal) or 1/2 (off-diagonal) per pair."""
+    pairs = [(i, i) for i in range(d)] + [(i, j) for i in range(d) for j in range(d) if i < j][::-1]
+    sym = np.zeros((d, d), dtype=np.int64)
+    for k, (i, j) in enumerate(pairs):
+        sym[i, j] = sym[j, i] = k
+    I, J = (np.array(c) for c in zip(*pairs))
+    return I, J, sym, np.where(I == J, 1.0, 0.5)
+
+
+_VOIGT = {d: _voigt(d) for d in (1, 2, 3)}
+_EPS2 = np.array([[0.0, 1.0], [-1.0, 0.0]])
+_EPS3 = np.zeros((3, 3, 3))
+for _i, _j, _k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+    _EPS3[_i, _j, _k], _EPS3[_i, _k, _j] = 1.0, -1.0
+# T_r of `StateModel._element_tangent`: I for the stress term, then the det F Hessian's eps_ik(m).
+_CLOSED_FORM_T = {1: np.eye(1)[None], 2: np.stack([np.eye(2), _EPS2]),
+                  3: np.concatenate([np.eye(3)[None], np.moveaxis(_EPS3, 2, 0)])}
+
+
 class StateModel:
     """Damped hyperelastic body with a global volume constraint, discretized in space.
 
@@ -224,20 +245,69 @@ class StateModel:
         """G(u) = (cof F, grad phi), (n,)."""
         return jax.grad(self.volume)(u)
 
+    #: `tangent_blocks` works on at most this many quadrature points at a time (bounds its memory).
+    tangent_chunk_points = 1 << 16
+
     def tangent_blocks(self, u, a, b):
-        """Element Hessians of ``int (a W(F) + b det F)``, (nc, k, k), k = nloc * dim.
+        """Element Hessians of ``int (a W(F) + b det F)``, (nc, k, k), k = nloc * dim, rows and
+        columns node-major (``a * dim + i``); the same values as ``jax.hessian`` of the element
+        energy, to round-off. With a = 1, b = p this is the element form of ``K_T(u) + p H(u)``.
 
-        With a = 1, b = p this is the element form of ``K_T(u) + p H(u)``.
+        Cells are processed ``tangent_chunk_points // nq`` at a time (`_element_tangent` on each).
         """
-        F = self.deformation_gradient(u)
+        ue = jnp.concatenate([u, jnp.zeros(1, u.dtype)])[self._gather].reshape(self._gather.shape[0], -1, self.dim)
+        kernel = lambda xs: self._element_tangent(*xs, a, b)
+        xs = (ue, self._dN, self._w, self._frames)
+        nc, nq = self._w.shape
+        batch = max(1, self.tangent_chunk_points // nq)
+        return jax.vmap(kernel)(xs) if nc <= batch else jax.lax.map(kernel, xs, batch_size=batch)
 
-        def psi(G, frame):
-            return a * self.material.energy_of_F(G, frame) + b * det(G)
+    def _voigt_derivatives(self, e, frame):
+        """``(d2W/de2 (nv, nv), dW/de (nv,))`` at one point, W as a function of the nv = d(d+1)/2
+        independent strains ``e_alpha = E_{I_alpha J_alpha}`` (`_VOIGT`: E = e[sym])."""
+        sym = _VOIGT[self.dim][2]
+        g = jax.grad(lambda e: self.material.energy(e[sym], frame))
+        return jax.jacfwd(lambda e: (g(e), g(e)), has_aux=True)(e)
 
-        A = self._pointwise(jax.hessian(psi), F)  # (nc, nq, d, d, d, d)
-        Ke = jnp.einsum("cq,cqaj,cqijkl,cqbl->caibk", self._w, self._dN, A, self._dN)
-        nc, k = Ke.shape[0], self.space.nloc * self.dim
-        return Ke.reshape(nc, k, k)
+    def _element_tangent(self, ue, dN, w, frames, a, b):
+        """Hessian of ``sum_q w_q (a W(F_q) + b det F_q)`` in the cell's dofs ue (nloc, d): (k, k).
+
+        With ``dF = e_i (x) grad N_a`` and ``E = (F^T F - I) / 2`` (W depends on F through E only):
+
+        - material part ``sum_q w_q a B_q^T H_q B_q``, H = d2W/de2 in the nv independent strains,
+          ``B_q[alpha, (a, i)] = (F_iI dN_aJ + F_iJ dN_aI) / 2`` (``(I, J)`` = pair alpha): the
+          change of e under a unit change of dof (a, i);
+        - parts known in closed form, each ``(sum_q w_q dN_a^T M_r dN_b) T_r[i, k]``: the geometric
+          (stress) term ``M_0 = a S``, ``S = dW/dE``, ``T_0 = I``, and the Hessian of det F,
+          ``d2 det F / dF_iJ dF_kL = eps_ik eps_JL`` (2D: ``M_1 = b eps``, ``T_1 = eps``) and
+          ``eps_ikm eps_JLN F_mN`` (3D: ``M_m = b eps_JLN F_mN``, ``T_m = eps_ikm``, m = 0, 1, 2).
+
+        Shapes: dN (nq, nloc, d) physical shape gradients, w (nq,) weights times |det J|, frames
+        (nq, kf, d) or None; a, b scalars.
+        """
+        d, n = self.dim, ue.shape[0]
+        I, J, sym, half = _VOIGT[d]
+        F = jnp.eye(d) + jnp.einsum("qaj,ai->qij", dN, ue)  # (nq, d, d)
+        e = (0.5 * (jnp.einsum("qkI,qkJ->qIJ", F, F) - jnp.eye(d)))[:, I, J]  # (nq, nv)
+        if frames is None:
+            H, s = jax.vmap(lambda x: self._voigt_derivatives(x, None))(e)
+        else:
+            H, s = jax.vmap(self._voigt_derivatives)(e, frames)
+        # B[q, alpha, a, i]; the contraction over (q, alpha) is one matrix product per cell.
+        FI, FJ = F[:, :, I].transpose(0, 2, 1)[:, :, None, :], F[:, :, J].transpose(0, 2, 1)[:, :, None, :]
+        dNI, dNJ = dN[:, :, I].transpose(0, 2, 1)[..., None], dN[:, :, J].transpose(0, 2, 1)[..., None]
+        B = (0.5 * (FI * dNJ + FJ * dNI)).reshape(len(w), len(I), n * d)
+        K = jnp.einsum("qak,qal->kl", B, jnp.einsum("qab,qbl->qal", (a * w)[:, None, None] * H, B))
+        S = (s * half)[:, sym]  # (nq, d, d): the off-diagonal e_alpha stands for E_IJ and E_JI
+        M = [a * S[:, None]]
+        if d == 2:
+            M.append(jnp.broadcast_to(b * _EPS2, (len(w), 1, 2, 2)))
+        elif d == 3:
+            M.append(b * jnp.einsum("JLN,qmN->qmJL", _EPS3, F))
+        M = jnp.concatenate(M, axis=1)  # (nq, r, d, d)
+        G = jnp.einsum("qaJ,qrJb->rab", dN, jnp.einsum("q,qrJL,qbL->qrJb", w, M, dN))
+        K = K.reshape(n, d, n, d) + jnp.einsum("rab,rik->aibk", G, _CLOSED_FORM_T[d])
+        return K.reshape(n * d, n * d)
 
     def min_det_F(self, u):
         return jnp.min(det(self.deformation_gradient(u)))
