@@ -45,6 +45,44 @@ def _voigt(d: int):
     return I, J, sym, np.where(I == J, 1.0, 0.5)
 
 
+def _rigid_motions(x: np.ndarray) -> np.ndarray:
+    """Nodal values of the rigid motions (translations e_i, rotations e_k x (X - centre)) as flat dof
+    vectors (nodes * d, d (d + 1) / 2); the centre is the mean node, for conditioning."""
+    n, d = x.shape
+    x = x - x.mean(axis=0)
+    modes = [np.tile(np.eye(d)[i], n) for i in range(d)]
+    if d == 2:
+        modes.append(np.stack([-x[:, 1], x[:, 0]], axis=1).ravel())
+    elif d == 3:
+        modes += [np.cross(np.eye(3)[k], x).ravel() for k in range(3)]
+    return np.stack(modes, axis=1)
+
+
+def _free_motions(rigid: np.ndarray, constrained: np.ndarray) -> np.ndarray:
+    """Orthonormal basis (num_dofs, m) of the rigid motions that vanish on the constrained dofs."""
+    _, sv, Vt = np.linalg.svd(rigid[constrained], full_matrices=True)
+    rank = int(np.sum(sv > 1e-10 * max(sv.max(initial=0.0), 1e-300)))
+    free = rigid @ Vt[rank:].T
+    return np.linalg.qr(free)[0] if free.shape[1] else free
+
+
+def _isostatic_pins(rigid: np.ndarray, constrained: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+    """The fewest dofs among ``candidates`` whose fixing removes the rigid motions left by
+    ``constrained``: one per motion, picked by QR with column pivoting of the motions' values at the
+    candidates (each pick removes the motion that moves it most, so the support is well conditioned)."""
+    import scipy.linalg
+
+    free = _free_motions(rigid, constrained)
+    m = free.shape[1]
+    if m == 0:
+        return np.zeros(0, np.int64)
+    _, R, piv = scipy.linalg.qr(free[candidates].T, pivoting=True, mode="economic")
+    if len(piv) < m or abs(R[m - 1, m - 1]) <= 1e-10 * abs(R[0, 0]):
+        raise InputError(f"the Dirichlet conditions leave {m} rigid motion(s) that no single dof of the "
+                         "dirichlet_components boundaries removes; constrain more components")
+    return np.sort(candidates[piv[:m]])
+
+
 _VOIGT = {d: _voigt(d) for d in (1, 2, 3)}
 _EPS2 = np.array([[0.0, 1.0], [-1.0, 0.0]])
 _EPS3 = np.zeros((3, 3, 3))
@@ -69,18 +107,41 @@ class StateModel:
     traction : traction g on the Neumann boundary, constant vector or callable ``(x, t)``, evaluated at
         t = 0 (pass time-dependent loads to the stepper as ``external``), or None.
     frames : optional callable ``x (nc, nq, dim) -> (nc, nq, k, dim)`` of material directions.
+    dirichlet : boundary where every component of u is 0 (clamped), or None for none.
+    dirichlet_components : ``{boundary: components}``, e.g. ``{"base": (2,)}``: only those components
+        of u are 0 there, the others slide freely (a sliding base: u_z = 0 on the plane z = const).
+        Combines with ``dirichlet``.
+    pin_rigid : what to do with the rigid motions ``a + w x X`` that the constraints leave free
+        (a sliding plane alone leaves the in-plane translations and the rotation about its normal).
+        True (default): fix as many single dofs of the ``dirichlet_components`` boundaries as there
+        are such motions, chosen by QR with column pivoting of the motions' values there (the
+        best-conditioned choice; `pinned_dofs`). The support is then isostatic: it removes exactly
+        the rigid motions and, for loads with no net force or moment along them, carries no
+        reaction, so the deformation is the one of the free-sliding body. False: keep them
+        (`rigid_modes`); the dynamics stays well posed through the mass matrix (the rigid motion
+        is then driven by the net load), a static solve does not (its K is singular).
+        Rigid motions left by ``dirichlet`` alone (e.g. a degenerate Gamma_D) are only reported.
+
+    Attributes ``rigid_modes`` (n, m): orthonormal reduced vectors of the rigid motions that the
+    constraints (with pins) leave free, m = 0 normally; ``pinned_dofs``: global dofs
+    (``node * dim + component``) fixed by ``pin_rigid``.
     """
 
     def __init__(self, mesh: Mesh, material: Material, *, degree: int = 1, kappa: float = 0.0, density: float = 1.0,
-                 control=None, traction=None, dirichlet: str = "gamma_d", neumann: str = "gamma_n", frames=None):
+                 control=None, traction=None, dirichlet: str | None = "gamma_d", neumann: str = "gamma_n", frames=None,
+                 dirichlet_components: dict | None = None, pin_rigid: bool = True):
         if kappa < 0 or density <= 0:
             raise InputError(f"need kappa >= 0 and density > 0, got kappa = {kappa}, density = {density}")
         self.mesh, self.material = mesh, material.validate()
         self.kappa, self.density = float(kappa), float(density)
         self.space = VectorSpace(mesh, degree)
         self.dim = mesh.dim
-        constrained = self.space.node_dofs(self.space.boundary_nodes(dirichlet))
+        constrained, sliding = self._dirichlet_dofs(dirichlet, dirichlet_components or {})
+        rigid = _rigid_motions(self.space.nodes)
+        self.pinned_dofs = _isostatic_pins(rigid, constrained, sliding) if pin_rigid and sliding.size else np.zeros(0, int)
+        constrained = np.union1d(constrained, self.pinned_dofs)
         self.free, self.to_reduced = reduced_numbering(self.space.num_dofs, constrained)
+        self.rigid_modes = _free_motions(rigid, constrained)[self.free]
         self.n = self.free.size
         if self.n == 0:
             raise InputError("every dof is on the Dirichlet boundary: nothing to solve")
@@ -94,6 +155,24 @@ class StateModel:
         self._dN = jnp.asarray(self.quad.dN)
         self._w = jnp.asarray(self.quad.wdx)
         self._gather = jnp.asarray(np.where(self.cell_dofs < 0, self.n, self.cell_dofs))
+
+    def _dirichlet_dofs(self, dirichlet, components: dict) -> tuple[np.ndarray, np.ndarray]:
+        """Constrained global dofs (sorted) and the other dofs of the nodes on the sliding boundaries."""
+        sp = self.space
+        fixed = [sp.node_dofs(sp.boundary_nodes(dirichlet))] if dirichlet is not None else []
+        sliding = []
+        for name, comps in components.items():
+            comps = np.atleast_1d(np.asarray(comps))
+            if comps.size == 0 or comps.dtype.kind not in "iu" or len(set(comps.tolist())) != comps.size \
+                    or comps.min() < 0 or comps.max() >= self.dim:
+                raise InputError(f"dirichlet_components[{name!r}]: need distinct component indices in "
+                                 f"0..{self.dim - 1}, got {comps.tolist()}")
+            nodes = sp.boundary_nodes(name)
+            fixed.append((nodes[:, None] * self.dim + comps).ravel())
+            sliding.append(sp.node_dofs(nodes))
+        fixed = np.unique(np.concatenate(fixed)) if fixed else np.zeros(0, np.int64)
+        sliding = np.setdiff1d(np.concatenate(sliding), fixed) if sliding else np.zeros(0, np.int64)
+        return fixed, sliding
 
     # --- constant operators --------------------------------------------------------------------
     @cached_property
