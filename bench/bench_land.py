@@ -7,12 +7,14 @@ volume constraint, follower pressure, full Newton steps with load stepping (halv
 
 For each kappa the values converge as h -> 0 to the compressible solution with that bulk modulus; as
 kappa -> infinity that solution tends to the incompressible benchmark at O(1/kappa). The script prints
-one Markdown table per (problem, kappa) with successive differences and the observed order, and a
-first-order extrapolation in 1/kappa from the two largest kappa at the finest common level.
+one Markdown table per (problem, kappa) with successive differences, the observed order and the
+Richardson limit from the last three levels, and a first-order extrapolation in 1/kappa from the two
+largest kappa at the finest level.
 
     nice python bench/bench_land.py --json results/land.json            # default study
     nice python bench/bench_land.py --problems 1 --json results/land-beam.json   # one problem
     python bench/bench_land.py --beam-levels 1,2 --lv-sizes 4 --kappas 1000   # quick look
+    python bench/bench_land.py --render results/land-*.json                 # tables of saved runs
 
 Seconds are wall time per solve, JIT compilation included.
 """
@@ -33,21 +35,37 @@ def _floats(text: str) -> list[float]:
     return [float(v) for v in text.split(",") if v]
 
 
+def _order(h, z) -> tuple[float, float]:
+    """Observed order p and Richardson limit from three levels: ``z_k = z* + c h_k^p`` solved exactly
+    (bisection on ``(h1^p - h2^p) / (h2^p - h3^p) = (z1 - z2) / (z2 - z3)``, any mesh ratios)."""
+    (h1, h2, h3), (z1, z2, z3) = h, z
+    ratio = (z1 - z2) / (z2 - z3)
+    g = lambda p: (h1**p - h2**p) / (h2**p - h3**p) - ratio
+    lo, hi = 0.05, 12.0
+    if not ratio > 0 or g(lo) * g(hi) > 0:  # non-monotone or outside the bracket: no asymptotic regime
+        return math.nan, math.nan
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if g(lo) * g(mid) > 0 else (lo, mid)
+    p = 0.5 * (lo + hi)
+    return p, z3 + (z3 - z2) * h3**p / (h2**p - h3**p)
+
+
 def _table(title: str, rows: list[dict], level_key: str, value_keys: list[str]) -> str:
-    """Markdown table with, per value, the difference to the previous level and the observed order
-    ``log(d_{k-1} / d_k) / log(h_{k-1} / h_k)`` from three successive levels."""
-    head = f"| {level_key} | h (mm) | dofs | " + " | ".join(f"{k} (mm) | diff | order" for k in value_keys)
+    """Markdown table: per value, the difference to the previous level, and from the last three
+    levels the observed order and the Richardson-extrapolated limit (h -> 0 at this kappa)."""
+    head = f"| {level_key} | h (mm) | dofs | " + " | ".join(f"{k} (mm) | diff | order | extrap." for k in value_keys)
     head += " | Newton its (total / max per step) | load steps | s |"
     lines = [f"**{title}**", "", head, "|" + "---|" * (head.count("|") - 1)]
     for i, r in enumerate(rows):
         cells = [str(r["params"][level_key]), f"{r['h']:.3g}", str(r["dofs"])]
         for key in value_keys:
-            v = [row["values"][key] for row in rows[: i + 1]]
-            d = [abs(v[j] - v[j - 1]) for j in range(1, len(v))]
-            order = ""
-            if len(d) >= 2 and d[-1] > 0 and d[-2] > 0:
-                order = f"{math.log(d[-2] / d[-1]) / math.log(rows[i - 1]['h'] / r['h']):.2f}"
-            cells += [f"{v[-1]:.5f}", f"{d[-1]:.2e}" if d else "", order]
+            z = [row["values"][key] for row in rows[: i + 1]]
+            order = extrap = ""
+            if i >= 2:
+                p, lim = _order([row["h"] for row in rows[i - 2 : i + 1]], z[-3:])
+                order, extrap = f"{p:.2f}", f"{lim:.4f}"
+            cells += [f"{z[-1]:.5f}", f"{z[-1] - z[-2]:+.2e}" if i else "", order, extrap]
         its = r["newton_iterations"]
         cells += [f"{sum(its)} / {max(its)}", str(len(its)), f"{r['seconds']:.1f}"]
         lines.append("| " + " | ".join(cells) + " |")
@@ -61,6 +79,24 @@ def _extrapolate(by_kappa: dict, key: str) -> str:
     return f"{key}: kappa {k1:g} -> {z1:.5f}, {k2:g} -> {z2:.5f}, linear in 1/kappa -> {z2 + (z2 - z1) * k1 / (k2 - k1):.5f}"
 
 
+def render(paths: list[str]):
+    """Print the tables of saved results (``--json`` files, or stdout logs with one JSON row a line)."""
+    rows = []
+    for path in paths:
+        with open(path) as fh:
+            text = fh.read()
+        try:
+            rows += json.loads(text)["results"]
+        except json.JSONDecodeError:
+            rows += [json.loads(line) for line in text.splitlines() if line.startswith("{")]
+    for problem, name, level_key, keys in ((1, "Problem 1 (beam)", "n", ["z_tip"]),
+                                           (2, "Problem 2 (ventricle)", "mesh_size", ["z_endo", "z_epi"])):
+        mine = [r for r in rows if r["params"]["problem"] == problem]
+        for kappa in sorted({r["params"]["kappa"] for r in mine}):
+            group = sorted((r for r in mine if r["params"]["kappa"] == kappa), key=lambda r: -r["h"])
+            print(_table(f"{name}, P2, kappa = {kappa:g} kPa", group, level_key, keys) + "\n")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--problems", default="1,2", help="which benchmark problems to run")
@@ -70,7 +106,12 @@ def main():
     ap.add_argument("--beam-steps", type=int, default=10)
     ap.add_argument("--lv-steps", type=int, default=20)
     ap.add_argument("--json", default=None, help="write all results here")
+    ap.add_argument("--render", nargs="+", default=None, metavar="JSON",
+                    help="only print the tables of earlier runs (their --json files or stdout logs)")
     args = ap.parse_args()
+    if args.render:
+        render(args.render)
+        return
     kappas = _floats(args.kappas)
     results = []
 

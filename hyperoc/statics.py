@@ -185,7 +185,9 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
             x_new, it, status, mindet = solve(x, s * f, V_start + s * (V - V_start), s)
             status, detail = int(status), f"min det F = {float(mindet):.3g}"
             cause = None if status == 0 and float(mindet) > 0 else {1: "newton", 2: "nonfinite"}.get(status, "detF")
-        except jax.errors.JaxRuntimeError as err:  # a host linear solve failed (singular tangent)
+        except (RuntimeError, ValueError) as err:  # a host linear solve failed (singular tangent)
+            if "CpuCallback" not in str(err):  # JAX reports callback errors as one of these two
+                raise
             cause, detail = "newton", f"linear solve failed: {str(err).strip().splitlines()[-1]}"
         if cause is None:
             x, s_done, k = x_new, s, k + 1
