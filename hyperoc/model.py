@@ -60,7 +60,10 @@ def _rigid_motions(x: np.ndarray) -> np.ndarray:
 
 def _free_motions(rigid: np.ndarray, constrained: np.ndarray) -> np.ndarray:
     """Orthonormal basis (num_dofs, m) of the rigid motions that vanish on the constrained dofs."""
-    _, sv, Vt = np.linalg.svd(rigid[constrained], full_matrices=True)
+    k = rigid.shape[1]
+    R = np.linalg.qr(rigid[constrained], mode="r") if constrained.size else np.zeros((0, k))
+    # The SVD of the small triangular factor, padded to (k, k), gives all k right singular vectors.
+    _, sv, Vt = np.linalg.svd(np.vstack([R, np.zeros((k - R.shape[0], k))]) if R.shape[0] < k else R)
     rank = int(np.sum(sv > 1e-10 * max(sv.max(initial=0.0), 1e-300)))
     free = rigid @ Vt[rank:].T
     return np.linalg.qr(free)[0] if free.shape[1] else free
@@ -168,6 +171,9 @@ class StateModel:
                 raise InputError(f"dirichlet_components[{name!r}]: need distinct component indices in "
                                  f"0..{self.dim - 1}, got {comps.tolist()}")
             nodes = sp.boundary_nodes(name)
+            if fixed and np.all(np.isin(sp.node_dofs(nodes), fixed[0])):
+                raise InputError(f"dirichlet_components[{name!r}]: that boundary is already clamped by "
+                                 f"dirichlet = {dirichlet!r}; pass dirichlet=None to let it slide")
             fixed.append((nodes[:, None] * self.dim + comps).ravel())
             sliding.append(sp.node_dofs(nodes))
         fixed = np.unique(np.concatenate(fixed)) if fixed else np.zeros(0, np.int64)

@@ -96,3 +96,9 @@ def test_bad_components_are_input_errors(components):
 def test_unknown_boundary_is_an_input_error():
     with pytest.raises(InputError, match="no boundary named"):
         ho.StateModel(box(1), ho.NeoHookean(), dirichlet_components={"base": (2,)})
+
+
+def test_sliding_a_clamped_boundary_is_an_input_error():
+    """The ventricle's Gamma_D is its base: sliding it needs dirichlet=None, not a silent full clamp."""
+    with pytest.raises(InputError, match="already clamped"):
+        ho.StateModel(box(1, dirichlet="front"), ho.NeoHookean(), dirichlet_components={"front": (2,)})
