@@ -101,7 +101,10 @@ def beam_problem(n: int, *, kappa: float, degree: int = 2) -> tuple[StateModel, 
 
 
 def ventricle_problem(h: float, *, kappa: float, degree: int = 2) -> tuple[StateModel, FollowerPressure]:
-    """Problem 2 on `hyperoc.geometry.ventricle` (h, mm): the model (base fixed) and the endocardial pressure."""
+    """Problem 2 on `hyperoc.geometry.ventricle` (h, mm): the model (base fixed) and the endocardial pressure.
+
+    With ``bf = bt = bfs = 1`` the Guccione law is isotropic (``Q = tr(E^2)``): the constant frame it is
+    given does not matter."""
     p = VENTRICLE
     material = Guccione(C=p["C"], bf=p["bf"], bt=p["bt"], bfs=p["bfs"], kappa=kappa)
     model = StateModel(ventricle(h), material, degree=degree, frames=_fibres_along_x)

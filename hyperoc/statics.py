@@ -103,15 +103,16 @@ def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, co
     def displacement(x):
         return x[:-1] if constrained else x[:-1] + x[-1] * e
 
-    def force_balance(u, p, fk, s):
-        r = model.internal_force(u) + p * model.volume_gradient(u) - fk
-        return r - sum((fol.force(u, s) for fol in followers), jnp.zeros(model.n))
+    def force_balance(u, fk, s):
+        """``R(u) - fk - sum_j f_j(u)`` (n,): the residual without the multiplier term."""
+        return model.internal_force(u) - fk - sum((fol.force(u, s) for fol in followers), jnp.zeros(model.n))
 
     def residual(x, fk, Vk, s):
         u = displacement(x)
         if constrained:
-            return jnp.concatenate([force_balance(u, x[-1], fk, s), (model.volume(u) - Vk)[None]])
-        return jnp.concatenate([force_balance(u, 0.0, fk, s), (e @ x[:-1])[None]])
+            r = force_balance(u, fk, s) + x[-1] * model.volume_gradient(u)
+            return jnp.concatenate([r, (model.volume(u) - Vk)[None]])
+        return jnp.concatenate([force_balance(u, fk, s), (e @ x[:-1])[None]])
 
     def jacobian_parts(x, fk, s):
         u = displacement(x)
@@ -122,7 +123,7 @@ def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, co
         if constrained:
             G = model.volume_gradient(u)
             return blocks, G, G
-        Ke = jax.jvp(lambda v: force_balance(v, 0.0, fk, s), (u,), (e,))[1]
+        Ke = jax.jvp(lambda v: force_balance(v, fk, s), (u,), (e,))[1]
         return blocks, Ke, e
 
     @jax.jit
