@@ -12,6 +12,7 @@ until elements invert: both were measured here before (bench/README.md) and do n
     python bench/bench_mesh_independence.py                    # full 3 x 3 table (h x dt), all methods
     python bench/bench_mesh_independence.py --diagonal         # only (h, dt) refined together
     python bench/bench_mesh_independence.py --json out.json    # also write the raw results
+    python bench/bench_mesh_independence.py --starts 1.9,1.95,2.05,2.1   # same grid, other starts
 
 Methods: ``bb`` (Algorithm 1, the paper's joint BB step), ``bb-blockwise`` (separate BB steps for xi
 and tau), ``lbfgsb``.
@@ -36,17 +37,17 @@ HS = (0.02, 0.01, 0.005)
 DTS = (0.04, 0.02, 0.01)
 
 
-def run(h: float, dt: float, method: str, max_iter: int, alpha: float = ALPHA) -> dict:
-    J = vibrating_bar(h, dt, T=T, tau0=TAU0, alpha=alpha)
+def run(h: float, dt: float, method: str, max_iter: int, alpha: float = ALPHA, tau0: float = TAU0) -> dict:
+    J = vibrating_bar(h, dt, T=T, tau0=tau0, alpha=alpha)
     t0 = time.perf_counter()
     if method == "lbfgsb":
-        res = ho.lbfgsb(J, J.zero(TAU0), gtol=1e-6, max_iter=max_iter)
+        res = ho.lbfgsb(J, J.zero(tau0), gtol=1e-6, max_iter=max_iter)
     else:
         steps = "blockwise" if method == "bb-blockwise" else "joint"
-        res = ho.barzilai_borwein(J, J.zero(TAU0), gtol=1e-6, max_iter=max_iter, steps=steps)
+        res = ho.barzilai_borwein(J, J.zero(tau0), gtol=1e-6, max_iter=max_iter, steps=steps)
     wall = time.perf_counter() - t0
     g = res.history["grad_norm"]
-    return {"h": h, "dt": dt, "method": method, "iterations": res.iterations, "converged": bool(res.converged),
+    return {"h": h, "dt": dt, "tau0": tau0, "method": method, "iterations": res.iterations, "converged": bool(res.converged),
             "tau": float(res.point.tau), "J": float(res.objective), "G0": float(g[0]), "G_final_rel": float(g[-1] / g[0]),
             "state_solves": res.evaluations["state_solves"], "adjoint_solves": res.evaluations["adjoint_solves"],
             "failed_trials": res.failed_trials, "wall_s": wall, "grad_norm_history": [float(x) for x in g]}
@@ -59,16 +60,23 @@ def main():
     ap.add_argument("--methods", default="bb,bb-blockwise,lbfgsb")
     ap.add_argument("--json", default=None)
     ap.add_argument("--alpha", type=float, default=ALPHA, help="control cost weight (default %(default)s)")
+    ap.add_argument("--starts", default=None,
+                    help="comma-separated tau0 values: instead of refining, rerun on the middle grid from each start "
+                         "(the spread of iteration counts at a fixed grid, to compare with the spread across grids)")
     args = ap.parse_args()
     pairs = list(zip(HS, DTS)) if args.diagonal else [(h, dt) for h in HS for dt in DTS]
+    starts = [TAU0] * len(pairs)
+    if args.starts:
+        starts = [float(t) for t in args.starts.split(",")]
+        pairs = [(HS[1], DTS[1])] * len(starts)
     rows = []
-    print(f"{'method':12s} {'h':>6s} {'dt':>6s} {'iters':>6s} {'conv':>5s} {'tau':>9s} {'J':>12s} {'|G|/|G0|':>9s} "
+    print(f"{'method':12s} {'tau0':>5s} {'h':>6s} {'dt':>6s} {'iters':>6s} {'conv':>5s} {'tau':>9s} {'J':>12s} {'|G|/|G0|':>9s} "
           f"{'states':>7s} {'adjoints':>8s} {'failed':>6s} {'wall s':>7s}", flush=True)
     for method in args.methods.split(","):
-        for h, dt in pairs:
-            r = run(h, dt, method, args.max_iter, args.alpha)
+        for (h, dt), tau0 in zip(pairs, starts):
+            r = run(h, dt, method, args.max_iter, args.alpha, tau0)
             rows.append(r)
-            print(f"{method:12s} {h:6.3f} {dt:6.3f} {r['iterations']:6d} {str(r['converged']):>5s} {r['tau']:9.5f} "
+            print(f"{method:12s} {tau0:5.2f} {h:6.3f} {dt:6.3f} {r['iterations']:6d} {str(r['converged']):>5s} {r['tau']:9.5f} "
                   f"{r['J']:12.6e} {r['G_final_rel']:9.2e} {r['state_solves']:7d} {r['adjoint_solves']:8d} "
                   f"{r['failed_trials']:6d} {r['wall_s']:7.1f}", flush=True)
     print()
