@@ -37,6 +37,8 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("experiment", choices=["paper-1d"])
     r.add_argument("--out", required=True)
     r.add_argument("--quick", action="store_true", help="skip the resolution and well-posedness studies")
+    r.add_argument("--workers", type=int, default=None,
+                   help="processes running the independent studies in parallel (default: min(2, CPUs))")
     for q in (s, o, r):
         q.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
@@ -93,7 +95,7 @@ def _run(args) -> None:
     elif args.command == "reproduce":
         from .paper import reproduce_paper_1d
 
-        reproduce_paper_1d(Path(args.out), quick=args.quick, progress=not args.no_progress)
+        reproduce_paper_1d(Path(args.out), quick=args.quick, progress=not args.no_progress, workers=args.workers)
 
 
 def main(argv=None) -> int:

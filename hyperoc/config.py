@@ -55,7 +55,7 @@ SCHEMA = {
     "objective": {"phi1": (str, "pressure"), "alpha": (NUMBER, 2e-3), "eps": (NUMBER, 0.0)},
     "optimize": {"method": (str, "bb"), "tau0": (NUMBER, ...), "tau_starts": (list, ...), "max_iter": (int, 100),
                  "gtol": (NUMBER, 1e-6), "xi_bounds": (list, ...), "tau_margin": (NUMBER, ...),
-                 "gradient": (str, "exact")},
+                 "gradient": (str, "exact"), "steps": (str, "joint")},
     "output": {"snapshot_times": (list, ...), "series_every": (int, ...)},
 }
 

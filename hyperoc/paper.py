@@ -11,11 +11,14 @@ Runs, all from ``(xi, tau) = (0, T/2)`` on the setup of Table ``tab-param``:
 4. ``resolution.json`` (skipped with ``quick``): the bounded variant again with dt halved and with
    h halved.
 
+The four optimizations are independent and run in parallel worker processes (two by default).
+
 The top-level ``summary.json`` gathers every run next to the paper's reported values.
 """
 
 from __future__ import annotations
 
+import os
 import shutil
 import time
 from importlib import resources
@@ -24,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from .config import Config, parse_config
-from .errors import SolverError
+from .errors import InputError, SolverError
 from .io import write_json
 from .reduced import ControlPoint
 from .workflows import optimize_single, write_optimization_outputs
@@ -62,7 +65,7 @@ def _run(cfg: Config, tau0: float, out: Path, *, progress: bool, xi_bounds=None,
     started = time.perf_counter()
     if xi_bounds is not None:
         cfg = _with(cfg, optimize__xi_bounds=list(xi_bounds))
-    J, res = _optimize(cfg, tau0, out, progress, xi_bounds)
+    J, res = optimize_single(cfg, tau0, checkpoint=out / "checkpoint", progress=progress)
     summary = write_optimization_outputs(out, cfg, J, res, extra={"label": label})
     sol = J.state(res.point)
     return {
@@ -84,23 +87,6 @@ def _run(cfg: Config, tau0: float, out: Path, *, progress: bool, xi_bounds=None,
         "warnings": sol.warnings,
         "wall_time_s": time.perf_counter() - started,
     }, J, res
-
-
-def _optimize(cfg, tau0, out, progress, xi_bounds):
-    from .optimize import barzilai_borwein
-    from .workflows import build_reduced, _progress_bar
-
-    if xi_bounds is None:
-        return optimize_single(cfg, tau0, checkpoint=out / "checkpoint", progress=progress)
-    J = build_reduced(cfg, tau0)
-    o = cfg["optimize"]
-    bar = _progress_bar(progress, o["max_iter"], "bounded variant")
-    cb = (lambda k, m, v, g: bar.update(1)) if bar is not None else None
-    res = barzilai_borwein(J, J.zero(tau0), gtol=o["gtol"], max_iter=o["max_iter"], xi_bounds=tuple(xi_bounds),
-                           checkpoint=out / "checkpoint", callback=cb)
-    if bar is not None:
-        bar.close()
-    return J, res
 
 
 def _control_off_time(t: np.ndarray, xi: np.ndarray, rel: float = 1e-3) -> float | None:
@@ -132,30 +118,84 @@ def ray_study(J, point: ControlPoint, scales=(0.25, 0.5, 0.75, 1.0, 1.1, 1.25, 1
     return rows
 
 
-def reproduce_paper_1d(out: Path, *, quick: bool = False, progress: bool = True) -> dict:
-    """Run the studies listed in the module docstring; returns the top-level summary."""
+def _algorithm1_job(overrides: dict, out: Path, progress: bool) -> dict:
+    """Algorithm 1 as stated, then the ray study at its end point (run in a worker process)."""
+    cfg = _with(paper_config(), **overrides)
+    row, J, res = _run(cfg, float(cfg["optimize"]["tau0"]), out, progress=progress, label="Algorithm 1 (paper)")
+    ray = ray_study(J, res.point)
+    write_json(out.parent / "ray.json", ray)
+    return {"run": row, "ray": ray}
+
+
+def _bounded_job(overrides: dict, out: Path, progress: bool, label: str) -> dict:
+    """The bounded variant |xi| <= XI_MAX, projected Algorithm 1 (run in a worker process)."""
+    cfg = _with(paper_config(), **overrides)
+    row, _, _ = _run(cfg, float(cfg["optimize"]["tau0"]), out, progress=progress, xi_bounds=(-XI_MAX, XI_MAX),
+                     label=label)
+    return {"run": row}
+
+
+def _jobs(cfg: Config, out: Path, quick: bool, overrides: dict) -> dict:
+    """The studies as independent jobs ``key -> (function, args)``, longest first (h/2, dt/2, ...)
+    so that two workers finish together."""
+    jobs = {}
+    if not quick:
+        jobs["h/2"] = (_bounded_job, dict(overrides={**overrides, "mesh__n": 2 * cfg["mesh"]["n"]},
+                                          out=out / "bounded_h2", label="bounded, h/2"))
+        jobs["dt/2"] = (_bounded_job, dict(overrides={**overrides, "dynamics__dt": cfg["dynamics"]["dt"] / 2},
+                                           out=out / "bounded_dt2", label="bounded, dt/2"))
+    jobs["algorithm1"] = (_algorithm1_job, dict(overrides=overrides, out=out / "algorithm1"))
+    jobs["bounded"] = (_bounded_job, dict(overrides=overrides, out=out / "bounded", label=f"bounded |xi| <= {XI_MAX}"))
+    return jobs
+
+
+def _run_jobs(jobs: dict, workers: int, progress: bool) -> dict:
+    """Results of every job: in this process when ``workers == 1`` (with per-run progress bars),
+    otherwise in a pool of fresh (spawned: JAX is not fork-safe) processes with one bar over jobs."""
+    if workers == 1:
+        return {key: fn(progress=progress, **kwargs) for key, (fn, kwargs) in jobs.items()}
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    from .workflows import _progress_bar
+
+    bar = _progress_bar(progress, len(jobs), "paper-1d studies")
+    results = {}
+    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = {pool.submit(fn, progress=False, **kwargs): key for key, (fn, kwargs) in jobs.items()}
+        for fut in as_completed(futures):
+            results[futures[fut]] = fut.result()
+            if bar is not None:
+                bar.update(1)
+    if bar is not None:
+        bar.close()
+    return results
+
+
+def reproduce_paper_1d(out: Path, *, quick: bool = False, progress: bool = True, workers: int | None = None,
+                       overrides: dict | None = None) -> dict:
+    """Run the studies listed in the module docstring; returns the top-level summary.
+
+    ``workers`` processes run the independent studies in parallel (default: ``min(2, cpu count)``;
+    1 runs everything in this process). ``overrides`` changes the shipped configuration, as
+    ``{"section__key": value}`` (e.g. a coarser grid for a smoke test); the paper's setup is the default.
+    """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    cfg = paper_config()
-    tau0 = float(cfg["optimize"]["tau0"])
+    overrides = dict(overrides or {})
+    cfg = _with(paper_config(), **overrides)
+    workers = min(2, os.cpu_count() or 1) if workers is None else int(workers)
+    if workers < 1:
+        raise InputError(f"workers must be >= 1, got {workers}")
     started = time.perf_counter()
-    runs = {}
-    runs["algorithm1"], J, res = _run(cfg, tau0, out / "algorithm1", progress=progress, label="Algorithm 1 (paper)")
+    results = _run_jobs(_jobs(cfg, out, quick, overrides), workers, progress)
     _copy_top_level(out / "algorithm1", out)
-    ray = ray_study(J, res.point)
-    write_json(out / "ray.json", ray)
-    runs["bounded"], _, _ = _run(cfg, tau0, out / "bounded", progress=progress, xi_bounds=(-XI_MAX, XI_MAX),
-                                 label=f"bounded |xi| <= {XI_MAX}")
-    resolution = []
-    if not quick:
-        for label, changes in (("dt/2", {"dynamics__dt": cfg["dynamics"]["dt"] / 2}),
-                               ("h/2", {"mesh__n": 2 * cfg["mesh"]["n"]})):
-            row, _, _ = _run(_with(cfg, **changes), tau0, out / f"bounded_{label.replace('/', '')}", progress=progress,
-                             xi_bounds=(-XI_MAX, XI_MAX), label=f"bounded, {label}")
-            resolution.append(row)
+    runs = {"algorithm1": results["algorithm1"]["run"], "bounded": results["bounded"]["run"]}
+    resolution = [results[k]["run"] for k in ("dt/2", "h/2") if k in results]
+    if resolution:
         write_json(out / "resolution.json", resolution)
-    summary = {"paper": PAPER_REPORT, "runs": runs, "ray": ray, "resolution": resolution,
-               "config": cfg.sections, "wall_time_s": time.perf_counter() - started,
+    summary = {"paper": PAPER_REPORT, "runs": runs, "ray": results["algorithm1"]["ray"], "resolution": resolution,
+               "config": cfg.sections, "workers": workers, "wall_time_s": time.perf_counter() - started,
                "tau": runs["algorithm1"]["tau"], "objective": runs["algorithm1"]["objective"]}
     write_json(out / "summary.json", summary)
     _print_report(out, summary)

@@ -61,10 +61,10 @@ def optimize_single(cfg: Config, tau0: float, *, checkpoint=None, method: str | 
 
     kwargs = dict(gtol=float(o["gtol"]), max_iter=int(o["max_iter"]), checkpoint=checkpoint, callback=callback,
                   tau_margin=o.get("tau_margin"))
+    if o["steps"] not in ("joint", "blockwise"):
+        raise InputError(f"config: [optimize] steps must be 'joint' or 'blockwise', got {o['steps']!r}")
     if method == "bb":
-        if cfg.xi_bounds() != (None, None):
-            raise InputError("config: [optimize] xi_bounds needs method = 'lbfgsb' (Algorithm 1 is unconstrained)")
-        res = barzilai_borwein(J, J.zero(tau0), **kwargs)
+        res = barzilai_borwein(J, J.zero(tau0), xi_bounds=cfg.xi_bounds(), steps=o["steps"], **kwargs)
     elif method == "lbfgsb":
         res = lbfgsb(J, J.zero(tau0), xi_bounds=cfg.xi_bounds(), **kwargs)
     else:

@@ -73,6 +73,7 @@ def test_check_gradient_json(tmp_path, capsys):
         (("dt = 0.05", "dt = 0.0"), "dt > 0"),
         (("lower = [0.75], upper = [1.0]", "lower = [2.0], upper = [3.0]"), "contains no cell"),
         (("tau0 = 1.0", "tau0 = 5.0"), "tau"),
+        (("tau0 = 1.0", 'tau0 = 1.0\nsteps = "diagonal"'), "steps must be 'joint' or 'blockwise'"),
         (('kind = "interval"', 'kind = "file"\nfile = "missing.msh"'), "mesh file not found"),
         (("[objective]", "[objektive]"), "unknown section"),
     ],
