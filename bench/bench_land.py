@@ -86,9 +86,10 @@ def render(paths: list[str]):
         with open(path) as fh:
             text = fh.read()
         try:
-            rows += json.loads(text)["results"]
-        except json.JSONDecodeError:
-            rows += [json.loads(line) for line in text.splitlines() if line.startswith("{")]
+            data = json.loads(text)  # a --json file, or a log holding a single row
+            rows += data["results"] if "results" in data else [data]
+        except json.JSONDecodeError:  # a stdout log: one JSON row a line, then the tables
+            rows += [json.loads(line) for line in text.splitlines() if line.startswith('{"values"')]
     for problem, name, level_key, keys in ((1, "Problem 1 (beam)", "n", ["z_tip"]),
                                            (2, "Problem 2 (ventricle)", "mesh_size", ["z_endo", "z_epi"])):
         mine = [r for r in rows if r["params"]["problem"] == problem]
