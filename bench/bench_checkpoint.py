@@ -2,11 +2,13 @@
 
 Each variant runs in a fresh subprocess (JAX buffers are invisible to tracemalloc), which reports
 the process's peak resident set (``ru_maxrss``) at the end, the seconds of a first gradient
-(JIT compilation included) and of a second one at another point (compiled), and the bytes of the
+(JIT compilation included) and the best of three more at other points (compiled), and the bytes of the
 level states held between the forward and the adjoint sweep, from their shapes:
 ``2 (N+1) n 8`` bytes when every level is stored, ``2 (ceil(N/k) + len(kept)) n 8`` with
 ``checkpoint_every = k`` (plus one segment of ``2 (k+1) n 8`` bytes during the backward sweep).
-Ratios are against the store-everything run of the same case, in this same script.
+Ratios are against the store-everything run of the same case, in this same script. On a shared
+machine the load drifts between processes, so the time ratios are also measured in one process
+alternating the variants (same compiled code, ``J.checkpoint_every`` switched; best of three rounds).
 
 Cases:
   1d  the paper's 1D experiment (SVK, P1, h = 0.01, kappa 2e-4, body force on [0.75, 1], phi1 =
@@ -36,7 +38,7 @@ import time
 
 import numpy as np
 
-CK_1D = (None, 1, 10, 55, 300, 3000)
+CK_1D = (None, 10, 55, 300, 3000)  # k = 1: see the notes (per-segment overhead)
 CK_LV = (None, 4)  # 4 = sqrt(16 steps)
 LV_H = (4.0, 3.0, 2.5)
 LV_STEPS = dict(T=8.0, dt=0.5, tau=4.0, eps=1.0)
@@ -72,20 +74,20 @@ def build_lv(h: float):
 
 
 def child(case: str, size: float, k: int | None) -> dict:
-    """Build the case, two gradients (compile + run, run), report; runs in its own process."""
+    """Build the case, four gradients (compile + run, then best of three runs), report; runs in its own process."""
     import hyperoc as ho
 
     model, transform, objective, solver, tau, shape = build_1d(int(size)) if case == "1d" else build_lv(size)
     J = ho.ReducedFunctional(model, transform, objective, solver=solver, checkpoint_every=k)
     xi = shape * np.ones((1, model.control.size))
     times = []
-    for scale in (1.0, 1.01):  # a new point: the state cache is not hit
+    for scale in (1.0, 1.01, 1.02, 1.03):  # a new point each time: the state cache is not hit
         t0 = time.perf_counter()
         J.value_and_gradient(ho.ControlPoint(scale * xi, tau))
         times.append(time.perf_counter() - t0)
     N, n = J.N, model.n
-    stored = N + 1 if k is None else J.record(ho.ControlPoint(1.01 * xi, tau)).stored_states
-    return {"case": case, "size": size, "k": k, "dofs": n, "steps": N, "first_s": times[0], "gradient_s": times[1],
+    stored = N + 1 if k is None else J.record(ho.ControlPoint(1.03 * xi, tau)).stored_states
+    return {"case": case, "size": size, "k": k, "dofs": n, "steps": N, "first_s": times[0], "gradient_s": min(times[1:]),
             "stored_bytes": 2 * stored * n * 8, "segment_bytes": 0 if k is None else 2 * (min(k, N) + 1) * n * 8,
             "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
 
@@ -93,8 +95,49 @@ def child(case: str, size: float, k: int | None) -> dict:
 _DONE: dict = {}
 
 
-def run(case: str, size: float, k: int | None) -> dict:
-    """One variant in a fresh process (each (case, size, k) once per script run)."""
+def interleaved_child(case: str, size: float, ks: list) -> dict:
+    """Gradient seconds for None and every k of ``ks`` in one process, alternating, best of three
+    rounds: the ratios do not depend on how the load of a shared machine drifts between processes."""
+    import hyperoc as ho
+
+    model, transform, objective, solver, tau, shape = build_1d(int(size)) if case == "1d" else build_lv(size)
+    J = ho.ReducedFunctional(model, transform, objective, solver=solver)
+    xi = shape * np.ones((1, model.control.size))
+    variants = [None, *ks]
+    best = {str(k): math.inf for k in variants}
+    for r in range(4):  # round 0 compiles
+        for i, k in enumerate(variants):
+            J.checkpoint_every = k
+            m = ho.ControlPoint((1 + 1e-3 * (r * len(variants) + i)) * xi, tau)  # new point: no cache hit
+            t0 = time.perf_counter()
+            J.value_and_gradient(m)
+            if r:
+                best[str(k)] = min(best[str(k)], time.perf_counter() - t0)
+    return best
+
+
+def sizes_child(hs: list) -> dict:
+    """LV gradient seconds (store everything) for the mesh sizes ``hs`` in one process, alternating,
+    best of three rounds."""
+    import hyperoc as ho
+
+    Js = {}
+    for h in hs:
+        model, transform, objective, solver, tau, shape = build_lv(h)
+        Js[h] = ho.ReducedFunctional(model, transform, objective, solver=solver), shape * np.ones((1, model.control.size))
+    best = {str(h): math.inf for h in hs}
+    for r in range(4):  # round 0 compiles
+        for h, (J, xi) in Js.items():
+            t0 = time.perf_counter()
+            J.value_and_gradient(ho.ControlPoint((1 + 1e-3 * r) * xi, LV_STEPS["tau"]))
+            if r:
+                best[str(h)] = min(best[str(h)], time.perf_counter() - t0)
+    return best
+
+
+def run(case: str, size: float, k: int | str | None) -> dict:
+    """One variant in a fresh process (each (case, size, k) once per script run); k may also be
+    ``"interleaved:k1,k2,..."`` (`interleaved_child`)."""
     key = (case, float(size), k)
     if key not in _DONE:
         cmd = [sys.executable, __file__, "--child", case, str(size), "none" if k is None else str(k)]
@@ -105,16 +148,22 @@ def run(case: str, size: float, k: int | None) -> dict:
     return _DONE[key]
 
 
-def table(rows: list, base: dict) -> str:
+def table(rows: list, base: dict, inter: dict) -> str:
+    """Markdown rows; ``inter``: best seconds per k (str) from `interleaved_child`."""
     head = ("| k | dofs | steps | stored states (MB) | + segment (MB) | peak RSS (MB) | RSS / baseline | gradient (s) | "
-            "time / baseline | first incl. JIT (s) |\n|---|---|---|---|---|---|---|---|---|---|")
+            "time / baseline | interleaved: s, / baseline | first incl. JIT (s) |\n|---|---|---|---|---|---|---|---|---|---|---|")
     lines = [head]
     for r in rows:
         k = "all (None)" if r["k"] is None else str(r["k"])
-        lines.append(f"| {k} | {r['dofs']} | {r['steps']} | {r['stored_bytes'] / 1e6:.2f} | {r['segment_bytes'] / 1e6:.2f} | {r['peak_rss_mb']:.0f} | "
-                     f"{r['peak_rss_mb'] / base['peak_rss_mb']:.3f} | {r['gradient_s']:.3f} | "
-                     f"{r['gradient_s'] / base['gradient_s']:.2f} | {r['first_s']:.1f} |")
+        t = inter[str(r["k"])]
+        lines.append(f"| {k} | {r['dofs']} | {r['steps']} | {r['stored_bytes'] / 1e6:.2f} | {r['segment_bytes'] / 1e6:.2f} | "
+                     f"{r['peak_rss_mb']:.0f} | {r['peak_rss_mb'] / base['peak_rss_mb']:.3f} | {r['gradient_s']:.3f} | "
+                     f"{r['gradient_s'] / base['gradient_s']:.2f} | {t:.3f}, {t / inter['None']:.2f} | {r['first_s']:.1f} |")
     return "\n".join(lines)
+
+
+def interleaved(case: str, size: float, ks) -> dict:
+    return run(case, size, "interleaved:" + ",".join(str(k) for k in ks))
 
 
 def main():
@@ -127,30 +176,40 @@ def main():
     args = ap.parse_args()
     if args.child:
         case, size, k = args.child
-        print(json.dumps(child(case, float(size), None if k == "none" else int(k))))
+        if case == "lv-sizes":
+            print(json.dumps(sizes_child([float(v) for v in k.split(",")])))
+        elif k.startswith("interleaved:"):
+            print(json.dumps(interleaved_child(case, float(size), [int(v) for v in k.split(":")[1].split(",")])))
+        else:
+            print(json.dumps(child(case, float(size), None if k == "none" else int(k))))
         return
     rows = []
     for case in args.cases:
         if case == "1d":
             for n in args.n1d:
                 rs = [run("1d", n, k) for k in CK_1D]
-                rows += rs
+                inter = interleaved("1d", n, CK_1D[1:])
+                rows += rs + [{"case": "1d", "size": n, "interleaved": inter}]
                 print(f"\n### 1D, n = {n} elements (T = 15, dt = 0.005), sqrt(N) = {math.sqrt(rs[0]['steps']):.0f}\n")
-                print(table(rs, rs[0]), flush=True)
+                print(table(rs, rs[0], inter), flush=True)
         elif case == "lv":
             rs = [run("lv", args.lv_h, k) for k in CK_LV]
-            rows += rs
+            inter = interleaved("lv", args.lv_h, CK_LV[1:])
+            rows += rs + [{"case": "lv", "size": args.lv_h, "interleaved": inter}]
             print(f"\n### LV, h = {args.lv_h} mm\n")
-            print(table(rs, rs[0]), flush=True)
+            print(table(rs, rs[0], inter), flush=True)
         else:
-            rs = [run("lv", h, None) for h in sorted({*LV_H, args.lv_h}, reverse=True)]
-            rows += rs
+            hs = sorted({*LV_H, args.lv_h}, reverse=True)
+            rs = [run("lv", h, None) for h in hs]
+            inter = run("lv-sizes", 0, ",".join(str(h) for h in hs))
+            rows += rs + [{"case": "lv-sizes", "interleaved": inter}]
             print("\n### LV gradient vs mesh size (store everything)\n")
-            print("| h (mm) | dofs | steps | gradient (s) | first incl. JIT (s) | peak RSS (MB) | s per dof-step (us) |\n"
-                  "|---|---|---|---|---|---|---|")
+            print("| h (mm) | dofs | steps | gradient (s) | interleaved (s) | us per dof-step (interleaved) | "
+                  "first incl. JIT (s) | peak RSS (MB) |\n|---|---|---|---|---|---|---|---|")
             for r in rs:
-                print(f"| {r['size']} | {r['dofs']} | {r['steps']} | {r['gradient_s']:.2f} | {r['first_s']:.1f} | "
-                      f"{r['peak_rss_mb']:.0f} | {1e6 * r['gradient_s'] / (r['dofs'] * r['steps']):.1f} |", flush=True)
+                t = inter[str(r["size"])]
+                print(f"| {r['size']} | {r['dofs']} | {r['steps']} | {r['gradient_s']:.2f} | {t:.2f} | "
+                      f"{1e6 * t / (r['dofs'] * r['steps']):.0f} | {r['first_s']:.1f} | {r['peak_rss_mb']:.0f} |", flush=True)
     if args.json:
         with open(args.json, "w") as f:
             json.dump(rows, f, indent=1)
