@@ -166,7 +166,7 @@ class Adjoint:
             states.append((y0, y1))
             out = self.advance(y0, y1, float(P[-1][-1]) if P else 0.0, grid.t[a:b + 1], xi[a:b + 1],
                                loads[a:b + 1], V0)
-            for store, o in zip((P, its, status, mindet), (out[2], out[3], out[4], out[5])):
+            for store, o in zip((P, its, status, mindet), out[2:6]):
                 store.append(np.asarray(o))
             if np.any(status[-1] != 0):
                 self.stepper._raise_on_failure(np.concatenate(status), grid, np.concatenate(its), np.concatenate(mindet))
