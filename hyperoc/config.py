@@ -37,6 +37,9 @@ SCHEMA = {
         "r_outer": (NUMBER, 1.0), "h": (NUMBER, 0.1), "structured": (bool, False), "n_radial": (int, ...),
         "n_theta": (int, ...), "file": (str, ...), "degree": (int, 1),
         "dirichlet_tag": (str, "gamma_d"), "neumann_tag": (str, "gamma_n"), "control_tag": (str, "omega"),
+        # components fixed on gamma_d (default: all); e.g. [2] = a base sliding in its plane, with the
+        # rigid in-plane motions this leaves removed by three pinned dofs (StateModel.pinned_dofs)
+        "fixed_components": (list, ...),
     },
     "material": {"law": (str, "svk"), "mu": (NUMBER, ...), "lambda": (NUMBER, ...), "beta": (NUMBER, ...),
                  "gamma": (NUMBER, ...), "W0": (NUMBER, ...), "coefficients": (list, ...), "exponents": (list, ...),
@@ -55,7 +58,7 @@ SCHEMA = {
     "objective": {"phi1": (str, "pressure"), "alpha": (NUMBER, 2e-3), "eps": (NUMBER, 0.0)},
     "optimize": {"method": (str, "bb"), "tau0": (NUMBER, ...), "tau_starts": (list, ...), "max_iter": (int, 100),
                  "gtol": (NUMBER, 1e-6), "xi_bounds": (list, ...), "tau_margin": (NUMBER, ...),
-                 "gradient": (str, "exact"), "steps": (str, "joint")},
+                 "gradient": (str, "exact"), "steps": (str, "joint"), "checkpoint_every": (int, ...)},
     "output": {"snapshot_times": (list, ...), "series_every": (int, ...)},
 }
 
@@ -167,7 +170,16 @@ class Config:
             raise InputError(f"config: [material] law {self['material']['law']!r} needs fibres: add [fibres] kind = 'rule_based'")
         return StateModel(mesh, material, degree=self["mesh"]["degree"], kappa=float(d["kappa"]),
                           density=float(d["density"]), control=self.control_operator(frames), traction=traction,
-                          dirichlet="gamma_d", neumann="gamma_n", frames=frames)
+                          neumann="gamma_n", frames=frames, **self._dirichlet(mesh.dim))
+
+    def _dirichlet(self, dim: int) -> dict:
+        """StateModel keywords for gamma_d: clamped, or only ``[mesh] fixed_components`` fixed."""
+        comps = self["mesh"].get("fixed_components")
+        if comps is None:
+            return {"dirichlet": "gamma_d"}
+        if not comps or not all(isinstance(c, int) and not isinstance(c, bool) and 0 <= c < dim for c in comps):
+            raise InputError(f"config: [mesh] fixed_components must be a non-empty list of integers in [0, {dim})")
+        return {"dirichlet": None, "dirichlet_components": {"gamma_d": tuple(comps)}}
 
     def scheme(self) -> Scheme:
         d = self["dynamics"]

@@ -38,8 +38,10 @@ def simulate(cfg: Config, out, *, progress: bool = False) -> dict:
 
 def build_reduced(cfg: Config, tau0: float, model=None) -> ReducedFunctional:
     model = model or cfg.model()
+    o = cfg["optimize"]
     return ReducedFunctional(model, cfg.transform(tau0), cfg.objective(), scheme=cfg.scheme(),
-                             solver=cfg["dynamics"]["solver"], gradient=cfg["optimize"]["gradient"])
+                             solver=cfg["dynamics"]["solver"], gradient=o["gradient"],
+                             checkpoint_every=o.get("checkpoint_every"))
 
 
 def optimize_single(cfg: Config, tau0: float, *, checkpoint=None, method: str | None = None, progress: bool = False,

@@ -74,6 +74,7 @@ def test_check_gradient_json(tmp_path, capsys):
         (("lower = [0.75], upper = [1.0]", "lower = [2.0], upper = [3.0]"), "contains no cell"),
         (("tau0 = 1.0", "tau0 = 5.0"), "tau"),
         (("tau0 = 1.0", 'tau0 = 1.0\nsteps = "diagonal"'), "steps must be 'joint' or 'blockwise'"),
+        (("n = 20", "n = 20\nfixed_components = [1]"), "fixed_components"),
         (('kind = "interval"', 'kind = "file"\nfile = "missing.msh"'), "mesh file not found"),
         (("[objective]", "[objektive]"), "unknown section"),
     ],
@@ -107,3 +108,21 @@ def test_examples_parse(name):
     cfg = load_config(EXAMPLES / name)
     model = cfg.model()
     assert model.n > 0 and model.control is not None
+
+
+def test_config_sliding_gamma_d_and_checkpointing(tmp_path):
+    """``[mesh] fixed_components`` fixes only those components on gamma_d (here u_y on the box's
+    face y = 0, with the three in-plane rigid motions pinned); ``[optimize] checkpoint_every``
+    reaches the reduced functional."""
+    from hyperoc.config import load_config
+    from hyperoc.workflows import build_reduced
+
+    text = SMALL_1D.replace('kind = "interval"\nn = 20', 'kind = "box"\nnx = 2\ndirichlet = "bottom"\nfixed_components = [1]')
+    text = text.replace("lower = [0.75], upper = [1.0]", "lower = [0.0, 0.0, 0.5], upper = [1.0, 1.0, 1.0]")
+    text = text.replace('value = "0.05 * sin(pi * t)"\n', "").replace("max_iter = 4", "max_iter = 4\ncheckpoint_every = 5")
+    cfg = load_config(_write(tmp_path, text))
+    model = cfg.model()
+    assert len(model.pinned_dofs) == 3
+    clamped = load_config(_write(tmp_path, text.replace("fixed_components = [1]\n", ""), "clamped.toml")).model()
+    assert model.n == clamped.n + 2 * 9 - 3  # 9 nodes on y = 0: x and z free, minus the three pins
+    assert build_reduced(cfg, 1.0).checkpoint_every == 5
