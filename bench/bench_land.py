@@ -26,7 +26,6 @@ import json
 import math
 import os
 
-import numpy as np
 
 from hyperoc.benchmarks import beam_deflection, ventricle_apex
 
