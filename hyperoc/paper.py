@@ -11,7 +11,8 @@ Runs, all from ``(xi, tau) = (0, T/2)`` on the setup of Table ``tab-param``:
 4. ``resolution.json`` (skipped with ``quick``): the bounded variant again with dt halved and with
    h halved.
 
-The four optimizations are independent and run in parallel worker processes (two by default).
+Runs 1-3 share one compiled problem; the resolution study (4) runs in a second worker process
+when two CPUs are available. The runs of (4) write summary.json and results.npz only.
 
 The top-level ``summary.json`` gathers every run next to the paper's reported values.
 """
@@ -28,7 +29,7 @@ import numpy as np
 
 from .config import Config, parse_config
 from .errors import InputError, SolverError
-from .io import write_json
+from .io import write_json, write_npz
 from .reduced import ControlPoint
 from .workflows import optimize_single, write_optimization_outputs
 
@@ -61,13 +62,24 @@ def _with(cfg: Config, **changes) -> Config:
     return Config(sections, cfg.base)
 
 
-def _run(cfg: Config, tau0: float, out: Path, *, progress: bool, xi_bounds=None, label: str) -> dict:
+def _run(cfg: Config, tau0: float, out: Path, *, progress: bool, xi_bounds=None, label: str, J=None,
+         figures: bool = True) -> dict:
+    """One optimization and its outputs; ``J`` reuses a compiled reduced functional of the same
+    problem size; ``figures=False`` writes only summary.json and results.npz (resolution runs)."""
     started = time.perf_counter()
     if xi_bounds is not None:
         cfg = _with(cfg, optimize__xi_bounds=list(xi_bounds))
-    J, res = optimize_single(cfg, tau0, checkpoint=out / "checkpoint", progress=progress)
-    summary = write_optimization_outputs(out, cfg, J, res, extra={"label": label})
+    if J is not None:
+        J.counts.update(state=0, adjoint=0)  # evaluations are reported per run
+    J, res = optimize_single(cfg, tau0, checkpoint=out / "checkpoint", progress=progress, J=J)
     sol = J.state(res.point)
+    if figures:
+        summary = write_optimization_outputs(out, cfg, J, res, extra={"label": label})
+    else:
+        summary = {**res.summary(), "label": label}
+        write_npz(out / "results.npz", t=sol.t, p=sol.pressure, xi=J.model.control.nodal(res.point.xi),
+                  xi_nodes=J.model.control.coordinates(J.model.space))
+        write_json(out / "summary.json", summary)
     return {
         "label": label,
         "folder": out.name,
@@ -118,57 +130,57 @@ def ray_study(J, point: ControlPoint, scales=(0.25, 0.5, 0.75, 1.0, 1.1, 1.25, 1
     return rows
 
 
-def _algorithm1_job(overrides: dict, out: Path, progress: bool) -> dict:
-    """Algorithm 1 as stated, then the ray study at its end point (run in a worker process)."""
+def _paper_job(overrides: dict, out: Path, progress: bool) -> dict:
+    """Algorithm 1 as stated, the ray study at its end point, then the bounded variant |xi| <= XI_MAX
+    (projected Algorithm 1) with the same compiled reduced functional (run in a worker process)."""
     cfg = _with(paper_config(), **overrides)
-    row, J, res = _run(cfg, float(cfg["optimize"]["tau0"]), out, progress=progress, label="Algorithm 1 (paper)")
+    tau0 = float(cfg["optimize"]["tau0"])
+    row, J, res = _run(cfg, tau0, out / "algorithm1", progress=progress, label="Algorithm 1 (paper)")
     ray = ray_study(J, res.point)
-    write_json(out.parent / "ray.json", ray)
-    return {"run": row, "ray": ray}
+    write_json(out / "ray.json", ray)
+    bounded, _, _ = _run(cfg, tau0, out / "bounded", progress=progress, xi_bounds=(-XI_MAX, XI_MAX), J=J,
+                         label=f"bounded |xi| <= {XI_MAX}")
+    return {"algorithm1": row, "ray": ray, "bounded": bounded}
 
 
-def _bounded_job(overrides: dict, out: Path, progress: bool, label: str) -> dict:
-    """The bounded variant |xi| <= XI_MAX, projected Algorithm 1 (run in a worker process)."""
-    cfg = _with(paper_config(), **overrides)
-    row, _, _ = _run(cfg, float(cfg["optimize"]["tau0"]), out, progress=progress, xi_bounds=(-XI_MAX, XI_MAX),
-                     label=label)
-    return {"run": row}
+def _resolution_job(runs: list, progress: bool) -> dict:
+    """The bounded variant on refined grids, ``runs = [(label, overrides, out), ...]`` (summary.json and
+    results.npz per run; no figures)."""
+    rows = []
+    for label, overrides, out in runs:
+        cfg = _with(paper_config(), **overrides)
+        row, _, _ = _run(cfg, float(cfg["optimize"]["tau0"]), out, progress=progress, xi_bounds=(-XI_MAX, XI_MAX),
+                         label=label, figures=False)
+        rows.append(row)
+    return {"resolution": rows}
 
 
 def _jobs(cfg: Config, out: Path, quick: bool, overrides: dict) -> dict:
-    """The studies as independent jobs ``key -> (function, args)``, longest first (h/2, dt/2, ...)
-    so that two workers finish together."""
-    jobs = {}
+    """The studies as two independent jobs ``key -> (function, kwargs)`` of similar length: the
+    paper's grid (Algorithm 1, ray, bounded: one compilation) and the resolution study."""
+    jobs = {"paper": (_paper_job, dict(overrides=overrides, out=out))}
     if not quick:
-        jobs["h/2"] = (_bounded_job, dict(overrides={**overrides, "mesh__n": 2 * cfg["mesh"]["n"]},
-                                          out=out / "bounded_h2", label="bounded, h/2"))
-        jobs["dt/2"] = (_bounded_job, dict(overrides={**overrides, "dynamics__dt": cfg["dynamics"]["dt"] / 2},
-                                           out=out / "bounded_dt2", label="bounded, dt/2"))
-    jobs["algorithm1"] = (_algorithm1_job, dict(overrides=overrides, out=out / "algorithm1"))
-    jobs["bounded"] = (_bounded_job, dict(overrides=overrides, out=out / "bounded", label=f"bounded |xi| <= {XI_MAX}"))
+        runs = [("bounded, dt/2", {**overrides, "dynamics__dt": cfg["dynamics"]["dt"] / 2}, out / "bounded_dt2"),
+                ("bounded, h/2", {**overrides, "mesh__n": 2 * cfg["mesh"]["n"]}, out / "bounded_h2")]
+        jobs["resolution"] = (_resolution_job, dict(runs=runs))
     return jobs
 
 
 def _run_jobs(jobs: dict, workers: int, progress: bool) -> dict:
-    """Results of every job: in this process when ``workers == 1`` (with per-run progress bars),
-    otherwise in a pool of fresh (spawned: JAX is not fork-safe) processes with one bar over jobs."""
-    if workers == 1:
+    """Results of every job. With ``workers > 1`` the first job runs in this process and the others
+    in ``workers - 1`` fresh (spawned: JAX is not fork-safe) processes meanwhile; progress bars are
+    shown for this process's runs only."""
+    first, *others = jobs
+    if workers == 1 or not others:
         return {key: fn(progress=progress, **kwargs) for key, (fn, kwargs) in jobs.items()}
     import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures import ProcessPoolExecutor
 
-    from .workflows import _progress_bar
-
-    bar = _progress_bar(progress, len(jobs), "paper-1d studies")
-    results = {}
-    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-        futures = {pool.submit(fn, progress=False, **kwargs): key for key, (fn, kwargs) in jobs.items()}
-        for fut in as_completed(futures):
-            results[futures[fut]] = fut.result()
-            if bar is not None:
-                bar.update(1)
-    if bar is not None:
-        bar.close()
+    with ProcessPoolExecutor(min(workers - 1, len(others)), mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = {key: pool.submit(jobs[key][0], progress=False, **jobs[key][1]) for key in others}
+        fn, kwargs = jobs[first]
+        results = {first: fn(progress=progress, **kwargs)}
+        results.update({key: fut.result() for key, fut in futures.items()})
     return results
 
 
@@ -190,11 +202,11 @@ def reproduce_paper_1d(out: Path, *, quick: bool = False, progress: bool = True,
     started = time.perf_counter()
     results = _run_jobs(_jobs(cfg, out, quick, overrides), workers, progress)
     _copy_top_level(out / "algorithm1", out)
-    runs = {"algorithm1": results["algorithm1"]["run"], "bounded": results["bounded"]["run"]}
-    resolution = [results[k]["run"] for k in ("dt/2", "h/2") if k in results]
+    runs = {"algorithm1": results["paper"]["algorithm1"], "bounded": results["paper"]["bounded"]}
+    resolution = results.get("resolution", {}).get("resolution", [])
     if resolution:
         write_json(out / "resolution.json", resolution)
-    summary = {"paper": PAPER_REPORT, "runs": runs, "ray": results["algorithm1"]["ray"], "resolution": resolution,
+    summary = {"paper": PAPER_REPORT, "runs": runs, "ray": results["paper"]["ray"], "resolution": resolution,
                "config": cfg.sections, "workers": workers, "wall_time_s": time.perf_counter() - started,
                "tau": runs["algorithm1"]["tau"], "objective": runs["algorithm1"]["objective"]}
     write_json(out / "summary.json", summary)

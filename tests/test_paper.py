@@ -50,7 +50,8 @@ def test_studies_use_the_stated_variants(parallel):
 
 
 def test_parallel_and_serial_runs_agree(parallel, tmp_path):
-    """The optimizers are deterministic: worker processes change where, not what, is computed."""
+    """The optimizers are deterministic: worker processes and the shared compiled problem change
+    where and how often things are compiled, not what is computed."""
     _, summary = parallel
     serial = reproduce_paper_1d(tmp_path, quick=True, progress=False, workers=1, overrides=SMALL)
     assert serial["resolution"] == []
