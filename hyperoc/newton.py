@@ -15,13 +15,16 @@ from . import _jax  # noqa: F401
 __all__ = ["newton"]
 
 
-def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, max_iter: int):
+def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, max_iter: int,
+           line_search: bool = True):
     """Solve ``residual(x) = 0``; returns ``(x, iterations, status)``.
 
     Convergence: ``|du|_inf <= rtol |u|_inf + atol`` for the Newton increment du; with quadratic
     convergence the error after that update is far below the test. Status 0 = converged,
     1 = not converged in ``max_iter`` iterations, 2 = non-finite iterate. When the full step does
-    not decrease ``|r|^2`` (sufficient decrease 1e-4), it is halved (at most 12 times).
+    not decrease ``|r|^2`` (sufficient decrease 1e-4), it is halved (at most 12 times);
+    ``line_search=False`` always takes the full step (penalty-stiff static problems with load
+    stepping, where the merit of the first full step can grow although Newton then converges).
     """
     merit = lambda r: jnp.sum(r * r)
 
@@ -45,8 +48,11 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
         # backtracking on it would only stall.
         scale = jnp.max(jnp.abs(x[:-1] + du))
         converged = jnp.max(jnp.abs(du)) <= rtol * scale + atol
-        alpha, _ = jax.lax.cond(converged, lambda: (1.0, 0.0),
-                                lambda: jax.lax.while_loop(keep_shrinking, shrink, (1.0, merit(residual(x + dx)))))
+        if line_search:
+            alpha, _ = jax.lax.cond(converged, lambda: (1.0, 0.0),
+                                    lambda: jax.lax.while_loop(keep_shrinking, shrink, (1.0, merit(residual(x + dx)))))
+        else:
+            alpha = 1.0
         x_new = x + alpha * dx
         finite = jnp.all(jnp.isfinite(x_new))
         status = jnp.where(~finite, 2, jnp.where(converged, 0, 1))

@@ -30,7 +30,7 @@ volumetric residual ``~ kappa |grad du|^2`` that can exceed the residual it corr
 magnitude although the next iterate is much closer to the solution (Land problem 1: ``kappa / C =
 500``, |r| grows 2000x after the first step, after which Newton converges quadratically), so the
 backtracking stalls at its smallest step. ``line_search=False`` takes full Newton steps instead
-(`_full_newton`), as is common in cardiac mechanics codes with load stepping.
+(`hyperoc.newton.newton(..., line_search=False)`), as is common in cardiac mechanics codes with load stepping.
 """
 
 from __future__ import annotations
@@ -64,25 +64,6 @@ class StaticSolution:
 
     def displacement(self) -> np.ndarray:
         return self.model.expand(self.u)
-
-
-def _full_newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, max_iter: int):
-    """Newton without backtracking, ``x <- x + dx``; returns ``(x, iterations, status)``.
-
-    Same stopping test and status codes as `hyperoc.newton.newton`: 0 converged
-    (``|du|_inf <= rtol |u + du|_inf + atol``), 1 not converged in ``max_iter``, 2 non-finite iterate.
-    """
-
-    def body(state):
-        x, it, _ = state
-        r = residual(x)
-        du, dp = solver.solve(*jacobian_parts(x), -r[:-1], -r[-1])
-        x_new = x + jnp.concatenate([du, dp[None]])
-        converged = jnp.max(jnp.abs(du)) <= rtol * jnp.max(jnp.abs(x_new[:-1])) + atol
-        return x_new, it + 1, jnp.where(~jnp.all(jnp.isfinite(x_new)), 2, jnp.where(converged, 0, 1))
-
-    x, it, status = jax.lax.while_loop(lambda s: (s[2] == 1) & (s[1] < max_iter), body, (x0, 0, 1))
-    return x, it, status
 
 
 def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, constrained: bool,
@@ -128,9 +109,8 @@ def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, co
 
     @jax.jit
     def solve(x0, fk, Vk, s):
-        x, it, status = (newton if line_search else _full_newton)(
-            lambda x: residual(x, fk, Vk, s), lambda x: jacobian_parts(x, fk, s), lin, x0,
-            rtol=scheme.rtol, atol=scheme.atol, max_iter=scheme.max_iter)
+        x, it, status = newton(lambda x: residual(x, fk, Vk, s), lambda x: jacobian_parts(x, fk, s), lin, x0,
+                               rtol=scheme.rtol, atol=scheme.atol, max_iter=scheme.max_iter, line_search=line_search)
         return x, it, status, model.min_det_F(displacement(x))
 
     cache[key] = solve
