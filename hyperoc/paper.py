@@ -132,7 +132,7 @@ def ray_study(J, point: ControlPoint, scales=(0.25, 0.5, 0.75, 1.0, 1.1, 1.25, 1
 
 def _paper_job(overrides: dict, out: Path, progress: bool) -> dict:
     """Algorithm 1 as stated, the ray study at its end point, then the bounded variant |xi| <= XI_MAX
-    (projected Algorithm 1) with the same compiled reduced functional (run in a worker process)."""
+    (projected Algorithm 1) with the same compiled reduced functional."""
     cfg = _with(paper_config(), **overrides)
     tau0 = float(cfg["optimize"]["tau0"])
     row, J, res = _run(cfg, tau0, out / "algorithm1", progress=progress, label="Algorithm 1 (paper)")
@@ -143,16 +143,16 @@ def _paper_job(overrides: dict, out: Path, progress: bool) -> dict:
     return {"algorithm1": row, "ray": ray, "bounded": bounded}
 
 
-def _resolution_job(runs: list, progress: bool) -> dict:
-    """The bounded variant on refined grids, ``runs = [(label, overrides, out), ...]`` (summary.json and
-    results.npz per run; no figures)."""
+def _resolution_job(runs: list, progress: bool) -> list:
+    """Rows of the bounded variant on refined grids, ``runs = [(label, overrides, out), ...]``
+    (summary.json and results.npz per run; no figures)."""
     rows = []
     for label, overrides, out in runs:
         cfg = _with(paper_config(), **overrides)
         row, _, _ = _run(cfg, float(cfg["optimize"]["tau0"]), out, progress=progress, xi_bounds=(-XI_MAX, XI_MAX),
                          label=label, figures=False)
         rows.append(row)
-    return {"resolution": rows}
+    return rows
 
 
 def _jobs(cfg: Config, out: Path, quick: bool, overrides: dict) -> dict:
@@ -167,7 +167,7 @@ def _jobs(cfg: Config, out: Path, quick: bool, overrides: dict) -> dict:
 
 
 def _run_jobs(jobs: dict, workers: int, progress: bool) -> dict:
-    """Results of every job. With ``workers > 1`` the first job runs in this process and the others
+    """Results of every job, by key. With ``workers > 1`` the first job runs in this process and the others
     in ``workers - 1`` fresh (spawned: JAX is not fork-safe) processes meanwhile; progress bars are
     shown for this process's runs only."""
     first, *others = jobs
@@ -203,7 +203,7 @@ def reproduce_paper_1d(out: Path, *, quick: bool = False, progress: bool = True,
     results = _run_jobs(_jobs(cfg, out, quick, overrides), workers, progress)
     _copy_top_level(out / "algorithm1", out)
     runs = {"algorithm1": results["paper"]["algorithm1"], "bounded": results["paper"]["bounded"]}
-    resolution = results.get("resolution", {}).get("resolution", [])
+    resolution = results.get("resolution", [])
     if resolution:
         write_json(out / "resolution.json", resolution)
     summary = {"paper": PAPER_REPORT, "runs": runs, "ray": results["paper"]["ray"], "resolution": resolution,
