@@ -23,6 +23,7 @@ from .materials import Guccione, HolzapfelOgden, material_from_config
 from .mesh import Mesh, box, interval, rectangle
 from .model import StateModel
 from .objectives import objective_from_config
+from .reduced import checkpoint_options
 from .timegrid import TimeTransform, uniform_grid
 
 __all__ = ["Config", "load_config", "parse_config"]
@@ -58,7 +59,9 @@ SCHEMA = {
     "objective": {"phi1": (str, "pressure"), "alpha": (NUMBER, 2e-3), "eps": (NUMBER, 0.0)},
     "optimize": {"method": (str, "bb"), "tau0": (NUMBER, ...), "tau_starts": (list, ...), "max_iter": (int, 100),
                  "gtol": (NUMBER, 1e-6), "xi_bounds": (list, ...), "tau_margin": (NUMBER, ...),
-                 "gradient": (str, "exact"), "steps": (str, "joint"), "checkpoint_every": (int, ...)},
+                 "gradient": (str, "exact"), "steps": (str, "joint"),
+                 # checkpointed adjoint: every k-th level state, or a binomial schedule with s snapshots
+                 "checkpoint_every": (int, ...), "checkpoint_snapshots": (int, ...)},
     "output": {"snapshot_times": (list, ...), "series_every": (int, ...)},
 }
 
@@ -289,6 +292,11 @@ def parse_config(data: dict, base: Path = Path(".")) -> Config:
         raise InputError(f"config: [dynamics] kappa must be >= 0, got {d['kappa']}")
     if d["density"] <= 0:
         raise InputError(f"config: [dynamics] density must be > 0, got {d['density']}")
+    o = sections["optimize"]
+    try:
+        checkpoint_options(o.get("checkpoint_every"), o.get("checkpoint_snapshots"))
+    except InputError as err:
+        raise InputError(f"config: [optimize] {err}") from None
     return Config(sections, Path(base))
 
 

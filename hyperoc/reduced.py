@@ -8,7 +8,9 @@ matrix), so that optimizers see mesh- and step-independent quantities.
 
 With ``checkpoint_every=k`` the value and the gradient never hold the whole trajectory: the forward
 pass keeps every k-th level state, the levels the objective reads and the step multipliers, and the
-adjoint recomputes each segment from its checkpoint (`hyperoc.adjoint.Checkpoints`).
+adjoint recomputes each segment from its checkpoint (`hyperoc.adjoint.Checkpoints`). With
+``checkpoint_snapshots=s`` it follows the binomial schedule of `hyperoc.revolve` instead (s snapshots,
+the least number of recomputed steps; `hyperoc.adjoint.RevolveRecord`).
 """
 
 from __future__ import annotations
@@ -22,14 +24,26 @@ import numpy as np
 import scipy.sparse.linalg as spla
 
 from . import _jax  # noqa: F401
-from .adjoint import Adjoint, Checkpoints
+from .adjoint import Adjoint, Checkpoints, RevolveRecord
 from .dynamics import Scheme, StateSolution, TimeStepper
 from .errors import InputError
 from .model import StateModel
 from .objectives import Objective, Trajectory
 from .timegrid import TimeTransform, trapezoid_weights
 
-__all__ = ["ControlPoint", "ReducedFunctional", "LevelStates"]
+__all__ = ["ControlPoint", "ReducedFunctional", "LevelStates", "checkpoint_options"]
+
+
+def checkpoint_options(every, snapshots) -> tuple[int | None, int | None]:
+    """Validated ``(checkpoint_every, checkpoint_snapshots)``: each None or an integer >= 1, not both set;
+    raises `InputError` naming the option."""
+    for name, value in (("checkpoint_every", every), ("checkpoint_snapshots", snapshots)):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1):
+            raise InputError(f"{name} must be None or an integer >= 1, got {value!r}")
+    if every is not None and snapshots is not None:
+        raise InputError(f"checkpoint_every = {every} and checkpoint_snapshots = {snapshots} exclude each other "
+                         "(equidistant or binomial checkpoints: set one to None)")
+    return (None if every is None else int(every)), (None if snapshots is None else int(snapshots))
 
 
 class LevelStates:
@@ -54,7 +68,7 @@ class LevelStates:
         if isinstance(index, slice):
             return jnp.stack([self._level(k) for k in range(*index.indices(self.num_levels))])
         if not isinstance(index, (int, np.integer)):
-            raise InputError("with checkpoint_every, objective terms index traj.y0 / traj.y1 by static levels "
+            raise InputError("with checkpointing, objective terms index traj.y0 / traj.y1 by static levels "
                              f"(ints or slices), got {type(index).__name__}")
         k = int(index) + (self.num_levels if index < 0 else 0)
         if not 0 <= k < self.num_levels:
@@ -119,11 +133,19 @@ class ReducedFunctional:
         gradient equals the stored one to round-off (same compiled step, same Newton warm start).
         The objective's terms must read ``traj.y0`` / ``traj.y1`` by static levels (see
         `LevelStates`); exact gradient only. `state` still returns the whole trajectory (for reports).
+    checkpoint_snapshots : None (default) or an int s >= 1: binomial checkpointing (`hyperoc.revolve`,
+        Griewank's revolve): the forward pass keeps s snapshots, the state at level N-1, ``y0_N``, the
+        levels the objective reads and the step multipliers; the adjoint restores, advances and reverses
+        one step at a time. Memory s + 2 level states; cost ``t(N, s) + 1`` step evaluations per gradient
+        (`hyperoc.revolve.minimal_advances`: the fewest possible with s snapshots; N (N-1)/2 + 1 for
+        s = 1, N for s >= N - 1) against N when storing everything, e.g. 4.5 N for N = 3000, s = 10
+        and 3.3 N for s = 20. Same requirements as ``checkpoint_every``, which it excludes; the
+        gradient equals the stored one to round-off.
     """
 
     def __init__(self, model: StateModel, transform: TimeTransform, objective: Objective, *,
                  scheme: Scheme = Scheme(), solver="auto", u0=None, v0=None, gradient: str = "exact",
-                 checkpoint_every: int | None = None):
+                 checkpoint_every: int | None = None, checkpoint_snapshots: int | None = None):
         if gradient not in ("exact", "continuous"):
             raise InputError(f"gradient must be 'exact' or 'continuous', got {gradient!r}")
         self.gradient_method = gradient
@@ -139,7 +161,7 @@ class ReducedFunctional:
         self.N = transform.num_steps
         self.counts = {"state": 0, "adjoint": 0}
         self._cache_key, self._cache = None, None
-        self.checkpoint_every = checkpoint_every
+        self._set_checkpointing(checkpoint_every, checkpoint_snapshots)
         from jax.experimental import sparse as jsparse
 
         # Built eagerly: a cached property first touched inside a traced function would leak tracers.
@@ -152,13 +174,28 @@ class ReducedFunctional:
 
     @checkpoint_every.setter
     def checkpoint_every(self, k: int | None) -> None:
-        if k is not None:
-            if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
-                raise InputError(f"checkpoint_every must be None or an integer >= 1, got {k!r}")
-            if self.gradient_method != "exact":
-                raise InputError("checkpoint_every is implemented for the exact gradient only")
-            k = int(k)
-        self._checkpoint_every = k
+        self._set_checkpointing(k, self._checkpoint_snapshots)
+
+    @property
+    def checkpoint_snapshots(self) -> int | None:
+        """Snapshots s of the binomial schedule (None: not used); may be changed between evaluations."""
+        return self._checkpoint_snapshots
+
+    @checkpoint_snapshots.setter
+    def checkpoint_snapshots(self, s: int | None) -> None:
+        self._set_checkpointing(self._checkpoint_every, s)
+
+    @property
+    def checkpointed(self) -> bool:
+        """Whether the value and the gradient use checkpoints (equidistant or binomial)."""
+        return self._checkpoint_every is not None or self._checkpoint_snapshots is not None
+
+    def _set_checkpointing(self, every, snapshots) -> None:
+        every, snapshots = checkpoint_options(every, snapshots)
+        if (every or snapshots) and self.gradient_method != "exact":
+            raise InputError(f"{'checkpoint_every' if every else 'checkpoint_snapshots'} is implemented for the exact "
+                             "gradient only")
+        self._checkpoint_every, self._checkpoint_snapshots = every, snapshots
         self._record_key, self._record = None, None
 
     # --- geometry of the control space -----------------------------------------------------------
@@ -240,33 +277,36 @@ class ReducedFunctional:
                 Trajectory(*recorders, p, xi, dt, n1, n1 + n2, self._control_mass, self.stepper._M)),
                 f64(N), f64(N + 1, nc), f64(N))
         except (TypeError, AttributeError) as err:
-            raise InputError(f"checkpoint_every: the objective uses traj.y0 / traj.y1 as whole arrays ({err}); "
-                             "index single levels (traj.y1[-1]) or use checkpoint_every=None") from err
+            raise InputError(f"checkpointing: the objective uses traj.y0 / traj.y1 as whole arrays ({err}); index "
+                             "single levels (traj.y1[-1]) or set checkpoint_every and checkpoint_snapshots to None") from err
         return tuple(sorted(recorders[0].read | recorders[1].read))
 
     @cached_property
     def _checkpointed_objective(self):
         return self._objective_functions(lambda y: LevelStates(self.N + 1, self.objective_levels, y))
 
-    def record(self, m: ControlPoint) -> Checkpoints:
-        """Checkpointed forward solve for m (``checkpoint_every`` set; cached for the last point)."""
+    def record(self, m: ControlPoint) -> Checkpoints | RevolveRecord:
+        """Checkpointed forward solve for m (``checkpoint_every`` or ``checkpoint_snapshots`` set; cached
+        for the last point)."""
         self._check(m)
         key = (m.tau, m.xi.tobytes())
         if key != self._record_key:
             grid = self.transform.grid(m.tau)
             loads = self.stepper.external_loads(None, grid)
-            ck = self.adjoint.record(grid, m.xi, loads, self.u0, self.v0, self.checkpoint_every, self.objective_levels)
+            record, count = ((self.adjoint.record_revolve, self.checkpoint_snapshots) if self.checkpoint_snapshots
+                             else (self.adjoint.record, self.checkpoint_every))
+            ck = record(grid, m.xi, loads, self.u0, self.v0, count, self.objective_levels)
             self.counts["state"] += 1
             self._record_key, self._record = key, ck
         return self._record
 
-    def _checkpointed_arrays(self, ck: Checkpoints):
+    def _checkpointed_arrays(self, ck: Checkpoints | RevolveRecord):
         levels = self.objective_levels
         kept = lambda i: jnp.stack([ck.kept[k][i] for k in levels]) if levels else jnp.zeros((0, self.model.n))
         return kept(0), kept(1), jnp.asarray(ck.p_steps), jnp.asarray(ck.xi), jnp.asarray(ck.grid.dt)
 
     def __call__(self, m: ControlPoint) -> float:
-        if self.checkpoint_every is not None:
+        if self.checkpointed:
             value, _ = self._checkpointed_objective
             return float(value(*self._checkpointed_arrays(self.record(m))))
         sol = self.state(m)
@@ -278,12 +318,13 @@ class ReducedFunctional:
 
     def value_and_derivative(self, m: ControlPoint) -> tuple[float, ControlPoint]:
         """J(m) and dJ(m) as a dual vector: ``dJ.dm = sum(d.xi * dm.xi) + d.tau dm.tau``."""
-        if self.checkpoint_every is not None:
+        if self.checkpointed:
             ck = self.record(m)
             _, vg = self._checkpointed_objective
             J, (gY0, gY1, gP, gXi, gdt) = vg(*self._checkpointed_arrays(ck))
             g_kept = {k: (gY0[i], gY1[i]) for i, k in enumerate(self.objective_levels)}
-            gXi_state, gdt_state = self.adjoint.backward_checkpointed(ck, g_kept, gP)
+            backward = self.adjoint.backward_revolve if self.checkpoint_snapshots else self.adjoint.backward_checkpointed
+            gXi_state, gdt_state = backward(ck, g_kept, gP)
         else:
             sol = self.state(m)
             _, vg = self._objective_and_partials

@@ -1,0 +1,173 @@
+"""Binomial checkpointing (`hyperoc.revolve`, ``ReducedFunctional(..., checkpoint_snapshots=s)``).
+
+(a) The schedule, run on an abstract machine that tracks levels only: every step is reversed exactly
+once, in the order N-1, ..., 0, each from the state at its level and the state of the level above;
+never more than s snapshots are held; the advanced steps number exactly Griewank's minimum
+``t(N, s) = r N - beta(s + 1, r - 1)`` and no step is advanced more than r times. The closed form
+itself is checked against the optimum of the split recursion computed by exhaustive search.
+
+(b) Gradients equal the store-everything ones. The revolve path steps with the jitted single step
+(the stored path: the compiled scan on the traced 1D path, the same jitted step on the sparse path)
+and the adjoint with the jitted single adjoint step, from the same initial data and Newton warm
+starts; the differences are those of `tests/test_checkpointed_adjoint.py` (XLA fusing the step
+differently in a scan than alone: ~1e-16 relative per operation; with sparse LU, a backward error
+1e-13 per solve and another ordering for a solver's first factorization), carried through the
+stable linearized recursion. We allow the same ``RTOL = 5e-13`` (five times the solver's backward
+error) relative, for J against the sum of the magnitudes of its terms, for the gradient in the Riesz
+norm. Within the revolve path, a recomputed state is the forward state bit for bit (same jitted
+step, same inputs, same warm start): on the traced path the gradients for different s are equal
+exactly, and the counted step evaluations are ``t(N, s) + 1``.
+
+(c) Bad ``checkpoint_snapshots`` values raise `InputError`; in a config they exit the CLI with status 2.
+"""
+
+from collections import Counter
+from functools import cache
+
+import pytest
+
+from hyperoc import (BodyForce, Objective, PressureAt, PressureRise, ReducedFunctional, Region, SaintVenantKirchhoff,
+                     StateModel, TimeTransform, box, interval)
+from hyperoc.cli import main
+from hyperoc.config import parse_config
+from hyperoc.errors import InputError
+from hyperoc.revolve import (Advance, Free, Restore, Reverse, Store, minimal_advances, repetitions, schedule)
+
+from test_checkpointed_adjoint import RTOL, _LevelReads, _point
+
+
+def _run_abstract(N: int, s: int):
+    """Executes ``schedule(N, s)`` on levels; returns (reversed steps in order, advances per step,
+    most snapshots held, actions before the first reversal)."""
+    current, above, held, most = 0, N, set(), 0
+    reversed_steps, advanced = [], Counter()
+    forward = None
+    for i, action in enumerate(schedule(N, s)):
+        match action:
+            case Advance(a, b):
+                assert a == current and a < b < above, action
+                advanced.update(range(a, b))
+                current = b
+            case Store(k):
+                assert k == current and k not in held, action
+                held.add(k)
+                most = max(most, len(held))
+            case Restore(k):
+                assert k in held, action
+                current = k
+            case Free(k):
+                held.remove(k)
+            case Reverse(n):
+                assert n == current and n + 1 == above, action  # needs x_n and x_{n+1}
+                forward = i if forward is None else forward
+                reversed_steps.append(n)
+                above = n
+    assert not held
+    return reversed_steps, advanced, most, schedule(N, s)[:forward]
+
+
+@pytest.mark.parametrize("s", range(1, 7))
+def test_schedule_reverses_every_step_once_with_the_fewest_advances(s):
+    for N in range(1, 61):
+        reversed_steps, advanced, most, forward = _run_abstract(N, s)
+        assert reversed_steps == list(reversed(range(N))), (N, s)
+        assert most <= s, (N, s, most)
+        assert sum(advanced.values()) == minimal_advances(N, s), (N, s)
+        assert max(advanced.values(), default=0) <= repetitions(N, s), (N, s)
+        assert all(isinstance(a, (Store, Advance)) for a in forward), (N, s)
+    assert minimal_advances(60, 1) == 60 * 59 // 2 and minimal_advances(60, 59) == 59
+
+
+@cache
+def _optimum(L: int, s: int) -> int:
+    """Least advances of the split recursion (advance j, reverse the right part with s - 1
+    snapshots, the left part with s), by exhaustive search over the split j."""
+    if L == 1:
+        return 0
+    if s == 1:
+        return L * (L - 1) // 2
+    return min(j + _optimum(L - j, s - 1) + _optimum(j, s) for j in range(1, L))
+
+
+def test_closed_form_is_the_optimum_of_the_recursion():
+    assert all(minimal_advances(N, s) == _optimum(N, s) for N in range(1, 41) for s in range(1, 6))
+
+
+def test_schedule_arguments():
+    for N, s in ((0, 2), (5, 0), (5, 1.5), (True, 2)):
+        with pytest.raises(InputError, match="revolve"):
+            schedule(N, s)
+
+
+def _counting_steps(J):
+    """Counts the stepper's jitted step evaluations (the revolve path steps only through it)."""
+    step, calls = J.stepper._jit_step, Counter()
+
+    def counted(*args):
+        calls["steps"] += 1
+        return step(*args)
+
+    J.stepper.__dict__["_jit_step"] = counted
+    return calls
+
+
+def _assert_same(J, m, snapshots, exact_between_s):
+    value, grad = J.value_and_gradient(m)
+    scale = sum(abs(v) for v in J.objective.parts(J.trajectory(J.state(m))).values())
+    calls = _counting_steps(J)
+    grads = []
+    for s in snapshots:
+        J.checkpoint_snapshots = s
+        calls.clear()
+        vs, gs = J.value_and_gradient(m)
+        assert calls["steps"] == minimal_advances(J.N, s) + 1, (s, calls)
+        rec = J.record(m)
+        assert len(rec.snapshots) <= s and rec.stored_states <= s + 2 + len(J.objective_levels)
+        assert abs(vs - value) <= RTOL * scale, (s, vs, value, scale)
+        assert J.norm(gs - grad) <= RTOL * J.norm(grad), (s, J.norm(gs - grad) / J.norm(grad))
+        assert abs(gs.tau - grad.tau) <= RTOL * J.norm(grad), s
+        grads.append(gs)
+    if exact_between_s:
+        assert all((g.xi == grads[0].xi).all() and g.tau == grads[0].tau for g in grads), "recomputation not bitwise"
+
+
+def test_traced_1d():
+    """Tridiagonal solver (the stored path is a compiled lax.scan), objective reading y0(tau), y1(T)."""
+    model = StateModel(interval(20), SaintVenantKirchhoff(0.05, 0.05), kappa=2e-3,
+                       control=BodyForce(Region("box", lower=(0.75,), upper=(1.0,))))
+    J = ReducedFunctional(model, TimeTransform.for_step(1.75, 0.25, 0.75, 0.25),
+                          Objective(at_tau=PressureRise(0.25), terminal=(_LevelReads(),)))
+    assert J.stepper.solver.traced and J.N == 7 and J.objective_levels == (3, 7)
+    _assert_same(J, _point(J, 0.75, 0.05), snapshots=(1, 2, 3, J.N), exact_between_s=True)
+
+
+def test_python_loop_3d_sparse():
+    """Sparse LU solver (jitted step driven from Python in every path) on a 3D box."""
+    model = StateModel(box(1, dirichlet="left"), SaintVenantKirchhoff(1.0, 1.0), kappa=0.05,
+                       control=BodyForce(Region("box", lower=(0.5, 0.0, 0.0), upper=(1.0, 1.0, 1.0))))
+    J = ReducedFunctional(model, TimeTransform.for_step(0.7, 0.1, 0.3), Objective(at_tau=PressureAt()), solver="lu")
+    assert not J.stepper.solver.traced and J.N == 7
+    _assert_same(J, _point(J, 0.3, 0.5), snapshots=(2, J.N), exact_between_s=False)
+
+
+def test_bad_snapshots_are_refused(tmp_path):
+    model = StateModel(interval(8), SaintVenantKirchhoff(0.05, 0.05), kappa=2e-3,
+                       control=BodyForce(Region("box", lower=(0.75,), upper=(1.0,))))
+    J = ReducedFunctional(model, TimeTransform.for_step(1.0, 0.25, 0.5), Objective(at_tau=PressureAt()))
+    for bad in (0, -3, 1.5, True, "4"):
+        with pytest.raises(InputError, match="checkpoint_snapshots"):
+            J.checkpoint_snapshots = bad
+    J.checkpoint_every = 2
+    with pytest.raises(InputError, match="exclude each other"):
+        J.checkpoint_snapshots = 3
+    with pytest.raises(InputError, match="exact gradient"):
+        ReducedFunctional(model, TimeTransform.for_step(1.0, 0.25, 0.5), Objective(at_tau=PressureAt()),
+                          gradient="continuous", checkpoint_snapshots=3)
+    assert parse_config({"optimize": {"checkpoint_snapshots": 4}})["optimize"]["checkpoint_snapshots"] == 4
+    for bad in ({"checkpoint_snapshots": 0}, {"checkpoint_snapshots": 2.5}, {"checkpoint_snapshots": True},
+                {"checkpoint_snapshots": 3, "checkpoint_every": 2}):
+        with pytest.raises(InputError, match=r"config: \[optimize\] checkpoint_"):
+            parse_config({"optimize": bad})
+    path = tmp_path / "bad.toml"
+    path.write_text("[optimize]\ncheckpoint_snapshots = 0\n")
+    assert main(["check-gradient", str(path)]) == 2
