@@ -13,12 +13,17 @@ until elements invert: both were measured here before (bench/README.md) and do n
     python bench/bench_mesh_independence.py --diagonal         # only (h, dt) refined together
     python bench/bench_mesh_independence.py --json out.json    # also write the raw results
     python bench/bench_mesh_independence.py --starts 1.9,1.95,2.05,2.1   # same grid, other starts
+    python bench/bench_mesh_independence.py --grid-starts 1.9,1.95,2,2.05,2.1   # every grid, every start
 
-Methods: ``bb`` (Algorithm 1, the paper's joint BB step), ``bb-blockwise`` (separate BB steps for xi
-and tau), ``lbfgsb``.
+Methods: ``bb`` (Algorithm 1, the paper's joint BB step, BB1 length), ``bb-abbmin`` (joint step,
+ABBmin length: `hyperoc.optimize.BBStepRule`), ``bb-blockwise`` (separate BB1 steps for xi and
+tau), ``lbfgsb``.
 
 Prints, per (h, dt): iterations, converged flag, final tau and J, state/adjoint solve counts,
-wall time; then the spread max/min of the iteration counts per method.
+wall time; then the spread max/min of the iteration counts per method. With ``--grid-starts`` it
+also prints, per method and grid, the median count over the starts and the spread of these
+medians across grids: a BB iteration count is an irregular function of the start, so one start
+per grid confounds that irregularity with a dependence on the grid.
 """
 
 from __future__ import annotations
@@ -44,7 +49,8 @@ def run(h: float, dt: float, method: str, max_iter: int, alpha: float = ALPHA, t
         res = ho.lbfgsb(J, J.zero(tau0), gtol=1e-6, max_iter=max_iter)
     else:
         steps = "blockwise" if method == "bb-blockwise" else "joint"
-        res = ho.barzilai_borwein(J, J.zero(tau0), gtol=1e-6, max_iter=max_iter, steps=steps)
+        bb_step = "abbmin" if method == "bb-abbmin" else "bb1"
+        res = ho.barzilai_borwein(J, J.zero(tau0), gtol=1e-6, max_iter=max_iter, steps=steps, bb_step=bb_step)
     wall = time.perf_counter() - t0
     g = res.history["grad_norm"]
     return {"h": h, "dt": dt, "tau0": tau0, "method": method, "iterations": res.iterations, "converged": bool(res.converged),
@@ -57,18 +63,24 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--diagonal", action="store_true", help="only the pairs (h, dt) refined together")
     ap.add_argument("--max-iter", type=int, default=300)
-    ap.add_argument("--methods", default="bb,bb-blockwise,lbfgsb")
+    ap.add_argument("--methods", default="bb,bb-abbmin,bb-blockwise,lbfgsb")
     ap.add_argument("--json", default=None)
     ap.add_argument("--alpha", type=float, default=ALPHA, help="control cost weight (default %(default)s)")
     ap.add_argument("--starts", default=None,
                     help="comma-separated tau0 values: instead of refining, rerun on the middle grid from each start "
                          "(the spread of iteration counts at a fixed grid, to compare with the spread across grids)")
+    ap.add_argument("--grid-starts", default=None,
+                    help="comma-separated tau0 values: run every grid from each start and compare the per-grid medians")
     args = ap.parse_args()
-    pairs = list(zip(HS, DTS)) if args.diagonal else [(h, dt) for h in HS for dt in DTS]
-    starts = [TAU0] * len(pairs)
+    grids = list(zip(HS, DTS)) if args.diagonal else [(h, dt) for h in HS for dt in DTS]
+    pairs, starts = grids, [TAU0] * len(grids)
     if args.starts:
         starts = [float(t) for t in args.starts.split(",")]
         pairs = [(HS[1], DTS[1])] * len(starts)
+    if args.grid_starts:
+        tau0s = [float(t) for t in args.grid_starts.split(",")]
+        pairs = [g for g in grids for _ in tau0s]
+        starts = tau0s * len(grids)
     rows = []
     print(f"{'method':12s} {'tau0':>5s} {'h':>6s} {'dt':>6s} {'iters':>6s} {'conv':>5s} {'tau':>9s} {'J':>12s} {'|G|/|G0|':>9s} "
           f"{'states':>7s} {'adjoints':>8s} {'failed':>6s} {'wall s':>7s}", flush=True)
@@ -85,9 +97,22 @@ def main():
         conv = all(r["converged"] for r in rows if r["method"] == method)
         print(f"{method}: iterations {its.min()}..{its.max()}, max/min = {its.max() / its.min():.2f} "
               f"({'within' if its.max() <= 1.3 * its.min() else 'NOT within'} 30%), all converged: {conv}")
+    if args.grid_starts:
+        print_medians(rows, args.methods.split(","), grids)
     if args.json:
         with open(args.json, "w") as f:
             json.dump(rows, f, indent=1)
+
+
+def print_medians(rows: list, methods: list, grids: list) -> None:
+    """Per method: the median iteration count over the starts on each grid, and their spread."""
+    print()
+    for method in methods:
+        med = [float(np.median([r["iterations"] for r in rows if r["method"] == method and (r["h"], r["dt"]) == g]))
+               for g in grids]
+        cells = ", ".join(f"h={h:g} dt={dt:g}: {m:g}" for (h, dt), m in zip(grids, med))
+        print(f"{method}: median over starts per grid [{cells}]; max/min of the medians = {max(med) / min(med):.2f} "
+              f"({'within' if max(med) <= 1.3 * min(med) else 'NOT within'} 30%)")
 
 
 if __name__ == "__main__":

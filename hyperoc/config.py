@@ -59,7 +59,7 @@ SCHEMA = {
     "objective": {"phi1": (str, "pressure"), "alpha": (NUMBER, 2e-3), "eps": (NUMBER, 0.0)},
     "optimize": {"method": (str, "bb"), "tau0": (NUMBER, ...), "tau_starts": (list, ...), "max_iter": (int, 100),
                  "gtol": (NUMBER, 1e-6), "xi_bounds": (list, ...), "tau_margin": (NUMBER, ...),
-                 "gradient": (str, "exact"), "steps": (str, "joint"),
+                 "gradient": (str, "exact"), "steps": (str, "joint"), "bb_step": (str, "bb1"),
                  # checkpointed adjoint: every k-th level state, or a binomial schedule with s snapshots
                  "checkpoint_every": (int, ...), "checkpoint_snapshots": (int, ...)},
     "output": {"snapshot_times": (list, ...), "series_every": (int, ...)},

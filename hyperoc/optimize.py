@@ -24,7 +24,7 @@ from .errors import HyperocError, InputError, SolverError
 from .io import read_npz, write_npz
 from .reduced import ControlPoint, ReducedFunctional
 
-__all__ = ["OptimizationResult", "EvaluationCache", "barzilai_borwein", "lbfgsb"]
+__all__ = ["OptimizationResult", "EvaluationCache", "BBStepRule", "barzilai_borwein", "lbfgsb"]
 
 
 @dataclass
@@ -132,7 +132,7 @@ def _safe_eval(evaluate, m):
 def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e-6, gtol_abs: float = 0.0,
                      max_iter: int = 200, tau_margin: float | None = None, armijo: float = 0.5,
                      max_backtracks: int = 30, xi_bounds=(None, None), fix_tau: bool = False,
-                     steps: str = "joint", checkpoint=None, callback=None) -> OptimizationResult:
+                     steps: str = "joint", bb_step: str = "bb1", checkpoint=None, callback=None) -> OptimizationResult:
     """The paper's Algorithm 1 (maximization): one Armijo step along G0, then Barzilai-Borwein steps.
 
     With ``xi_bounds`` the iterates are projected onto the box (projected BB, the paper's Remark
@@ -148,9 +148,14 @@ def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e
     diagonal preconditioner for the usual case where the curvature of J in tau (seconds^-2, from
     p'') and in xi (about alpha) differ by orders of magnitude, which the joint step can only
     resolve by many iterations.
+
+    ``bb_step`` chooses between the two step lengths of Barzilai and Borwein (1988) (`BBStepRule`):
+    ``"bb1"`` (the long step above, default), ``"bb2"`` (the short step ``<s, -y> / <y, y>``) or
+    ``"abbmin"``, the adaptive alternation of Frassoldati, Zanni and Zanghirati (2008).
     """
     if steps not in ("joint", "blockwise"):
         raise InputError(f"steps must be 'joint' or 'blockwise', got {steps!r}")
+    rules = (BBStepRule(bb_step), BBStepRule(bb_step))
     start = time.perf_counter()
     tau_range = _tau_range(J, tau_margin, fix_tau, m0.tau)
     evaluate = EvaluationCache(J, checkpoint)
@@ -171,7 +176,7 @@ def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e
             break
         concave = False
         if m_prev is not None:
-            alpha, concave = _bb_steps(J, m - m_prev, g - g_prev, steps == "blockwise", alpha)
+            alpha, concave = _bb_steps(J, m - m_prev, g - g_prev, steps == "blockwise", alpha, rules)
         step = _ascent_step(J, evaluate, m, value, g, alpha, tau_range, xi_bounds, armijo, max_backtracks,
                             monotone=not concave, res=res)
         if step is None:
@@ -193,25 +198,55 @@ def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e
     return res
 
 
-def _bb_steps(J, s: ControlPoint, y: ControlPoint, blockwise: bool, previous: tuple) -> tuple[tuple[float, float], bool]:
-    """BB1 step sizes ``(alpha_xi, alpha_tau)`` from ``s = m_k - m_{k-1}``, ``y = G_k - G_{k-1}``, and
-    whether J is concave along s (every used curvature ``<s, -y>`` positive).
+class BBStepRule:
+    """Step length of one block from ``ss = <s, s>``, ``sy = <s, y>``, ``yy = <y, y>`` (s = m_k - m_{k-1},
+    y = G_k - G_{k-1}; maximization, so ``-sy > 0`` where J is concave along s).
+
+    ``"bb1"``: ``a1 = ss / -sy``; ``"bb2"``: ``a2 = -sy / yy`` (``a2 <= a1`` by Cauchy-Schwarz);
+    ``"abbmin"`` (ABBmin, Frassoldati, Zanni, Zanghirati, J. Ind. Manag. Optim. 4 (2008)): ``a1`` when
+    ``a2 / a1 >= ratio``, else the smallest ``a2`` of the last ``memory`` iterations. A small ``a2 / a1``
+    (the cosine squared between s and y) means s is far from an eigenvector of the Hessian; the
+    short step then damps the components of the large eigenvalues that the long step amplifies,
+    which is what makes plain BB1 irregular on stiff problems.
+    """
+
+    RULES = ("bb1", "bb2", "abbmin")
+
+    def __init__(self, rule: str = "bb1", memory: int = 3, ratio: float = 0.8):
+        if rule not in self.RULES:
+            raise InputError(f"bb_step must be one of {', '.join(self.RULES)}, got {rule!r}")
+        self.rule, self.memory, self.ratio = rule, memory, ratio
+        self.short_steps: list[float] = []
+
+    def __call__(self, ss: float, sy: float, yy: float, previous: float) -> tuple[float, bool]:
+        """``(alpha, concave)``; where J is not concave along s, the scale-free ``|s| / |y|``."""
+        if ss == 0.0:
+            return previous, True
+        if sy >= 0:
+            return float(np.sqrt(ss / max(yy, 1e-300))), False
+        long_step, short_step = ss / -sy, -sy / yy
+        self.short_steps = (self.short_steps + [short_step])[-self.memory:]
+        if self.rule == "bb1" or (self.rule == "abbmin" and short_step / long_step >= self.ratio):
+            return long_step, True
+        return (short_step if self.rule == "bb2" else min(self.short_steps)), True
+
+
+def _bb_steps(J, s: ControlPoint, y: ControlPoint, blockwise: bool, previous: tuple,
+              rules: tuple) -> tuple[tuple[float, float], bool]:
+    """Step sizes ``(alpha_xi, alpha_tau)`` from ``s = m_k - m_{k-1}``, ``y = G_k - G_{k-1}`` by the
+    `BBStepRule` pair ``rules`` (the first one alone for the joint step), and whether J is concave
+    along s (every used curvature ``<s, -y>`` positive).
 
     Where J is not concave along s the step is the scale-free ``|s| / |y|`` (then searched
     monotonically); a block that did not move (tau fixed, xi held by its bounds) keeps its
     ``previous`` step.
     """
-    def bb(ss, sy, yy, old):
-        if ss == 0.0:
-            return old, True
-        return (ss / -sy, True) if sy < 0 else (np.sqrt(ss / max(yy, 1e-300)), False)
-
     if not blockwise:
-        a, concave = bb(J.inner(s, s), J.inner(s, y), J.inner(y, y), previous[0])
+        a, concave = rules[0](J.inner(s, s), J.inner(s, y), J.inner(y, y), previous[0])
         return (a, a), concave
     sx, yx = ControlPoint(s.xi, 0.0), ControlPoint(y.xi, 0.0)
-    a_xi, c_xi = bb(J.inner(sx, sx), J.inner(sx, yx), J.inner(yx, yx), previous[0])
-    a_tau, c_tau = bb(s.tau**2, s.tau * y.tau, y.tau**2, previous[1])
+    a_xi, c_xi = rules[0](J.inner(sx, sx), J.inner(sx, yx), J.inner(yx, yx), previous[0])
+    a_tau, c_tau = rules[1](s.tau**2, s.tau * y.tau, y.tau**2, previous[1])
     return (a_xi, a_tau), c_xi and c_tau
 
 

@@ -6,7 +6,9 @@ import scipy.linalg
 
 from hyperoc import (BodyForce, ControlPoint, NeoHookean, Objective, ReducedFunctional, Region, SaintVenantKirchhoff,
                      SolverError, StateModel, TimeTransform, barzilai_borwein, interval, lbfgsb)
+from hyperoc.errors import InputError
 from hyperoc.objectives import ControlCost, PressureAt
+from hyperoc.optimize import BBStepRule
 from hyperoc.problems import vibrating_bar
 
 
@@ -16,7 +18,7 @@ def _J(tau=1.0, T=3.0, dt=0.05, n=20, alpha=2e-2, omega=(0.75, 1.0), material=Sa
     return ReducedFunctional(model, TimeTransform.for_step(T, dt, tau), Objective(running=(ControlCost(alpha),), at_tau=PressureAt()))
 
 
-@pytest.mark.parametrize("method", ["bb", "bb-blockwise", "lbfgsb"])
+@pytest.mark.parametrize("method", ["bb", "bb-abbmin", "bb-blockwise", "lbfgsb"])
 def test_optimizers_converge_on_a_well_posed_case(method, bar_reference):
     """`vibrating_bar` has an interior, nondegenerate maximizer. Every method must reach
     ||G|| <= 1e-6 ||G0|| with J increasing at the first step, and all must agree on the maximizer.
@@ -29,13 +31,38 @@ def test_optimizers_converge_on_a_well_posed_case(method, bar_reference):
         res = lbfgsb(J, J.zero(2.0), max_iter=100, gtol=1e-6)
     else:
         res = barzilai_borwein(J, J.zero(2.0), max_iter=300, gtol=1e-6,
-                               steps="blockwise" if method == "bb-blockwise" else "joint")
+                               steps="blockwise" if method == "bb-blockwise" else "joint",
+                               bb_step="abbmin" if method == "bb-abbmin" else "bb1")
     hist = res.history
     assert hist["objective"][1] > hist["objective"][0]
     assert res.converged and hist["grad_norm"][-1] <= 1e-6 * hist["grad_norm"][0]
     G0 = hist["grad_norm"][0]
     assert J.norm(res.point - ref.point) <= 1.1e-6 * G0 / lam
     assert abs(res.objective - ref.objective) <= 4 * (1e-6 * G0) ** 2 / lam
+
+
+def test_bb_step_rules_on_a_quadratic():
+    """For J = -1/2 m.A m (A SPD) the curvature along s is ``<s, -y> = s.A s``, so BB1 = ss / sAs and
+    BB2 = sAs / sAAs, both in [1/lambda_max, 1/lambda_min], BB2 <= BB1 (Cauchy-Schwarz), equal
+    when s is an eigenvector; ABBmin takes BB1 when BB2/BB1 >= 0.8, else the least recent BB2."""
+    A = np.diag([1.0, 10.0])
+    rules = {name: BBStepRule(name) for name in BBStepRule.RULES}
+    steps = []
+    for s in (np.array([1.0, 0.0]), np.array([1.0, 1.0]), np.array([0.0, 1.0])):
+        y = -A @ s
+        got = {name: rule(s @ s, s @ y, y @ y, 1.0) for name, rule in rules.items()}
+        assert all(concave for _, concave in got.values())
+        bb1, bb2 = got["bb1"][0], got["bb2"][0]
+        assert 1 / 10 - 1e-15 <= bb2 <= bb1 <= 1 + 1e-15
+        steps.append((bb1, bb2, got["abbmin"][0]))
+    assert steps[0][0] == steps[0][1] == steps[0][2] == 1.0  # eigenvector: BB1 = BB2, ratio 1
+    bb1, bb2, abb = steps[1]  # ratio 11**2 / (2 * 101) = 0.6 < 0.8: the least short step so far
+    assert bb2 / bb1 < 0.8 and abb == min(steps[0][1], bb2)
+    assert steps[2][2] == steps[2][0] == 0.1  # eigenvector again: the long step
+    nonconcave = BBStepRule("abbmin")(2.0, 1.0, 8.0, 1.0)
+    assert nonconcave == (0.5, False)  # |s| / |y|, flagged for a monotone search
+    with pytest.raises(InputError):
+        BBStepRule("bb3")
 
 
 @pytest.fixture(scope="module")
