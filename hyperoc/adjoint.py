@@ -271,7 +271,8 @@ class Adjoint:
             monitors.append(out[2:6])
             if n in levels:
                 held[n] = out[:2]
-        P, its, status, mindet = (np.asarray(jnp.stack(m)) for m in zip(*monitors))
+        P, its, status, mindet = (np.asarray(m) for m in zip(*jax.device_get(monitors)))  # on the host: a jnp.stack
+        # of N arrays would compile an N-operand concatenation for every N
         self.stepper._raise_on_failure(status, grid, its, mindet)
         return RevolveRecord(grid, xi, loads, V0, actions, start, {k: held[k] for k in stores}, held[N - 1],
                              out[0], P, {k: held[k] for k in keep})
@@ -299,8 +300,8 @@ class Adjoint:
                     step_in = (y0_next, rec.p_steps[n], y0, y1, *inputs(n), gP[n])
                     lam, outs[n] = self._reverse_step(lam, step_in, g_kept.get(n))
                     y0_next = y0
-        gxi0, gxi1, gdt = (jnp.stack([o[k] for o in outs]) for k in range(3))
-        return np.asarray(self._control_totals(rec.xi, gxi0, gxi1)), np.asarray(gdt)
+        gxi0, gxi1, gdt = (np.stack(o) for o in zip(*jax.device_get(outs)))
+        return np.asarray(self._control_totals(rec.xi, gxi0, gxi1)), gdt
 
     def _reverse_step(self, lam, inputs, g=None):
         """`step` (jitted) from the totals ``lam`` at level n+1; adds J's partials ``g = (dJ/dy0_n,
