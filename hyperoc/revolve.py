@@ -9,7 +9,7 @@ evaluations are the schedule's advances.
 
 With ``beta(s, r) = C(s + r, s)``, s snapshots and at most r evaluations of every step reverse at
 most ``beta(s, r)`` steps. For N steps let r be the repetition number, the least r with
-``beta(s, r) >= N``; the least number of advanced steps is (Griewank 1992, Prop. 1)
+``beta(s, r) >= N``; the least number of advanced steps is (Griewank 1992)
 
     t(N, s) = r N - beta(s + 1, r - 1)
 
