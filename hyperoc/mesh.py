@@ -1,7 +1,9 @@
 """Simplicial meshes with named boundaries and subdomains.
 
-A `Mesh` is geometry only (affine simplices): points, cells, and named sets of boundary facets
-and of cells. The names the solver looks for by default are
+A `Mesh` is geometry only: points, cells (straight-sided simplices), named sets of boundary facets
+and of cells, and optionally the exact positions of some edge midpoints (``curved_edges``,
+``curved_points``: e.g. midpoints of edges on a curved boundary moved onto the true surface), which
+the quadratic spaces of `hyperoc.spaces` use as isoparametric P2 geometry. The names the solver looks for by default are
 
 - ``"gamma_d"``: the Dirichlet boundary Gamma_D (``u = 0``), e.g. the outer wall;
 - ``"gamma_n"``: the free boundary Gamma_N (e.g. a cavity wall), where a traction ``g`` acts;
@@ -13,6 +15,7 @@ Structured generators for intervals, rectangles and boxes live here; Gmsh-based 
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 from dataclasses import dataclass, field
 
@@ -25,7 +28,7 @@ __all__ = ["Mesh", "interval", "rectangle", "box"]
 
 @dataclass(frozen=True, eq=False)
 class Mesh:
-    """Affine simplicial mesh.
+    """Simplicial mesh, straight-sided unless ``curved_edges`` is given.
 
     Attributes
     ----------
@@ -37,12 +40,23 @@ class Mesh:
         Named sets of boundary facets (vertex indices); points in 1D, edges in 2D, triangles in 3D.
     subdomains : dict[str, (nc,) bool]
         Named cell subsets (e.g. the control region ``"omega"``).
+    curved_edges : (ne, 2) int64
+        Edges (vertex pairs, stored sorted) whose midpoint node does not lie halfway between the
+        vertices; empty for a straight-sided mesh.
+    curved_points : (ne, dim) float64
+        Position of the P2 node of each curved edge (e.g. the straight midpoint moved onto the
+        exact boundary surface). Degree-2 spaces put their edge node there and map every cell
+        isoparametrically (``x(xi) = sum_a N_a(xi) X_a`` over the 6 / 10 P2 nodes); degree-1
+        spaces and the vertex-based methods below (`cell_volumes`, `volume`, `cell_jacobians`)
+        see the straight-sided cells.
     """
 
     points: np.ndarray
     cells: np.ndarray
     boundaries: dict = field(default_factory=dict)
     subdomains: dict = field(default_factory=dict)
+    curved_edges: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
+    curved_points: np.ndarray | None = None
 
     def __post_init__(self):
         pts = np.ascontiguousarray(self.points, dtype=np.float64)
@@ -64,6 +78,9 @@ class Mesh:
                 raise InputError(f"mesh: subdomain {name!r} has {mask.size} flags for {len(cells)} cells")
         object.__setattr__(self, "boundaries", bnd)
         object.__setattr__(self, "subdomains", sub)
+        edges, positions = _curved_edge_data(self.curved_edges, self.curved_points, len(pts), dim)
+        object.__setattr__(self, "curved_edges", edges)
+        object.__setattr__(self, "curved_points", positions)
 
     @property
     def dim(self) -> int:
@@ -73,13 +90,19 @@ class Mesh:
     def num_cells(self) -> int:
         return self.cells.shape[0]
 
+    @property
+    def is_curved(self) -> bool:
+        """True when some edge carries a P2 node off its straight midpoint (``curved_edges``)."""
+        return len(self.curved_edges) > 0
+
     def cell_jacobians(self) -> np.ndarray:
-        """Affine maps ``J[c] = [x_1 - x_0, ..., x_d - x_0]`` as (nc, dim, dim) arrays (columns = edges)."""
+        """Affine maps of the straight-sided cells ``J[c] = [x_1 - x_0, ..., x_d - x_0]`` as (nc, dim, dim) arrays (columns = edges)."""
         x = self.points[self.cells]
         return np.swapaxes(x[:, 1:, :] - x[:, :1, :], 1, 2)
 
     def cell_volumes(self) -> np.ndarray:
-        """Cell measures (length, area or volume), shape (nc,)."""
+        """Measures (length, area or volume) of the straight-sided cells, shape (nc,) (for a curved
+        mesh, the isoparametric measures are ``VectorSpace(mesh, 2).quadrature(k).wdx.sum(1)``)."""
         return np.abs(np.linalg.det(self.cell_jacobians())) / _factorial(self.dim)
 
     def volume(self) -> float:
@@ -105,17 +128,40 @@ class Mesh:
 
     def with_subdomain(self, name: str, mask) -> "Mesh":
         """A copy with one more named cell subset."""
-        return Mesh(self.points, self.cells, self.boundaries, {**self.subdomains, name: np.asarray(mask, bool)})
+        return dataclasses.replace(self, subdomains={**self.subdomains, name: np.asarray(mask, bool)})
 
     def with_boundary(self, name: str, facets) -> "Mesh":
         """A copy with one more named facet set."""
-        return Mesh(self.points, self.cells, {**self.boundaries, name: np.asarray(facets)}, self.subdomains)
+        return dataclasses.replace(self, boundaries={**self.boundaries, name: np.asarray(facets)})
+
+    def with_curved_edges(self, edges, positions) -> "Mesh":
+        """A copy whose P2 edge nodes of ``edges`` (ne, 2) sit at ``positions`` (ne, dim), replacing
+        any curved edges this mesh had."""
+        return dataclasses.replace(self, curved_edges=np.asarray(edges), curved_points=np.asarray(positions))
+
+    def faceted(self) -> "Mesh":
+        """The straight-sided copy (no curved edges): P2 edge nodes at the straight midpoints."""
+        return dataclasses.replace(self, curved_edges=np.zeros((0, 2), np.int64), curved_points=None)
 
     def h(self) -> float:
         """Largest edge length."""
         x = self.points[self.cells]
         pairs = itertools.combinations(range(self.dim + 1), 2)
         return float(max(np.linalg.norm(x[:, i] - x[:, j], axis=1).max() for i, j in pairs))
+
+
+def _curved_edge_data(edges, positions, num_points: int, dim: int) -> tuple[np.ndarray, np.ndarray]:
+    """Validated ``(edges (ne, 2) int64, sorted per row, positions (ne, dim) float64)``."""
+    edges = np.sort(np.asarray(edges, dtype=np.int64).reshape(-1, 2), axis=1)
+    positions = np.zeros((0, dim)) if positions is None else positions
+    positions = np.ascontiguousarray(positions, dtype=np.float64).reshape(-1, dim)
+    if len(positions) != len(edges):
+        raise InputError(f"mesh: {len(edges)} curved edges but {len(positions)} positions")
+    if edges.size and (edges.min() < 0 or edges.max() >= num_points or np.any(edges[:, 0] == edges[:, 1])):
+        raise InputError("mesh: a curved edge has a vertex index out of range or twice the same vertex")
+    if not np.all(np.isfinite(positions)):
+        raise InputError("mesh: curved edge positions must be finite")
+    return edges, positions
 
 
 def _factorial(d: int) -> int:

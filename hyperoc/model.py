@@ -24,8 +24,7 @@ from .assembly import SparsePattern, reduced_numbering
 from .errors import InputError
 from .materials import Material, det
 from .mesh import Mesh
-from .quadrature import simplex_rule
-from .spaces import VectorSpace, reference_shape
+from .spaces import VectorSpace
 
 __all__ = ["StateModel", "det"]
 
@@ -191,9 +190,7 @@ class StateModel:
     @cached_property
     def laplace_blocks(self) -> np.ndarray:
         """Element vector-Laplacian matrices (nc, k, k): ``int grad N_a . grad N_b delta_ij``."""
-        q = self.space.quadrature(max(0, 2 * self.space.degree - 2))
-        Ks = np.einsum("cq,cqaj,cqbj->cab", q.wdx, q.dN, q.dN)
-        return self._vectorize_blocks(Ks)
+        return self._vectorize_blocks(self.space.laplace_blocks())
 
     def _vectorize_blocks(self, scalar_blocks: np.ndarray) -> np.ndarray:
         d, k = self.dim, self.space.nloc
@@ -249,9 +246,9 @@ class StateModel:
             np.add.at(full, self.space.cell_dofs, contrib.reshape(len(contrib), -1))
         if traction is not None:
             facets = self.mesh.boundary(neumann or self.neumann)
-            x, w, N, meas = self._facet_quadrature(facets)
+            x, w, N, dS = self.space.facet_quadrature(facets, 2 * self.space.degree + 2)
             g = self._field_values(traction, x, t)
-            contrib = np.einsum("f,q,qa,fqi->fai", meas, w, N, g)
+            contrib = np.einsum("fq,q,qa,fqi->fai", dS, w, N, g)
             fdofs = self.space.node_dofs(self.space.facet_nodes(facets).ravel()).reshape(len(facets), -1)
             np.add.at(full, fdofs, contrib.reshape(len(facets), -1))
         return full[self.free]
@@ -260,19 +257,6 @@ class StateModel:
         if callable(fn):
             return np.broadcast_to(np.asarray(fn(x, t), dtype=np.float64), x.shape[:-1] + (self.dim,))
         return np.broadcast_to(np.asarray(fn, dtype=np.float64).reshape(self.dim), x.shape[:-1] + (self.dim,))
-
-    def _facet_quadrature(self, facets):
-        """Points (nf, nq, dim), weights (nq,), facet shape values (nq, nloc_f), measures (nf,)."""
-        fd = self.dim - 1
-        xv = self.mesh.points[facets]
-        if fd == 0:
-            return xv, np.ones(1), np.ones((1, 1)), np.ones(len(facets))
-        xi, w = simplex_rule(fd, 2 * self.space.degree + 2)
-        N, _ = reference_shape(fd, self.space.degree, xi)
-        J = np.swapaxes(xv[:, 1:] - xv[:, :1], 1, 2)  # (nf, dim, fd)
-        meas = np.sqrt(np.linalg.det(np.einsum("fji,fjk->fik", J, J)))
-        x = xv[:, :1, :] + np.einsum("fij,qj->fqi", J, xi)
-        return x, w, N, meas
 
     # --- fields ---------------------------------------------------------------------------------
     def expand(self, u) -> np.ndarray:

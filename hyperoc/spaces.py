@@ -1,10 +1,14 @@
 """Lagrange P1/P2 spaces on simplices and their quadrature data.
 
-Nodes are the mesh vertices followed (P2) by edge midpoints. A vector field with ``dim``
+Nodes are the mesh vertices followed (P2) by one node per edge: its midpoint, or on a curved
+mesh (`hyperoc.mesh.Mesh.curved_edges`) the position the mesh gives it. A vector field with ``dim``
 components is stored node-major: dof ``a * dim + i`` is component ``i`` at node ``a``.
 
 `CellQuadrature` holds what every kernel needs: reference shape values, physical gradients
-``dN/dX`` and the weights ``w_q |det J_c|`` for one quadrature rule.
+``dN/dX`` and the weights ``w_q |det J|`` for one quadrature rule. Straight-sided cells have the
+constant Jacobian of their affine map; a P2 space on a curved mesh is isoparametric: each cell is
+the image of the reference simplex under ``x(xi) = sum_a N_a(xi) X_a`` (P2 shape functions N_a,
+nodes X_a), with the Jacobian ``J_q = sum_a X_a (x) dN_a/dxi (xi_q)`` at every quadrature point.
 """
 
 from __future__ import annotations
@@ -53,6 +57,16 @@ def reference_shape(dim: int, degree: int, xi: np.ndarray) -> tuple[np.ndarray, 
     return np.stack(vals, axis=1), np.stack(grads, axis=1)
 
 
+def _edge_rows(edges: np.ndarray, wanted: np.ndarray, num_points: int) -> np.ndarray:
+    """Rows of the sorted unique edges (ne, 2) that equal the sorted pairs ``wanted`` (m, 2), (m,);
+    `InputError` if a wanted pair is not an edge of the mesh cells."""
+    key = lambda e: e[:, 0] * num_points + e[:, 1]
+    rows = np.searchsorted(key(edges), key(wanted))
+    if wanted.size and (rows.max() >= len(edges) or np.any(key(edges[rows]) != key(wanted))):
+        raise InputError("some vertex pairs (e.g. curved edges of the mesh) are not edges of the mesh cells")
+    return rows
+
+
 @dataclass(frozen=True, eq=False)
 class CellQuadrature:
     """Quadrature data on every cell for one rule.
@@ -72,13 +86,18 @@ class CellQuadrature:
 
 
 class VectorSpace:
-    """Continuous vector-valued Lagrange space of degree 1 or 2 on an affine simplicial mesh.
+    """Continuous vector-valued Lagrange space of degree 1 or 2 on a simplicial mesh: affine cells,
+    or for degree 2 on a curved mesh isoparametric P2 cells (``isoparametric``).
 
     Parameters
     ----------
     mesh : Mesh
     degree : 1 or 2
     components : number of field components (default: the mesh dimension; 1 for scalar fields)
+
+    Attributes: ``nodes`` (num_nodes, dim) node coordinates (P2 edge nodes at the mesh's curved
+    positions where it has them); ``cell_nodes`` (nc, nloc); ``edges`` (ne, 2) the sorted vertex
+    pairs of the P2 edge nodes, node ``nv + k`` on edge k (nv vertices; empty for P1).
     """
 
     def __init__(self, mesh: Mesh, degree: int = 1, components: int | None = None):
@@ -87,19 +106,24 @@ class VectorSpace:
         self.mesh, self.degree = mesh, degree
         self.dim = mesh.dim
         self.components = self.dim if components is None else int(components)
-        self.nodes, self.cell_nodes, self._edge_index = self._build_nodes()
+        self.nodes, self.cell_nodes, self.edges = self._build_nodes()
+
+    @property
+    def isoparametric(self) -> bool:
+        """True for a P2 space on a curved mesh: cells mapped by their P2 nodes, not affinely."""
+        return self.degree == 2 and self.mesh.is_curved
 
     def _build_nodes(self):
         mesh = self.mesh
         if self.degree == 1:
-            return mesh.points, mesh.cells, {}
+            return mesh.points, mesh.cells, np.zeros((0, 2), np.int64)
         pairs = np.concatenate([np.sort(mesh.cells[:, [i, j]], axis=1) for i, j in _local_edges(self.dim)])
         edges, inverse = np.unique(pairs, axis=0, return_inverse=True)
         nv = mesh.points.shape[0]
         mid = 0.5 * (mesh.points[edges[:, 0]] + mesh.points[edges[:, 1]])
+        mid[_edge_rows(edges, mesh.curved_edges, nv)] = mesh.curved_points
         edge_nodes = nv + inverse.reshape(len(_local_edges(self.dim)), -1).T
-        index = {(int(a), int(b)): nv + k for k, (a, b) in enumerate(edges)}
-        return np.concatenate([mesh.points, mid]), np.concatenate([mesh.cells, edge_nodes], axis=1), index
+        return np.concatenate([mesh.points, mid]), np.concatenate([mesh.cells, edge_nodes], axis=1), edges
 
     # --- sizes and dof maps -------------------------------------------------------------------
     @property
@@ -124,13 +148,21 @@ class VectorSpace:
         """All component dofs of the given nodes, flattened."""
         return (np.asarray(nodes)[:, None] * self.components + np.arange(self.components)).ravel()
 
+    def edge_nodes(self, pairs) -> np.ndarray:
+        """P2 nodes of the edges given as vertex pairs (..., 2) (either order), shape (...);
+        `InputError` if a pair is not an edge of the mesh."""
+        pairs = np.sort(np.asarray(pairs, dtype=np.int64), axis=-1)
+        nv = self.mesh.points.shape[0]
+        return nv + _edge_rows(self.edges, pairs.reshape(-1, 2), nv).reshape(pairs.shape[:-1])
+
     def facet_nodes(self, facets: np.ndarray) -> np.ndarray:
-        """(nf, nloc_facet) nodes on each facet: its vertices then (P2) its edge midpoints."""
+        """(nf, nloc_facet) nodes on each facet: its vertices then (P2) its edge nodes, in the order of
+        ``itertools.combinations`` of the facet's vertices."""
         facets = np.asarray(facets, dtype=np.int64)
         if self.degree == 1 or facets.shape[1] == 1:
             return facets
-        mids = [[self._edge_index[tuple(sorted((int(f[i]), int(f[j]))))] for i, j in _local_edges(facets.shape[1] - 1)] for f in facets]
-        return np.concatenate([facets, np.array(mids, dtype=np.int64).reshape(len(facets), -1)], axis=1)
+        pairs = np.stack([facets[:, [i, j]] for i, j in _local_edges(facets.shape[1] - 1)], axis=1)
+        return np.concatenate([facets, self.edge_nodes(pairs).reshape(len(facets), -1)], axis=1)
 
     def boundary_nodes(self, name: str) -> np.ndarray:
         return np.unique(self.facet_nodes(self.mesh.boundary(name)))
@@ -141,9 +173,12 @@ class VectorSpace:
 
     # --- quadrature ---------------------------------------------------------------------------
     def quadrature(self, degree: int) -> CellQuadrature:
-        """Shape values, physical gradients and weights for a rule exact to ``degree``."""
+        """Shape values, physical gradients and weights for a rule exact to ``degree`` (on affine
+        cells; isoparametric cells have rational integrands, integrated approximately)."""
         xi, w = simplex_rule(self.dim, degree)
         N, dN_ref = reference_shape(self.dim, self.degree, xi)
+        if self.isoparametric:
+            return self._isoparametric_quadrature(xi, w, N, dN_ref)
         J = self.mesh.cell_jacobians()
         Jinv = np.linalg.inv(J)
         dN = np.einsum("qaj,cjk->cqak", dN_ref, Jinv)
@@ -151,6 +186,50 @@ class VectorSpace:
         x0 = self.mesh.points[self.mesh.cells[:, 0]]
         x = x0[:, None, :] + np.einsum("cij,qj->cqi", J, xi)
         return CellQuadrature(N=N, dN=dN, wdx=detJ[:, None] * w[None, :], x=x)
+
+    def _isoparametric_quadrature(self, xi, w, N, dN_ref) -> CellQuadrature:
+        """P2 geometry: ``x_q = sum_a N_a(xi_q) X_a``, ``J_q = sum_a X_a (x) dN_a/dxi (xi_q)`` (nc, nq,
+        dim, dim), ``dN/dX = dN/dxi J_q^-1``, ``wdx = w_q det J_q``; `InputError` if some ``det J_q <= 0``
+        (a curved cell folded over itself: refine the mesh near the curved boundary)."""
+        X = self.nodes[self.cell_nodes]  # (nc, nloc, dim)
+        J = np.einsum("cai,qaj->cqij", X, dN_ref)
+        detJ = np.linalg.det(J)
+        if np.any(detJ <= 0):
+            bad = int(np.sum(np.any(detJ <= 0, axis=1)))
+            raise InputError(f"curved P2 mesh: {bad} cell(s) with det J <= 0 at a quadrature point (cells folded "
+                             "by the curved edge nodes; refine near the curved boundary or use Mesh.faceted())")
+        dN = np.einsum("qaj,cqjk->cqak", dN_ref, np.linalg.inv(J))
+        x = np.einsum("qa,cai->cqi", N, X)
+        return CellQuadrature(N=N, dN=dN, wdx=detJ * w[None, :], x=x)
+
+    def facet_quadrature(self, facets: np.ndarray, degree: int):
+        """Quadrature on boundary facets (nf, dim) (vertex indices) for a rule exact to ``degree``
+        on straight facets: points x (nf, nq, dim), reference weights w (nq,), facet shape values
+        N (nq, m) (P1/P2 trace, nodes ordered as `facet_nodes`), and area elements dS (nf, nq)
+        (``int_facet g dS = sum_q w_q dS_q g(x_q)``). Isoparametric spaces use the facet's P2 map:
+        ``x = sum_a N_a X_a``, ``dS = sqrt(det(T^T T))`` with the tangents ``T = sum_a X_a (x) dN_a/dxi``;
+        in 1D the facets are points (w = N = dS = 1)."""
+        facets = np.asarray(facets, dtype=np.int64)
+        fd = self.dim - 1
+        if fd == 0:
+            return self.mesh.points[facets], np.ones(1), np.ones((1, 1)), np.ones((len(facets), 1))
+        xi, w = simplex_rule(fd, degree)
+        N, dN_ref = reference_shape(fd, self.degree, xi)
+        if self.isoparametric:
+            X = self.nodes[self.facet_nodes(facets)]  # (nf, m, dim)
+            T = np.einsum("fai,qaj->fqij", X, dN_ref)
+            x = np.einsum("qa,fai->fqi", N, X)
+        else:
+            xv = self.mesh.points[facets]
+            T = np.broadcast_to(np.swapaxes(xv[:, 1:] - xv[:, :1], 1, 2)[:, None], (len(facets), len(w), self.dim, fd))
+            x = xv[:, :1, :] + np.einsum("fij,qj->fqi", T[:, 0], xi)
+        return x, w, N, np.sqrt(np.linalg.det(np.einsum("fqji,fqjk->fqik", T, T)))
+
+    def laplace_blocks(self) -> np.ndarray:
+        """Scalar stiffness matrices ``int grad N_a . grad N_b dX`` (nc, nloc, nloc), rule of degree
+        ``2 (degree - 1)`` (exact on affine cells)."""
+        q = self.quadrature(2 * self.degree - 2)
+        return np.einsum("cq,cqaj,cqbj->cab", q.wdx, q.dN, q.dN)
 
     @cached_property
     def default_degree(self) -> int:
