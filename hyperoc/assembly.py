@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 
-__all__ = ["SparsePattern", "reduced_numbering"]
+__all__ = ["SparsePattern", "reduced_numbering", "solve_dirichlet"]
 
 
 def reduced_numbering(num_dofs: int, constrained: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -61,3 +62,26 @@ class SparsePattern:
         if data is None:
             data = self.data(element_matrices)
         return sp.csr_matrix((data, self.indices, self.indptr), shape=(self.size, self.size))
+
+
+def solve_dirichlet(element_matrices: np.ndarray, element_dofs: np.ndarray, num_dofs: int, fixed: np.ndarray,
+                    values: np.ndarray) -> np.ndarray:
+    """Solution x of ``K x = 0`` on the dofs not in ``fixed``, with ``x[fixed] = values``.
+
+    K is assembled from ``element_matrices`` (nc, k, k) on ``element_dofs`` (nc, k) (full numbering,
+    num_dofs dofs); ``values`` is (m,) or (m, r) for m fixed dofs (r right-hand sides, one sparse
+    LU). Solves ``K_ff x_f = -K_fD x_D``; returns x, (num_dofs,) or (num_dofs, r).
+    """
+    values = np.asarray(values, dtype=np.float64)
+    x = np.zeros((num_dofs,) + values.shape[1:])
+    x[fixed] = values
+    free, to_reduced = reduced_numbering(num_dofs, fixed)
+    if free.size == 0:
+        return x
+    red = to_reduced[element_dofs]
+    lift = -np.einsum("cab,cb...->ca...", element_matrices, x[element_dofs])  # -K_fD x_D, element by element
+    rhs = np.zeros((free.size,) + values.shape[1:])
+    np.add.at(rhs, red[red >= 0], lift[red >= 0])
+    K = SparsePattern(red, free.size).matrix(element_matrices)
+    x[free] = spla.splu(K.tocsc()).solve(rhs)
+    return x

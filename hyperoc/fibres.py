@@ -28,9 +28,8 @@ from pathlib import Path
 
 import meshio
 import numpy as np
-import scipy.sparse.linalg as spla
 
-from .assembly import SparsePattern, reduced_numbering
+from .assembly import solve_dirichlet
 from .errors import InputError
 from .io import atomic_write_bytes
 from .mesh import Mesh
@@ -42,8 +41,8 @@ __all__ = ["FibreFrames", "transmural_coordinate", "rule_based_fibres", "write_f
 def _p1_stiffness_blocks(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
     """P1 element stiffness matrices ``K_ab = int grad N_a . grad N_b`` (nc, dim+1, dim+1) and the
     constant shape gradients dN/dX (nc, dim+1, dim)."""
-    q = VectorSpace(mesh, 1, components=1).quadrature(0)
-    return np.einsum("cq,cqaj,cqbj->cab", q.wdx, q.dN, q.dN), q.dN[:, 0]
+    space = VectorSpace(mesh, 1, components=1)
+    return space.laplace_blocks(), space.quadrature(0).dN[:, 0]
 
 
 def transmural_coordinate(mesh: Mesh, inner: str = "endocardium", outer: str = "epicardium") -> np.ndarray:
@@ -55,20 +54,10 @@ def transmural_coordinate(mesh: Mesh, inner: str = "endocardium", outer: str = "
     lo, hi = mesh.boundary_vertices(inner), mesh.boundary_vertices(outer)
     if np.intersect1d(lo, hi).size:
         raise InputError(f"transmural_coordinate: boundaries {inner!r} and {outer!r} share vertices")
-    nv = mesh.points.shape[0]
-    d = np.zeros(nv)
-    d[hi] = 1.0
-    free, to_reduced = reduced_numbering(nv, np.concatenate([lo, hi]))
-    if free.size == 0:
-        return d
+    fixed = np.concatenate([lo, hi])
+    values = np.concatenate([np.zeros(lo.size), np.ones(hi.size)])
     Ke, _ = _p1_stiffness_blocks(mesh)
-    cell_dofs = to_reduced[mesh.cells]
-    # Lift the Dirichlet values: rhs = -K_fD d_D, element by element, into the free rows.
-    lift = -np.einsum("cab,cb->ca", Ke, d[mesh.cells])
-    rhs = np.bincount(cell_dofs[cell_dofs >= 0], weights=lift[cell_dofs >= 0], minlength=free.size)
-    K = SparsePattern(cell_dofs, free.size).matrix(Ke)
-    d[free] = spla.spsolve(K.tocsc(), rhs)
-    return d
+    return solve_dirichlet(Ke, mesh.cells, mesh.points.shape[0], fixed, values)
 
 
 def _transmural_directions(mesh: Mesh, d: np.ndarray, dN: np.ndarray) -> np.ndarray:
