@@ -108,34 +108,26 @@ def _split(length: int, snapshots: int) -> int:
     return lo
 
 
-def _reverse_from(a: int, b: int, snapshots: int, out: list) -> None:
-    """Actions reversing the steps ``a .. b - 1`` from the current state at level a with ``snapshots``
-    snapshots free: stores level a (unless a single step follows: it is reversed at once), `_reverse`,
-    frees it."""
-    if b - a == 1:
-        out.append(Reverse(a))
-        return
-    out.append(Store(a))
-    _reverse(a, b, snapshots, out)
-    out.append(Free(a))
+def _reverse_from(a: int, b: int, snapshots: int) -> list:
+    """Reversing the steps ``a .. b - 1`` from the current state at level a with ``snapshots`` snapshots
+    free: store level a, `_reverse`, free it (a single step is reversed at once, without a snapshot).
+    Returns what to do, in order: actions and ``(a, b, snapshots)`` subproblems for `_reverse`."""
+    return [Reverse(a)] if b - a == 1 else [Store(a), (a, b, snapshots), Free(a)]
 
 
-def _reverse(a: int, b: int, snapshots: int, out: list) -> None:
-    """Actions reversing the steps ``a .. b - 1``, given the current state and a snapshot at level a
-    and ``snapshots`` snapshots in all (that one included); ends with the current state at level a."""
+def _reverse(a: int, b: int, snapshots: int) -> list:
+    """Reversing the steps ``a .. b - 1``, given the current state and a snapshot at level a and
+    ``snapshots`` snapshots in all (that one included); ends with the current state at level a.
+    Returns what to do, in order (as `_reverse_from`)."""
     if snapshots == 1 or b - a == 1:
+        out = []
         for n in reversed(range(a, b)):
-            if n < b - 1:
-                out.append(Restore(a))
-            if n > a:
-                out.append(Advance(a, n))
+            out += [Restore(a)] if n < b - 1 else []
+            out += [Advance(a, n)] if n > a else []
             out.append(Reverse(n))
-        return
+        return out
     m = a + _split(b - a, snapshots)
-    out.append(Advance(a, m))
-    _reverse_from(m, b, snapshots - 1, out)
-    out.append(Restore(a))
-    _reverse(a, m, snapshots, out)
+    return [Advance(a, m), *_reverse_from(m, b, snapshots - 1), Restore(a), (a, m, snapshots)]
 
 
 def schedule(steps: int, snapshots: int) -> tuple:
@@ -147,6 +139,11 @@ def schedule(steps: int, snapshots: int) -> tuple:
     first `Reverse` are the forward pass: stores and advances from level 0 to N - 1.
     """
     _check(steps, snapshots)
-    out = []
-    _reverse_from(0, steps, snapshots, out)
+    out, todo = [], _reverse_from(0, steps, snapshots)[::-1]  # a stack: the recursion is as deep as s
+    while todo:
+        item = todo.pop()
+        if isinstance(item, tuple):
+            todo += _reverse(*item)[::-1]
+        else:
+            out.append(item)
     return tuple(out)

@@ -78,6 +78,12 @@ def test_schedule_reverses_every_step_once_with_the_fewest_advances(s):
     assert minimal_advances(60, 1) == 60 * 59 // 2 and minimal_advances(60, 59) == 59
 
 
+def test_more_snapshots_than_steps():
+    """s >= N - 1 stores every level (N - 1 advances); the schedule is built without deep recursion."""
+    reversed_steps, advanced, most, _ = _run_abstract(2000, 3000)
+    assert reversed_steps == list(reversed(range(2000))) and most == 1999 and sum(advanced.values()) == 1999
+
+
 @cache
 def _optimum(L: int, s: int) -> int:
     """Least advances of the split recursion (advance j, reverse the right part with s - 1
