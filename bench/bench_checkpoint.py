@@ -1,14 +1,22 @@
-"""One gradient evaluation with and without a checkpointed adjoint: seconds and peak memory.
+"""One gradient evaluation with and without a checkpointed adjoint: seconds, peak memory, step evaluations.
+
+Variants: store everything (None), every k-th level state (an int k, ``checkpoint_every = k``), the
+binomial (revolve) schedule with s snapshots (``"s<s>"``, ``checkpoint_snapshots = s``).
 
 Each variant runs in a fresh subprocess (JAX buffers are invisible to tracemalloc), which reports
 the process's peak resident set (``ru_maxrss``) at the end, the seconds of a first gradient
 (JIT compilation included) and the best of three more at other points (compiled), and the bytes of the
 level states held between the forward and the adjoint sweep, from their shapes:
 ``2 (N+1) n 8`` bytes when every level is stored, ``2 (ceil(N/k) + len(kept)) n 8`` with
-``checkpoint_every = k`` (plus one segment of ``2 (k+1) n 8`` bytes during the backward sweep).
+``checkpoint_every = k`` (plus one segment of ``2 (k+1) n 8`` bytes during the backward sweep),
+``2 (s' + len(kept) + 2) n 8`` with s snapshots (s' <= s stored by the forward pass; the backward
+pass never holds more than s, plus the current state and y0 of the level above), and the forward
+step evaluations of a gradient: N, 2 N (each segment recomputed once), ``t(N, s) + 1``
+(`hyperoc.revolve.minimal_advances`; `tests/test_revolve.py` counts them).
 Ratios are against the store-everything run of the same case, in this same script. On a shared
 machine the load drifts between processes, so the time ratios are also measured in one process
-alternating the variants (same compiled code, ``J.checkpoint_every`` switched; best of three rounds).
+alternating the variants (same compiled code, ``J.checkpoint_every`` / ``J.checkpoint_snapshots``
+switched; best of three rounds).
 
 Cases:
   1d  the paper's 1D experiment (SVK, P1, h = 0.01, kappa 2e-4, body force on [0.75, 1], phi1 =
@@ -24,6 +32,7 @@ Cases:
 
     nice -n 10 python bench/bench_checkpoint.py            # all cases (~ minutes on 2 shared cores)
     python bench/bench_checkpoint.py --cases 1d            # one case
+    python bench/bench_checkpoint.py --cases 1d --n1d 1000 --variants 55 s10 s20   # some variants (+ baseline)
 """
 
 from __future__ import annotations
@@ -38,8 +47,8 @@ import time
 
 import numpy as np
 
-CK_1D = (None, 10, 55, 300, 3000)  # k = 1: see the notes (per-segment overhead)
-CK_LV = (None, 4)  # 4 = sqrt(16 steps)
+CK_1D = (None, 10, 55, 300, 3000, "s10", "s20")  # k = 1: see the notes (per-segment overhead)
+CK_LV = (None, 4, "s4")  # 4 = sqrt(16 steps)
 LV_H = (4.0, 3.0, 2.5)
 LV_STEPS = dict(T=8.0, dt=0.5, tau=4.0, eps=1.0)
 
@@ -73,12 +82,33 @@ def build_lv(h: float):
     return model, transform, objective, "lu", s["tau"], shape
 
 
-def child(case: str, size: float, k: int | None) -> dict:
+def checkpointing(k) -> dict:
+    """ReducedFunctional keywords of a variant: None, an int k (every k-th level) or "s<s>" (s snapshots)."""
+    snapshots = isinstance(k, str)
+    return {"checkpoint_every": None if snapshots else k, "checkpoint_snapshots": int(k[1:]) if snapshots else None}
+
+
+def parse_variant(text: str):
+    """The variant of a command-line word: "none" -> None, "10" -> 10, "s10" -> "s10"."""
+    return None if text == "none" else text if text.startswith("s") else int(text)
+
+
+def step_evaluations(k, N: int) -> int:
+    """Forward step evaluations of one gradient (the forward pass included): N, 2 N, ``t(N, s) + 1``."""
+    from hyperoc.revolve import minimal_advances
+
+    kw = checkpointing(k)
+    if kw["checkpoint_snapshots"]:
+        return minimal_advances(N, kw["checkpoint_snapshots"]) + 1
+    return N if k is None else 2 * N
+
+
+def child(case: str, size: float, k) -> dict:
     """Build the case, four gradients (compile + run, then best of three runs), report; runs in its own process."""
     import hyperoc as ho
 
     model, transform, objective, solver, tau, shape = build_1d(int(size)) if case == "1d" else build_lv(size)
-    J = ho.ReducedFunctional(model, transform, objective, solver=solver, checkpoint_every=k)
+    J = ho.ReducedFunctional(model, transform, objective, solver=solver, **checkpointing(k))
     xi = shape * np.ones((1, model.control.size))
     times = []
     for scale in (1.0, 1.01, 1.02, 1.03):  # a new point each time: the state cache is not hit
@@ -87,8 +117,9 @@ def child(case: str, size: float, k: int | None) -> dict:
         times.append(time.perf_counter() - t0)
     N, n = J.N, model.n
     stored = N + 1 if k is None else J.record(ho.ControlPoint(1.03 * xi, tau)).stored_states
+    segment = 2 * (min(J.checkpoint_every, N) + 1) * n * 8 if J.checkpoint_every else 0
     return {"case": case, "size": size, "k": k, "dofs": n, "steps": N, "first_s": times[0], "gradient_s": min(times[1:]),
-            "stored_bytes": 2 * stored * n * 8, "segment_bytes": 0 if k is None else 2 * (min(k, N) + 1) * n * 8,
+            "stored_bytes": 2 * stored * n * 8, "segment_bytes": segment, "step_evaluations": step_evaluations(k, N),
             "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
 
 
@@ -107,7 +138,9 @@ def interleaved_child(case: str, size: float, ks: list) -> dict:
     best = {str(k): math.inf for k in variants}
     for r in range(4):  # round 0 compiles
         for i, k in enumerate(variants):
-            J.checkpoint_every = k
+            J.checkpoint_every = J.checkpoint_snapshots = None
+            for name, value in checkpointing(k).items():
+                setattr(J, name, value)
             m = ho.ControlPoint((1 + 1e-3 * (r * len(variants) + i)) * xi, tau)  # new point: no cache hit
             t0 = time.perf_counter()
             J.value_and_gradient(m)
@@ -137,7 +170,7 @@ def sizes_child(hs: list) -> dict:
 
 def run(case: str, size: float, k: int | str | None) -> dict:
     """One variant in a fresh process (each (case, size, k) once per script run); k may also be
-    ``"interleaved:k1,k2,..."`` (`interleaved_child`)."""
+    ``"interleaved:k1,s2,..."`` (`interleaved_child`)."""
     key = (case, float(size), k)
     if key not in _DONE:
         cmd = [sys.executable, __file__, "--child", case, str(size), "none" if k is None else str(k)]
@@ -150,14 +183,17 @@ def run(case: str, size: float, k: int | str | None) -> dict:
 
 def table(rows: list, base: dict, inter: dict) -> str:
     """Markdown rows; ``inter``: best seconds per k (str) from `interleaved_child`."""
-    head = ("| k | dofs | steps | stored states (MB) | + segment (MB) | peak RSS (MB) | RSS / baseline | gradient (s) | "
-            "time / baseline | interleaved: s, / baseline | first incl. JIT (s) |\n|---|---|---|---|---|---|---|---|---|---|---|")
+    head = ("| variant | dofs | steps | stored states (MB) | + segment (MB) | peak RSS (MB) | RSS / baseline | "
+            "step evaluations, / baseline | gradient (s) | time / baseline | interleaved: s, / baseline | "
+            "first incl. JIT (s) |\n|---|---|---|---|---|---|---|---|---|---|---|---|")
     lines = [head]
     for r in rows:
-        k = "all (None)" if r["k"] is None else str(r["k"])
-        t = inter[str(r["k"])]
-        lines.append(f"| {k} | {r['dofs']} | {r['steps']} | {r['stored_bytes'] / 1e6:.2f} | {r['segment_bytes'] / 1e6:.2f} | "
-                     f"{r['peak_rss_mb']:.0f} | {r['peak_rss_mb'] / base['peak_rss_mb']:.3f} | {r['gradient_s']:.3f} | "
+        k = r["k"]
+        name = "all (None)" if k is None else f"revolve s = {k[1:]}" if isinstance(k, str) else f"every k = {k}"
+        t = inter[str(k)]
+        lines.append(f"| {name} | {r['dofs']} | {r['steps']} | {r['stored_bytes'] / 1e6:.2f} | {r['segment_bytes'] / 1e6:.2f} | "
+                     f"{r['peak_rss_mb']:.0f} | {r['peak_rss_mb'] / base['peak_rss_mb']:.3f} | "
+                     f"{r['step_evaluations']}, {r['step_evaluations'] / base['step_evaluations']:.2f} | {r['gradient_s']:.3f} | "
                      f"{r['gradient_s'] / base['gradient_s']:.2f} | {t:.3f}, {t / inter['None']:.2f} | {r['first_s']:.1f} |")
     return "\n".join(lines)
 
@@ -171,6 +207,8 @@ def main():
     ap.add_argument("--cases", nargs="+", default=["1d", "lv", "lv-sizes"], choices=["1d", "lv", "lv-sizes"])
     ap.add_argument("--n1d", type=int, nargs="+", default=[100], help="1D element counts (100 = the paper's h)")
     ap.add_argument("--lv-h", type=float, default=3.0, help="LV mesh size (mm) for the checkpoint comparison")
+    ap.add_argument("--variants", nargs="+", type=parse_variant,
+                    help="only these variants (k, or s<s> for revolve) besides the baseline; default all")
     ap.add_argument("--json", help="write all rows to this file")
     ap.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -179,22 +217,25 @@ def main():
         if case == "lv-sizes":
             print(json.dumps(sizes_child([float(v) for v in k.split(",")])))
         elif k.startswith("interleaved:"):
-            print(json.dumps(interleaved_child(case, float(size), [int(v) for v in k.split(":")[1].split(",")])))
+            print(json.dumps(interleaved_child(case, float(size), [parse_variant(v) for v in k.split(":")[1].split(",")])))
         else:
-            print(json.dumps(child(case, float(size), None if k == "none" else int(k))))
+            print(json.dumps(child(case, float(size), parse_variant(k))))
         return
+    chosen = lambda variants: [k for k in variants if k is None or args.variants is None or k in args.variants]
     rows = []
     for case in args.cases:
         if case == "1d":
             for n in args.n1d:
-                rs = [run("1d", n, k) for k in CK_1D]
-                inter = interleaved("1d", n, CK_1D[1:])
+                ks = chosen(CK_1D)
+                rs = [run("1d", n, k) for k in ks]
+                inter = interleaved("1d", n, ks[1:])
                 rows += rs + [{"case": "1d", "size": n, "interleaved": inter}]
                 print(f"\n### 1D, n = {n} elements (T = 15, dt = 0.005), sqrt(N) = {math.sqrt(rs[0]['steps']):.0f}\n")
                 print(table(rs, rs[0], inter), flush=True)
         elif case == "lv":
-            rs = [run("lv", args.lv_h, k) for k in CK_LV]
-            inter = interleaved("lv", args.lv_h, CK_LV[1:])
+            ks = chosen(CK_LV)
+            rs = [run("lv", args.lv_h, k) for k in ks]
+            inter = interleaved("lv", args.lv_h, ks[1:])
             rows += rs + [{"case": "lv", "size": args.lv_h, "interleaved": inter}]
             print(f"\n### LV, h = {args.lv_h} mm\n")
             print(table(rs, rs[0], inter), flush=True)
