@@ -1,11 +1,20 @@
 """Curved geometries and mesh files.
 
-Generators (all meshes affine, boundaries tagged after meshing by the nearest analytic surface):
+Generators (boundaries tagged after meshing by the nearest analytic surface):
 
 - `annulus`: 2D ring, structured polar grid or Gmsh;
 - `thick_shell`: 3D spherical shell (Gmsh OCC);
 - `ventricle`: idealized left ventricle of the Land et al. (2015) cardiac mechanics benchmark
   (truncated prolate ellipsoidal shell, Gmsh OCC).
+
+Their vertices lie on the exact surfaces. With ``curved=True`` (default) the mesh also carries, for
+every edge of a facet on a curved surface, the point of that surface near the edge midpoint
+(`hyperoc.mesh.Mesh.curved_edges`): P2 spaces then map those cells isoparametrically and see the
+boundary to O(h^3) (areas and volumes to O(h^4)) instead of the O(h^2) of the flat facets; P1
+spaces see the straight-sided cells either way. ``curved=False`` keeps the straight-sided mesh.
+The midpoint ``m`` is moved along the surface normal direction at ``m`` to the surface (one root
+of a quadratic for these quadrics); an edge that also lies in a flat boundary (the ventricle's
+rim, on the base plane) moves within that plane, so flat boundaries stay flat.
 
 File I/O: `from_file` reads any meshio-readable mesh (named Gmsh physical groups and meshio cell
 sets become named boundaries and subdomains); `to_file` writes a mesh so that `from_file` gets
@@ -28,7 +37,9 @@ import meshio
 import numpy as np
 
 from .errors import InputError
+from .assembly import solve_dirichlet
 from .mesh import Mesh
+from .spaces import VectorSpace
 
 __all__ = ["annulus", "thick_shell", "ventricle", "from_file", "to_file"]
 
@@ -54,6 +65,7 @@ def annulus(
     structured: bool = False,
     n_radial: int | None = None,
     n_theta: int | None = None,
+    curved: bool = True,
 ) -> Mesh:
     """Triangulated annulus ``r_inner < |x| < r_outer`` centred at the origin.
 
@@ -71,6 +83,8 @@ def annulus(
         the disk minus the disk with size ``h``.
     n_radial, n_theta : int, optional
         Number of cells across the ring and around it (structured grid only).
+    curved : bool
+        Carry the P2 node positions of the boundary edges on the circles (module docstring).
 
     Returns
     -------
@@ -87,10 +101,10 @@ def annulus(
     else:
         _require(n_radial is None and n_theta is None, "annulus: n_radial/n_theta need structured=True")
         mesh = _gmsh_annulus(r_inner, r_outer, h)
-    return _tag_boundary(mesh, _concentric_spheres(r_inner, r_outer), dirichlet="outer", neumann="inner")
+    return _curved_shell(mesh, r_inner, r_outer, curved)
 
 
-def thick_shell(r_inner: float = 0.5, r_outer: float = 1.0, h: float = 0.2) -> Mesh:
+def thick_shell(r_inner: float = 0.5, r_outer: float = 1.0, h: float = 0.2, *, curved: bool = True) -> Mesh:
     """Tetrahedral mesh of the spherical shell ``r_inner < |x| < r_outer`` (Gmsh OCC).
 
     Parameters
@@ -99,6 +113,8 @@ def thick_shell(r_inner: float = 0.5, r_outer: float = 1.0, h: float = 0.2) -> M
         Radii of the cavity and outer spheres, in model length units.
     h : float
         Target edge length (same units).
+    curved : bool
+        Carry the P2 node positions of the boundary edges on the spheres (module docstring).
 
     Returns
     -------
@@ -113,7 +129,7 @@ def thick_shell(r_inner: float = 0.5, r_outer: float = 1.0, h: float = 0.2) -> M
         occ.cut([(3, occ.addSphere(0, 0, 0, r_outer))], [(3, occ.addSphere(0, 0, 0, r_inner))])
         occ.synchronize()
         mesh = _gmsh_generate(gmsh, 3, h)
-    return _tag_boundary(mesh, _concentric_spheres(r_inner, r_outer), dirichlet="outer", neumann="inner")
+    return _curved_shell(mesh, r_inner, r_outer, curved)
 
 
 def ventricle(
@@ -122,6 +138,7 @@ def ventricle(
     endo: tuple[float, float] = (7.0, 17.0),
     epi: tuple[float, float] = (10.0, 20.0),
     base_z: float = 5.0,
+    curved: bool = True,
 ) -> Mesh:
     """Idealized left ventricle of the Land et al. (2015) benchmark: a truncated prolate shell.
 
@@ -138,6 +155,9 @@ def ventricle(
         Short and long semi-axes ``(rs, rl)`` of the endocardial and epicardial ellipsoids, mm.
     base_z : float
         Height of the base plane, mm; must cut the cavity (``|base_z| < endo[1]``).
+    curved : bool
+        Carry the P2 node positions of the edges on the two ellipsoids (module docstring); the
+        rim edges move along the base plane, onto the circles where it cuts the ellipsoids.
 
     Returns
     -------
@@ -158,12 +178,9 @@ def ventricle(
         occ.cut(wall, [(3, _occ_ellipsoid(occ, rs_endo, rl_endo)), (3, above_base)])
         occ.synchronize()
         mesh = _gmsh_generate(gmsh, 3, h)
-    surfaces = {
-        "base": lambda x: x[:, 2] - base_z,
-        "endocardium": lambda x: _ellipsoid_distance(x, rs_endo, rl_endo),
-        "epicardium": lambda x: _ellipsoid_distance(x, rs_epi, rl_epi),
-    }
-    return _tag_boundary(mesh, surfaces, dirichlet="base", neumann="endocardium")
+    walls = {"endocardium": _Quadric((rs_endo, rs_endo, rl_endo)), "epicardium": _Quadric((rs_epi, rs_epi, rl_epi))}
+    return _tagged(mesh, walls, {"base": lambda x: x[:, 2] - base_z}, dirichlet="base", neumann="endocardium",
+                   curved=curved, planes={"base": (0.0, 0.0, 1.0)})
 
 
 def _polar_grid(r_inner: float, r_outer: float, n_radial: int, n_theta: int) -> Mesh:
@@ -187,12 +204,85 @@ def _gmsh_annulus(r_inner: float, r_outer: float, h: float) -> Mesh:
         return _gmsh_generate(gmsh, 2, h)
 
 
-def _concentric_spheres(r_inner: float, r_outer: float) -> dict[str, _Distance]:
-    """Distances to the circles (2D) or spheres (3D) ``|x| = r_outer`` and ``|x| = r_inner``."""
-    return {
-        "outer": lambda x: np.linalg.norm(x, axis=1) - r_outer,
-        "inner": lambda x: np.linalg.norm(x, axis=1) - r_inner,
-    }
+class _Quadric:
+    """The surface ``f(x) = sum_i x_i^2 / s_i^2 - 1 = 0`` centred at the origin, semi-axes ``s`` (dim,):
+    a circle, a sphere or an ellipsoid of revolution."""
+
+    def __init__(self, semi_axes):
+        self.a = 1.0 / np.asarray(semi_axes, dtype=np.float64) ** 2  # diagonal of A, f = x^T A x - 1
+
+    def distance(self, x: np.ndarray) -> np.ndarray:
+        """First-order signed distance ``f / |grad f|`` of points x (n, dim), (n,)."""
+        return (x**2 @ self.a - 1.0) / np.linalg.norm(2 * self.a * x, axis=1)
+
+    def project(self, x: np.ndarray, keep_normal: np.ndarray) -> np.ndarray:
+        """Points (n, dim) on the surface: ``x - t d`` with ``d = g - (g . n) n``, ``g = grad f(x)``,
+        ``n = keep_normal`` (n, dim) (unit normal of a plane to stay in, or 0), and t the root of
+        smallest |t| of the quadratic ``f(x - t d) = f(x) - 2 t d^T A x + t^2 d^T A d = 0``."""
+        g = 2 * self.a * x
+        d = g - np.einsum("ni,ni->n", g, keep_normal)[:, None] * keep_normal
+        c0, c1, c2 = x**2 @ self.a - 1.0, -2 * (d * x) @ self.a, d**2 @ self.a
+        q = -0.5 * (c1 + np.sign(c1) * np.sqrt(c1**2 - 4 * c2 * c0))
+        return x - (c0 / q)[:, None] * d
+
+
+def _curved_shell(mesh: Mesh, r_inner: float, r_outer: float, curved: bool) -> Mesh:
+    """`_tagged` for the concentric circles/spheres ``|x| = r_outer`` (``"outer"``, ``gamma_d``) and
+    ``|x| = r_inner`` (``"inner"``, ``gamma_n``, the cavity) of an annulus or a shell."""
+    spheres = {name: _Quadric(np.full(mesh.dim, r)) for name, r in (("outer", r_outer), ("inner", r_inner))}
+    return _tagged(mesh, spheres, {}, dirichlet="outer", neumann="inner", curved=curved)
+
+
+def _tagged(mesh: Mesh, walls: dict, flat: dict, *, dirichlet: str, neumann: str, curved: bool,
+            planes: dict | None = None) -> Mesh:
+    """Boundary facets named after the nearest of the curved ``walls`` (name -> `_Quadric`) and the
+    ``flat`` surfaces (name -> distance function), `_tag_boundary`; with ``curved``, the P2 edge
+    nodes curved onto the walls (`_curve_edges`, ``planes`` the unit normals of flat boundaries),
+    after removing the cells whose vertices all lie on the cavity wall ``neumann``: such a cell lies
+    in the convex hull of points of a convex surface bounding the cavity, i.e. in the exact cavity,
+    and no P2 map of it onto the exact wall is one-to-one (Gmsh leaves a few, at a ventricle's apex)."""
+    distances = {**flat, **{name: q.distance for name, q in walls.items()}}
+    mesh = _tag_boundary(mesh, distances, dirichlet=dirichlet, neumann=neumann)
+    if not curved:
+        return mesh
+    on_cavity = np.zeros(len(mesh.points), bool)
+    on_cavity[mesh.boundary_vertices(neumann)] = True
+    inside = on_cavity[mesh.cells].all(axis=1)
+    if inside.any():
+        points, cells, _ = _drop_unused_points(mesh.points, mesh.cells[~inside], {})
+        return _tagged(Mesh(points, cells), walls, flat, dirichlet=dirichlet, neumann=neumann, curved=curved, planes=planes)
+    return _curve_edges(mesh, walls, planes)
+
+
+def _facet_edges(facets: np.ndarray) -> np.ndarray:
+    """Distinct edges (ne, 2), sorted pairs, of the facets (nf, k)."""
+    pairs = [facets[:, [i, j]] for i in range(facets.shape[1]) for j in range(i + 1, facets.shape[1])]
+    return np.unique(np.sort(np.concatenate(pairs), axis=1), axis=0)
+
+
+def _curve_edges(mesh: Mesh, surfaces: dict, planes: dict | None = None) -> Mesh:
+    """``mesh`` with curved P2 edge nodes. The node of every edge of the facets of ``surfaces``
+    (boundary name -> `_Quadric`) moves from the edge midpoint onto that surface (`_Quadric.project`;
+    an edge that is also an edge of a flat boundary in ``planes``, name -> unit normal (dim,), moves
+    within it); the other boundary edge nodes and the vertices stay; the interior edge nodes move by
+    the discrete harmonic extension of those shifts (``int grad s . grad phi = 0`` per component, P2
+    on the straight mesh). Spreading the boundary curvature into the first layers of cells keeps thin
+    cells along a concave wall (e.g. slivers with all vertices on the endocardium) from folding."""
+    nv = len(mesh.points)
+    key = lambda e: e[:, 0] * nv + e[:, 1]
+    space = VectorSpace(mesh, 2, components=1)
+    shift = np.zeros((space.num_nodes, mesh.dim))  # of every P2 node from its straight position
+    fixed = [np.arange(nv), space.edge_nodes(_facet_edges(mesh.boundary_facets()))]
+    for name, surface in surfaces.items():
+        e = _facet_edges(mesh.boundary(name))
+        keep = np.zeros((len(e), mesh.dim))
+        for plane, normal in (planes or {}).items():
+            keep[np.isin(key(e), key(_facet_edges(mesh.boundary(plane))))] = normal
+        mid = 0.5 * (mesh.points[e[:, 0]] + mesh.points[e[:, 1]])
+        shift[space.edge_nodes(e)] = surface.project(mid, keep) - mid
+    fixed = np.unique(np.concatenate(fixed))
+    shift = solve_dirichlet(space.laplace_blocks(), space.cell_nodes, space.num_nodes, fixed, shift[fixed])
+    return mesh.with_curved_edges(space.edges, space.nodes[nv:] + shift[nv:])
 
 
 def _occ_ellipsoid(occ, rs: float, rl: float) -> int:
@@ -200,13 +290,6 @@ def _occ_ellipsoid(occ, rs: float, rl: float) -> int:
     tag = occ.addSphere(0, 0, 0, 1.0)
     occ.dilate([(3, tag)], 0, 0, 0, rs, rs, rl)
     return tag
-
-
-def _ellipsoid_distance(x: np.ndarray, rs: float, rl: float) -> np.ndarray:
-    """First-order distance ``f / |grad f|`` to ``f = (x^2 + y^2) / rs^2 + z^2 / rl^2 - 1 = 0``."""
-    f = (x[:, 0] ** 2 + x[:, 1] ** 2) / rs**2 + x[:, 2] ** 2 / rl**2 - 1.0
-    grad = 2 * np.stack([x[:, 0] / rs**2, x[:, 1] / rs**2, x[:, 2] / rl**2], axis=1)
-    return f / np.linalg.norm(grad, axis=1)
 
 
 def _tag_boundary(mesh: Mesh, surfaces: dict[str, _Distance], *, dirichlet: str, neumann: str) -> Mesh:
@@ -339,7 +422,8 @@ def to_file(mesh: Mesh, path) -> Path:
     and from which `from_file` recovers every name, including empty groups. Other formats are
     written by meshio as they are; in ``.vtu``/``.vtk`` the names are lost (only the integer
     ``gmsh:physical`` tags remain, which `from_file` then reads as names ``"1"``, ``"2"``, ...).
-    Points are padded to 3 coordinates.
+    Points are padded to 3 coordinates. Only the straight-sided mesh is written: curved P2 edge nodes
+    (``mesh.curved_edges``) are not, so the file reads back as ``mesh.faceted()``.
     """
     path = Path(path)
     shared = sorted(set(mesh.subdomains) & set(mesh.boundaries))
