@@ -137,7 +137,11 @@ class FibreFrames:
 
     def __call__(self, x, cells=None) -> np.ndarray:
         """Frames (n, ..., 3, 3) with rows ``(f, s, n)`` at points x (n, ..., 3) of the cells ``cells``
-        (n,) (default: every cell, n = num_cells), e.g. the quadrature points of `StateModel`."""
+        (n,) (default: every cell, n = num_cells), e.g. the quadrature points of `StateModel`.
+
+        ``d(x)`` is the P1 interpolant of the straight-sided cell, extended affinely: at the quadrature
+        points of isoparametric (curved) P2 cells, which lie off the straight cell by O(h^2) near a
+        curved wall, d may leave [0, 1] by O(h^2 |grad d|) (the helix angle is extrapolated as much)."""
         x = np.asarray(x, dtype=np.float64)
         cells = self._cells(x, cells)
         expand = (slice(None),) + (None,) * (x.ndim - 2)
