@@ -16,7 +16,8 @@ from .dynamics import StateSolution
 from .fibres import FibreFrames
 from .io import write_json, write_npz, write_time_series
 from .materials import det
-from .mesh import Mesh
+from .quadrature import simplex_rule
+from .spaces import VectorSpace, reference_shape
 from .plotting import plot_control_spacetime, plot_history, plot_pressure, plot_snapshots
 
 __all__ = ["write_state_outputs", "cavity_volume", "cell_det_F", "PAPER_SNAPSHOT_TIMES"]
@@ -41,27 +42,35 @@ def _vtk_cells(sol: StateSolution) -> tuple[np.ndarray, str]:
     return cells, _CELL_TYPES[(space.dim, space.degree)]
 
 
-def cavity_volume(mesh: Mesh, u: np.ndarray, boundary: str = "endocardium", rim: str = "gamma_d") -> np.ndarray:
+def cavity_volume(space: VectorSpace, u: np.ndarray, boundary: str = "endocardium", rim: str = "gamma_d") -> np.ndarray:
     """Volume (length^3) enclosed by the deformed surface ``boundary`` (e.g. a ventricle's endocardium),
     closed by the plane of its rim on ``rim`` (the clamped base), at each level: (nt,).
 
-    ``V = sum_f s_f (a_f - O) . ((b_f - O) x (c_f - O)) / 6`` over the deformed facets (a, b, c), with
-    ``O`` the mean of the rim vertices (the closing plane contributes nothing when the rim is planar and
-    fixed) or of all the surface's vertices when there is no rim. The orientations ``s_f = +-1`` make
-    every reference term positive: exact when the reference cavity is star-shaped about ``O`` (an
-    ellipsoidal cavity about a point of its base). ``u`` (nt, nv, 3) are the vertex displacements.
+    ``V = sum_f s_f (1/3) int_f (x - O) . a dxi`` over the deformed facets, ``x = sum_a N_a (X_a + u_a)``
+    the facet trace of the space (P1: flat triangles, the cones ``(a - O) . ((b - O) x (c - O)) / 6``;
+    P2: curved, on isoparametric meshes from the curved reference facets), ``a = dx/dxi1 x dx/dxi2``,
+    integrated exactly (degree ``3 k - 2``). ``O`` is the mean of the rim vertices (the closing plane
+    contributes nothing when the rim stays in its plane) or of all the surface's vertices when there
+    is no rim. The orientations ``s_f = +-1`` make every reference term positive: exact when the
+    reference cavity is star-shaped about ``O`` (an ellipsoidal cavity about a point of its base).
+    ``u`` (nt, num_nodes, 3) are the nodal displacements of ``space``.
     """
+    mesh = space.mesh
     facets = mesh.boundary(boundary)
-    X = mesh.points
+    nodes = space.facet_nodes(facets)  # (nf, m)
     rim_vertices = np.intersect1d(np.unique(facets), mesh.boundary_vertices(rim)) if rim in mesh.boundaries else []
-    origin = X[rim_vertices if len(rim_vertices) else np.unique(facets)].mean(axis=0)
+    origin = mesh.points[rim_vertices if len(rim_vertices) else np.unique(facets)].mean(axis=0)
+    xi, w = simplex_rule(2, 3 * space.degree - 2)
+    N, dN = reference_shape(2, space.degree, xi)
 
-    def tet_volumes(x):  # (..., nv, 3) -> (..., nf)
-        a, b, c = (x[..., facets[:, k], :] - origin for k in range(3))
-        return np.einsum("...i,...i->...", a, np.cross(b, c)) / 6.0
+    def facet_volumes(x):  # (..., num_nodes, 3) -> (..., nf)
+        xf = x[..., nodes, :] - origin  # (..., nf, m, 3)
+        T = np.einsum("...fai,qaj->...fqij", xf, dN)
+        a = np.cross(T[..., 0], T[..., 1])
+        return np.einsum("q,qa,...fai,...fqi->...f", w, N, xf, a) / 3.0
 
-    sign = np.sign(tet_volumes(X))
-    return np.einsum("tf,f->t", tet_volumes(X + np.asarray(u)), sign)
+    sign = np.sign(facet_volumes(space.nodes))
+    return np.einsum("tf,f->t", facet_volumes(space.nodes + np.asarray(u)), sign)
 
 
 def cell_det_F(sol: StateSolution, levels: np.ndarray) -> np.ndarray:
@@ -124,7 +133,7 @@ def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = No
     files = {"results": "results.npz", "pressure_plot": "pressure.png"}
     cavity, cavity_summary = None, {}
     if model.dim == 3 and "endocardium" in model.mesh.boundaries:
-        cavity = cavity_volume(model.mesh, u[:, : model.mesh.points.shape[0]])
+        cavity = cavity_volume(model.space, u)
         arrays["cavity_volume"] = cavity
         cavity_summary = {"cavity_volume_0": float(cavity[0]),
                           "cavity_volume_change_max": float(np.max(np.abs(cavity / cavity[0] - 1.0)))}
