@@ -1,9 +1,10 @@
 """Land et al. (2015) problems 1 and 2 under mesh refinement and penalty variation (hyperoc.benchmarks).
 
 Problem 1: beam 10 x 1 x 1 mm, ``10 n x n x n`` cubes of six P2 tetrahedra; reported: z of the deformed
-point (10, 0.5, 1). Problem 2: idealized LV (Gmsh, target edge h mm), P2; reported: z of the deformed
-endocardial and epicardial apex. Both: Guccione with the volumetric penalty ``kappa`` (kPa), no global
-volume constraint, follower pressure, full Newton steps with load stepping (halving on failure).
+point (10, 0.5, 1). Problem 2: idealized LV (Gmsh, target edge h mm), P2, isoparametric on the exact
+ellipsoids (``--faceted``: straight-sided cells, as before), base clamped (``--base sliding``: u_z = 0,
+rigid in-plane motions pinned); reported: z of the deformed endocardial and epicardial apex. Both:
+Guccione with the volumetric penalty ``kappa`` (kPa), no global volume constraint, follower pressure, full Newton steps with load stepping (halving on failure).
 
 For each kappa the values converge as h -> 0 to the compressible solution with that bulk modulus; as
 kappa -> infinity that solution tends to the incompressible benchmark at O(1/kappa). The script prints
@@ -12,6 +13,7 @@ Richardson limit from the last three levels, and a first-order extrapolation in 
 largest kappa at the finest level.
 
     nice python bench/bench_land.py --json results/land.json            # default study
+    nice python bench/bench_land.py --problems 2 --kappas 1000 --base sliding --json results/land-slide.json
     nice python bench/bench_land.py --problems 1 --json results/land-beam.json   # one problem
     python bench/bench_land.py --beam-levels 1,2 --lv-sizes 4 --kappas 1000   # quick look
     python bench/bench_land.py --render results/land-*.json                 # tables of saved runs
@@ -78,6 +80,12 @@ def _extrapolate(by_kappa: dict, key: str) -> str:
     return f"{key}: kappa {k1:g} -> {z1:.5f}, {k2:g} -> {z2:.5f}, linear in 1/kappa -> {z2 + (z2 - z1) * k1 / (k2 - k1):.5f}"
 
 
+def _variant(params: dict) -> str:
+    """The problem 2 geometry and base of a result row (rows from before those options: faceted, clamped)."""
+    geometry = "curved" if params.get("curved", False) else "faceted"
+    return f"{geometry}, base {params.get('base', 'clamped')}"
+
+
 def render(paths: list[str]):
     """Print the tables of saved results (``--json`` files, or stdout logs with one JSON row a line)."""
     rows = []
@@ -92,9 +100,10 @@ def render(paths: list[str]):
     for problem, name, level_key, keys in ((1, "Problem 1 (beam)", "n", ["z_tip"]),
                                            (2, "Problem 2 (ventricle)", "mesh_size", ["z_endo", "z_epi"])):
         mine = [r for r in rows if r["params"]["problem"] == problem]
-        for kappa in sorted({r["params"]["kappa"] for r in mine}):
-            group = sorted((r for r in mine if r["params"]["kappa"] == kappa), key=lambda r: -r["h"])
-            print(_table(f"{name}, P2, kappa = {kappa:g} kPa", group, level_key, keys) + "\n")
+        label = (lambda r: "") if problem == 1 else (lambda r: ", " + _variant(r["params"]))
+        for kappa, variant in sorted({(r["params"]["kappa"], label(r)) for r in mine}):
+            group = sorted((r for r in mine if (r["params"]["kappa"], label(r)) == (kappa, variant)), key=lambda r: -r["h"])
+            print(_table(f"{name}, P2{variant}, kappa = {kappa:g} kPa", group, level_key, keys) + "\n")
 
 
 def main():
@@ -105,6 +114,8 @@ def main():
     ap.add_argument("--kappas", default="1000,10000", help="penalty bulk moduli kappa (kPa)")
     ap.add_argument("--beam-steps", type=int, default=10)
     ap.add_argument("--lv-steps", type=int, default=20)
+    ap.add_argument("--faceted", action="store_true", help="problem 2 on straight-sided P2 cells (default: curved)")
+    ap.add_argument("--base", default="clamped", choices=["clamped", "sliding"], help="problem 2 base condition")
     ap.add_argument("--json", default=None, help="write all results here")
     ap.add_argument("--render", nargs="+", default=None, metavar="JSON",
                     help="only print the tables of earlier runs (their --json files or stdout logs)")
@@ -130,14 +141,16 @@ def main():
         (1, "Problem 1 (beam)", [int(v) for v in _floats(args.beam_levels)],
          lambda lv, k: beam_deflection(lv, kappa=k, steps=args.beam_steps), "n", ["z_tip"]),
         (2, "Problem 2 (ventricle)", _floats(args.lv_sizes),
-         lambda lv, k: ventricle_apex(lv, kappa=k, steps=args.lv_steps), "mesh_size", ["z_endo", "z_epi"]),
+         lambda lv, k: ventricle_apex(lv, kappa=k, steps=args.lv_steps, curved=not args.faceted, base=args.base),
+         "mesh_size", ["z_endo", "z_epi"]),
     ):
         if number not in problems:
             continue
         finest = {}
         for kappa in kappas:
             rows = [record(run(lv, kappa)) for lv in levels]
-            tables.append(_table(f"{name}, P2, kappa = {kappa:g} kPa", rows, level_key, keys))
+            variant = f", {_variant(rows[0]['params'])}" if number == 2 else ""
+            tables.append(_table(f"{name}, P2{variant}, kappa = {kappa:g} kPa", rows, level_key, keys))
             finest[kappa] = rows[-1]["values"]
         if len(kappas) >= 2:
             extrap += [f"{name}, finest level: " + _extrapolate({k: v[key] for k, v in finest.items()}, key)
