@@ -54,9 +54,8 @@ def test_load_stiffness_matches_finite_differences(mesh_fn, degree):
     fol = FollowerPressure(model, face, 0.3)
     u, v = random_u(model), random_u(model, amp=1.0, seed=1)
     K = assembled_stiffness(model, fol, u)
-    f = jax.jit(fol.force)
     eps = np.array([1e-2, 5e-3, 2.5e-3])
-    rem = [np.max(np.abs(np.asarray(f(u + e * v) - f(u)) + e * K @ np.asarray(v))) for e in eps]
+    rem = taylor_remainders(fol, K, u, v, eps)
     print(f"\nTaylor remainders {rem}")
     if mesh.dim == 2:  # the 2D area vector (dx/dxi turned) is linear in x: f is affine, remainder = round-off
         assert max(rem) <= 1e-13 * eps[-1] * np.max(np.abs(K @ np.asarray(v)))
@@ -67,9 +66,19 @@ def test_load_stiffness_matches_finite_differences(mesh_fn, degree):
 @pytest.mark.parametrize("mesh_fn,degree", MESHES)
 def test_closed_surface_force_is_minus_p_grad_enclosed_volume(mesh_fn, degree):
     model = closed_model(mesh_fn(), degree)
-    p = 0.7
-    fol = FollowerPressure(model, "all", p)
-    u = random_u(model)
+    assert_conservative(model, FollowerPressure(model, "all", 0.7), random_u(model))
+
+
+def taylor_remainders(fol, K, u, v, eps) -> list:
+    """``max |f(u + e v) - f(u) + e K v|`` for each e in eps (K = -df/du assembled, dense)."""
+    f = jax.jit(fol.force)
+    return [np.max(np.abs(np.asarray(f(u + e * v) - f(u)) + e * K @ np.asarray(v))) for e in eps]
+
+
+def assert_conservative(model, fol, u):
+    """On a closed surface at u: f = -p grad V (V = enclosed volume) and V = int det F dX to round-off
+    (both exact polynomial integrals), and the load stiffness K_p = p Hess V is symmetric."""
+    p = fol.pressure
     f = np.asarray(jax.jit(fol.force)(u))
     grad_V = np.asarray(jax.jit(jax.grad(fol.enclosed_volume))(u))
     assert np.max(np.abs(f + p * grad_V)) <= 1e-13 * np.max(np.abs(f))
