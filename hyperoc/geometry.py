@@ -240,7 +240,7 @@ def _tagged(mesh: Mesh, walls: dict, flat: dict, *, dirichlet: str, neumann: str
     nodes curved onto the walls (`_curve_edges`, ``planes`` the unit normals of flat boundaries),
     after removing the cells whose vertices all lie on the cavity wall ``neumann``: such a cell lies
     in the convex hull of points of a convex surface bounding the cavity, i.e. in the exact cavity,
-    and no P2 map of it onto the exact wall is one-to-one (Gmsh leaves a few, at a ventricle's apex)."""
+    and curving its wall facets outwards folds it (Gmsh leaves a few: one at the apex of ventricle(2.0))."""
     distances = {**flat, **{name: q.distance for name, q in walls.items()}}
     mesh = _tag_boundary(mesh, distances, dirichlet=dirichlet, neumann=neumann)
     if not curved:
@@ -266,8 +266,9 @@ def _curve_edges(mesh: Mesh, surfaces: dict, planes: dict | None = None) -> Mesh
     an edge that is also an edge of a flat boundary in ``planes``, name -> unit normal (dim,), moves
     within it); the other boundary edge nodes and the vertices stay; the interior edge nodes move by
     the discrete harmonic extension of those shifts (``int grad s . grad phi = 0`` per component, P2
-    on the straight mesh). Spreading the boundary curvature into the first layers of cells keeps thin
-    cells along a concave wall (e.g. slivers with all vertices on the endocardium) from folding."""
+    on the straight mesh). Spreading the boundary curvature into the first layers of cells keeps the
+    cells along a concave wall from being squeezed (ventricle(4.0): min det J_q / det J_affine 0.68,
+    0.41 with the interior edge nodes left at their midpoints)."""
     nv = len(mesh.points)
     key = lambda e: e[:, 0] * nv + e[:, 1]
     space = VectorSpace(mesh, 2, components=1)
