@@ -3,7 +3,8 @@
 Problem 1: beam 10 x 1 x 1 mm, ``10 n x n x n`` cubes of six P2 tetrahedra; reported: z of the deformed
 point (10, 0.5, 1). Problem 2: idealized LV (Gmsh, target edge h mm), P2, isoparametric on the exact
 ellipsoids (``--faceted``: straight-sided cells, as before), base clamped (``--base sliding``: u_z = 0,
-rigid in-plane motions pinned); reported: z of the deformed endocardial and epicardial apex. Both:
+rigid in-plane motions pinned); reported: z of the deformed endocardial and epicardial apex and the
+deformed cavity volume. Both:
 Guccione with the volumetric penalty ``kappa`` (kPa), no global volume constraint, follower pressure, full Newton steps with load stepping (halving on failure).
 
 For each kappa the values converge as h -> 0 to the compressible solution with that bulk modulus; as
@@ -32,6 +33,10 @@ import os
 from hyperoc.benchmarks import beam_deflection, ventricle_apex
 
 
+#: Problem 2 values: apex z (mm) and deformed cavity volume (mm^3; missing in rows from before it).
+LV_KEYS = ["z_endo", "z_epi", "V_cavity"]
+
+
 def _floats(text: str) -> list[float]:
     return [float(v) for v in text.split(",") if v]
 
@@ -55,13 +60,14 @@ def _order(h, z) -> tuple[float, float]:
 def _table(title: str, rows: list[dict], level_key: str, value_keys: list[str]) -> str:
     """Markdown table: per value, the difference to the previous level, and from the last three
     levels the observed order and the Richardson-extrapolated limit (h -> 0 at this kappa)."""
-    head = f"| {level_key} | h (mm) | dofs | " + " | ".join(f"{k} (mm) | diff | order | extrap." for k in value_keys)
+    unit = lambda k: "mm^3" if k.startswith("V_") else "mm"
+    head = f"| {level_key} | h (mm) | dofs | " + " | ".join(f"{k} ({unit(k)}) | diff | order | extrap." for k in value_keys)
     head += " | Newton its (total / max per step) | load steps | s |"
     lines = [f"**{title}**", "", head, "|" + "---|" * (head.count("|") - 1)]
     for i, r in enumerate(rows):
         cells = [str(r["params"][level_key]), f"{r['h']:.3g}", str(r["dofs"])]
         for key in value_keys:
-            z = [row["values"][key] for row in rows[: i + 1]]
+            z = [row["values"].get(key, math.nan) for row in rows[: i + 1]]
             order = extrap = ""
             if i >= 2:
                 p, lim = _order([row["h"] for row in rows[i - 2 : i + 1]], z[-3:])
@@ -98,7 +104,7 @@ def render(paths: list[str]):
         except json.JSONDecodeError:  # a stdout log: one JSON row a line, then the tables
             rows += [json.loads(line) for line in text.splitlines() if line.startswith('{"values"')]
     for problem, name, level_key, keys in ((1, "Problem 1 (beam)", "n", ["z_tip"]),
-                                           (2, "Problem 2 (ventricle)", "mesh_size", ["z_endo", "z_epi"])):
+                                           (2, "Problem 2 (ventricle)", "mesh_size", LV_KEYS)):
         mine = [r for r in rows if r["params"]["problem"] == problem]
         label = (lambda r: "") if problem == 1 else (lambda r: ", " + _variant(r["params"]))
         for kappa, variant in sorted({(r["params"]["kappa"], label(r)) for r in mine}):
@@ -142,7 +148,7 @@ def main():
          lambda lv, k: beam_deflection(lv, kappa=k, steps=args.beam_steps), "n", ["z_tip"]),
         (2, "Problem 2 (ventricle)", _floats(args.lv_sizes),
          lambda lv, k: ventricle_apex(lv, kappa=k, steps=args.lv_steps, curved=not args.faceted, base=args.base),
-         "mesh_size", ["z_endo", "z_epi"]),
+         "mesh_size", LV_KEYS),
     ):
         if number not in problems:
             continue

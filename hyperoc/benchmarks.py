@@ -137,13 +137,15 @@ def node_position(model: StateModel, u, point, tol: float = 1e-9) -> np.ndarray:
     return X + model.expand(u)[a]
 
 
-def _solve(model, follower, steps, cutbacks, solver, points: dict, params: dict) -> BenchmarkResult:
+def _solve(model, follower, steps, cutbacks, solver, points: dict, params: dict, extra=None) -> BenchmarkResult:
+    """Solve; ``values`` are the z of the deformed ``points`` (name -> X) and ``extra(model, u)`` (a dict)."""
     t0 = time.perf_counter()
     sol = solve_static(model, follower=follower, constrained=False, steps=steps, solver=solver,
                        line_search=False, cutbacks=cutbacks)
     seconds = time.perf_counter() - t0
     J = np.asarray(det(model.deformation_gradient(jnp.asarray(sol.u))))  # (nc, nq)
     values = {name: float(node_position(model, sol.u, X)[2]) for name, X in points.items()}
+    values.update(extra(model, sol.u) if extra is not None else {})
     return BenchmarkResult(values, model.mesh.h(), model.n, sol.newton_iterations, seconds,
                            float(J.min()), float(np.abs(J - 1).max()),
                            float(np.sum(model.quad.wdx * np.abs(J - 1)) / np.sum(model.quad.wdx)), params)
@@ -160,9 +162,13 @@ def beam_deflection(n: int, *, kappa: float = 1000.0, degree: int = 2, steps: in
 def ventricle_apex(h: float, *, kappa: float = 1000.0, degree: int = 2, steps: int = 10, cutbacks: int = 8,
                    solver="auto", curved: bool = True, base: str = "clamped") -> BenchmarkResult:
     """Problem 2 (`ventricle_problem`): ``values["z_endo"]``, ``values["z_epi"]`` = z of the deformed
-    endocardial and epicardial apex (mm; -17 and -20 at rest)."""
+    endocardial and epicardial apex (mm; -17 and -20 at rest), ``values["V_cavity"]`` the deformed
+    cavity volume (mm^3, `hyperoc.report.cavity_volume`: the endocardium closed by the base plane)."""
+    from .report import cavity_volume
+
     model, load = ventricle_problem(h, kappa=kappa, degree=degree, curved=curved, base=base)
+    cavity = lambda model, u: {"V_cavity": float(cavity_volume(model.space, model.expand(u)[None])[0])}
     return _solve(model, load, steps, cutbacks, solver,
                   {"z_endo": VENTRICLE["endo_apex"], "z_epi": VENTRICLE["epi_apex"]},
                   {"problem": 2, "mesh_size": h, "kappa": kappa, "degree": degree, "steps": steps,
-                   "cutbacks": cutbacks, "curved": curved, "base": base})
+                   "cutbacks": cutbacks, "curved": curved, "base": base}, cavity)
