@@ -6,17 +6,19 @@ never more than s snapshots are held; the advanced steps number exactly Griewank
 ``t(N, s) = r N - beta(s + 1, r - 1)`` and no step is advanced more than r times. The closed form
 itself is checked against the optimum of the split recursion computed by exhaustive search.
 
-(b) Gradients equal the store-everything ones. The revolve path steps with the jitted single step
-(the stored path: the compiled scan on the traced 1D path, the same jitted step on the sparse path)
-and the adjoint with the jitted single adjoint step, from the same initial data and Newton warm
-starts; the differences are those of `tests/test_checkpointed_adjoint.py` (XLA fusing the step
-differently in a scan than alone: ~1e-16 relative per operation; with sparse LU, a backward error
-1e-13 per solve and another ordering for a solver's first factorization), carried through the
-stable linearized recursion. We allow the same ``RTOL = 5e-13`` (five times the solver's backward
-error) relative, for J against the sum of the magnitudes of its terms, for the gradient in the Riesz
-norm. Within the revolve path, a recomputed state is the forward state bit for bit (same jitted
-step, same inputs, same warm start): on the traced path the gradients for different s are equal
-exactly, and the counted step evaluations are ``t(N, s) + 1``.
+(b) Value and gradient equal the store-everything ones. On the sparse path both run the same jitted
+step (and the revolve adjoint the same jitted adjoint step as the stored one), so only the sparse LU's
+backward error (1e-13 per solve, another ordering for a solver's first factorization) separates
+them, as in `tests/test_checkpointed_adjoint.py`. On the traced path the stored forward is a compiled
+lax.scan and the revolve path the standalone jitted step: XLA rounds the same step differently,
+and the states then differ by ~1e-13 relative (measured: y0, p 1e-13, J 3.2e-13 of the sum of its
+terms' magnitudes, gradient 4e-15; unchanged with Newton rtol 1e-14 and the same iteration counts:
+round-off of the converged steps, some 500 ulps of the small states, not the stopping test). We allow ``RTOL = 1e-12`` relative on both paths, for J against the sum of
+the magnitudes of its terms and for the gradient in the Riesz norm. Sharper, within the revolve
+path a recomputed state is the forward state bit for bit (same jitted step, same inputs, same
+Newton warm start ``p_{a-1/2}``): on the traced path the gradients for s = 1, 2, 3, N are equal
+exactly (s = N recomputes nothing, s = 2, 3 restart from interior levels, so a wrong warm start
+would show), and the counted step evaluations are ``t(N, s) + 1``.
 
 (c) Bad ``checkpoint_snapshots`` values raise `InputError`; in a config they exit the CLI with status 2.
 """
@@ -33,7 +35,9 @@ from hyperoc.config import parse_config
 from hyperoc.errors import InputError
 from hyperoc.revolve import (Advance, Free, Restore, Reverse, Store, minimal_advances, repetitions, schedule)
 
-from test_checkpointed_adjoint import RTOL, _LevelReads, _point
+from test_checkpointed_adjoint import _LevelReads, _point
+
+RTOL = 1e-12
 
 
 def _run_abstract(N: int, s: int):
