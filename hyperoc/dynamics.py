@@ -358,7 +358,7 @@ class TimeStepper:
     def _python_loop(self, y0, y1, p0, xis, fs, grid, V0, progress):
         from tqdm.auto import tqdm
 
-        carry = (jnp.asarray(y0), jnp.asarray(y1), jnp.asarray(p0), jnp.asarray(False))
+        carry = (jnp.asarray(y0), jnp.asarray(y1), jnp.asarray(p0, dtype=jnp.float64), jnp.asarray(False))
         outs = []
         steps = tqdm(range(grid.num_steps), disable=not progress, desc="time steps", leave=False)
         for n in steps:

@@ -41,7 +41,7 @@ def build_reduced(cfg: Config, tau0: float, model=None) -> ReducedFunctional:
     o = cfg["optimize"]
     return ReducedFunctional(model, cfg.transform(tau0), cfg.objective(), scheme=cfg.scheme(),
                              solver=cfg["dynamics"]["solver"], gradient=o["gradient"],
-                             checkpoint_every=o.get("checkpoint_every"))
+                             checkpoint_every=o.get("checkpoint_every"), checkpoint_snapshots=o.get("checkpoint_snapshots"))
 
 
 def optimize_single(cfg: Config, tau0: float, *, checkpoint=None, method: str | None = None, progress: bool = False,

@@ -34,6 +34,7 @@ from hyperoc.cli import main
 from hyperoc.config import parse_config
 from hyperoc.errors import InputError
 from hyperoc.revolve import (Advance, Free, Restore, Reverse, Store, minimal_advances, repetitions, schedule)
+from hyperoc.workflows import build_reduced
 
 from test_checkpointed_adjoint import _LevelReads, _point
 
@@ -181,3 +182,12 @@ def test_bad_snapshots_are_refused(tmp_path):
     path = tmp_path / "bad.toml"
     path.write_text("[optimize]\ncheckpoint_snapshots = 0\n")
     assert main(["check-gradient", str(path)]) == 2
+
+
+def test_config_keys_reach_the_reduced_functional():
+    """``[optimize] checkpoint_snapshots`` / ``checkpoint_every`` are passed on by `build_reduced`."""
+    base = {"mesh": {"kind": "interval", "n": 8}, "dynamics": {"T": 1.0, "dt": 0.25}, "optimize": {"tau0": 0.5}}
+    for key, value in (("checkpoint_snapshots", 3), ("checkpoint_every", 2)):
+        cfg = parse_config({**base, "optimize": {"tau0": 0.5, key: value}})
+        J = build_reduced(cfg, 0.5)
+        assert getattr(J, key) == value
