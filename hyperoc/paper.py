@@ -169,26 +169,27 @@ def _jobs(cfg: Config, out: Path, quick: bool, overrides: dict) -> dict:
 def _pin_to_cpu(index: int, allowed: list) -> set | None:
     """Bind every thread of this process to the CPU ``allowed[index % len(allowed)]`` (Linux; elsewhere a
     no-op) and return the previous CPU set. The 1D problems are too small for XLA's intra-op threads, which only
-    spin: measured on 2 cores, one optimization takes the same wall time on one core (22 s CPU) as
-    on two (33 s CPU), so two unpinned jobs slow each other down."""
+    spin: one Algorithm 1 run takes the same wall time on one CPU as on two, with 0.64x the CPU
+    (`bench/bench_pinning.py`), so two unpinned jobs slow each other down."""
     if not hasattr(os, "sched_setaffinity"):
         return None
     before = os.sched_getaffinity(0)
-    for tid in os.listdir("/proc/self/task"):
-        try:
-            os.sched_setaffinity(int(tid), {allowed[index % len(allowed)]})
-        except OSError:  # a thread that ended meanwhile
-            pass
+    _bind_threads({allowed[index % len(allowed)]})
     return before
 
 
 def _restore_cpus(cpus: set | None) -> None:
     if cpus is not None:
-        for tid in os.listdir("/proc/self/task"):
-            try:
-                os.sched_setaffinity(int(tid), cpus)
-            except OSError:
-                pass
+        _bind_threads(cpus)
+
+
+def _bind_threads(cpus: set) -> None:
+    """Set the CPU set of every thread of this process (affinity is per thread on Linux)."""
+    for tid in os.listdir("/proc/self/task"):
+        try:
+            os.sched_setaffinity(int(tid), cpus)
+        except OSError:  # a thread that ended meanwhile
+            pass
 
 
 def _run_jobs(jobs: dict, workers: int, progress: bool) -> dict:
