@@ -31,6 +31,7 @@ from .config import Config, parse_config
 from .errors import InputError, SolverError
 from .io import write_json, write_npz
 from .reduced import ControlPoint
+from .threads import bind_threads
 from .workflows import optimize_single, write_optimization_outputs
 
 __all__ = ["paper_config", "reproduce_paper_1d", "PAPER_REPORT"]
@@ -174,22 +175,13 @@ def _pin_to_cpu(index: int, allowed: list) -> set | None:
     if not hasattr(os, "sched_setaffinity"):
         return None
     before = os.sched_getaffinity(0)
-    _bind_threads({allowed[index % len(allowed)]})
+    bind_threads({allowed[index % len(allowed)]})
     return before
 
 
 def _restore_cpus(cpus: set | None) -> None:
     if cpus is not None:
-        _bind_threads(cpus)
-
-
-def _bind_threads(cpus: set) -> None:
-    """Set the CPU set of every thread of this process (affinity is per thread on Linux)."""
-    for tid in os.listdir("/proc/self/task"):
-        try:
-            os.sched_setaffinity(int(tid), cpus)
-        except OSError:  # a thread that ended meanwhile
-            pass
+        bind_threads(cpus)
 
 
 def _run_jobs(jobs: dict, workers: int, progress: bool) -> dict:

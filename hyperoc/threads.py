@@ -1,0 +1,53 @@
+"""CPU affinity of this process's threads, and the size of XLA's CPU thread pool.
+
+XLA sizes its CPU thread pool by the CPUs the process may run on when the backend starts. Started
+with one (``taskset -c 0 ...``), the pool has a single thread, and `jax.pure_callback` (the host
+sparse solve of `hyperoc.linsolve`) can deadlock: the callback's operands are copied to the CPU
+device by a task queued on that pool, whose only thread is the one waiting inside the callback.
+Measured with jax 0.10.2: the Land et al. ventricle (h = 9 mm, 1515 dofs, 5 load steps) hangs with
+no CPU use under ``taskset -c 0``, and runs in 14 s when the backend is started as below.
+
+`start_backend` therefore starts the backend on every CPU of the machine and then binds all the
+threads back to the CPUs the process was given: the pool keeps several threads, the process keeps
+its pinning. Where the CPU set cannot be widened (a one-CPU cpuset) it warns instead.
+"""
+
+import os
+import warnings
+
+import jax
+
+__all__ = ["bind_threads", "start_backend"]
+
+
+def bind_threads(cpus: set) -> None:
+    """Set the CPU set of every thread of this process (affinity is per thread on Linux)."""
+    for tid in os.listdir("/proc/self/task"):
+        try:
+            os.sched_setaffinity(int(tid), cpus)
+        except OSError:  # a thread that ended meanwhile
+            pass
+
+
+def start_backend() -> None:
+    """Start JAX's CPU backend with a thread pool of at least two threads (module docstring)."""
+    from jax._src import xla_bridge
+
+    if not hasattr(os, "sched_setaffinity") or xla_bridge.backends_are_initialized():
+        return
+    allowed = os.sched_getaffinity(0)
+    if len(allowed) > 1:
+        jax.devices()
+        return
+    try:
+        os.sched_setaffinity(0, set(range(os.cpu_count() or 1)))
+        widened = len(os.sched_getaffinity(0)) > 1
+    except OSError:  # CPUs outside the process's cpuset
+        widened = False
+    try:
+        jax.devices()
+    finally:
+        bind_threads(allowed)
+    if not widened:
+        warnings.warn("hyperoc: a single CPU: XLA's CPU thread pool has one thread, and large 3D host solves "
+                      "may deadlock inside jax.pure_callback (see hyperoc.threads)", RuntimeWarning, stacklevel=2)

@@ -1,0 +1,48 @@
+"""A process pinned to one CPU (``taskset -c 0``) keeps XLA's CPU pool at two or more threads.
+
+XLA sizes its CPU thread pool (threads named ``tf_XLAEigen``) by the CPUs the process may use when the
+backend starts; with one, the host sparse solve inside `jax.pure_callback` deadlocked on the Land
+ventricle (hyperoc.threads). Each test runs a fresh interpreter bound to one CPU before it starts.
+"""
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+pytestmark = pytest.mark.skipif(not hasattr(os, "sched_setaffinity") or len(os.sched_getaffinity(0)) < 2,
+                                reason="needs Linux CPU affinity and two CPUs")
+
+
+def run_pinned(code: str, timeout: float) -> str:
+    """stdout of ``code`` run by a fresh interpreter that binds itself to one CPU before any import."""
+    pin = f"import os; os.sched_setaffinity(0, {{{min(os.sched_getaffinity(0))}}})\n"
+    out = subprocess.run([sys.executable, "-c", pin + textwrap.dedent(code)], capture_output=True, text=True,
+                         timeout=timeout, check=True)
+    return out.stdout
+
+
+def test_import_starts_a_multithreaded_pool_and_keeps_the_pinning():
+    out = run_pinned("""
+        import os
+        import hyperoc
+        names = [open(f"/proc/self/task/{t}/comm").read().strip() for t in os.listdir("/proc/self/task")]
+        cpus = {frozenset(os.sched_getaffinity(int(t))) for t in os.listdir("/proc/self/task")}
+        print(names.count("tf_XLAEigen"), len(cpus), len(next(iter(cpus))))
+    """, timeout=120)
+    pool, distinct_sets, cpus = map(int, out.split())
+    assert pool >= 2
+    assert distinct_sets == 1 and cpus == 1  # every thread still on the one CPU the process was given
+
+
+def test_pinned_host_solve_of_the_ventricle_completes():
+    """The case that hung (no CPU use, forever) before the backend was started on every CPU."""
+    out = run_pinned("""
+        from hyperoc.benchmarks import ventricle_apex
+        r = ventricle_apex(9.0, kappa=1000.0, steps=5)
+        print(r.dofs, r.values["z_endo"])
+    """, timeout=600)
+    dofs, z_endo = out.split()
+    assert int(dofs) > 1000 and float(z_endo) < -17.0  # the apex moves down from z = -17 under the load
