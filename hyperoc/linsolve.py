@@ -113,7 +113,8 @@ class SparseSolver:
 
     ``stats`` accumulates ``calls``, ``factorizations``, ``iterations`` (refinement or Krylov)
     and the host seconds ``assembly_s`` (blocks -> matrix), ``factor_s``, ``solve_s`` and
-    ``host_s`` (whole ``host_solve``).
+    ``host_s`` (whole ``host_solve``); ``failed`` counts traced solves that returned NaN (singular K,
+    MINRES failure; ``last_failure`` holds the message).
     """
 
     traced = False
@@ -130,10 +131,11 @@ class SparseSolver:
         self.reuse_rate, self.reuse_max_iter = reuse_rate, reuse_max_iter
         self._order = None  # (q, position, indices, indptr) of the permuted CSC, after the first call
         self._lu = None  # kept factorization ("lu_reuse")
+        self.last_failure = None
         self.reset_stats()
 
     def reset_stats(self):
-        self.stats = {"calls": 0, "factorizations": 0, "iterations": 0, "refactor_after_stall": 0,
+        self.stats = {"calls": 0, "factorizations": 0, "iterations": 0, "refactor_after_stall": 0, "failed": 0,
                       "assembly_s": 0.0, "factor_s": 0.0, "solve_s": 0.0, "host_s": 0.0}
 
     # --- structure ----------------------------------------------------------------------------
@@ -261,8 +263,20 @@ class SparseSolver:
             raise np.linalg.LinAlgError(f"MINRES did not converge (info = {info}, backward error {err:.2e})")
         return x
 
+    def _host_solve_or_nan(self, *args):
+        """`host_solve`, with NaN for a singular matrix (SuperLU) or a MINRES failure: JAX leaves an
+        exception raised inside ``jax.pure_callback`` undefined, while NaN makes Newton fail, so the
+        caller cuts the load step back or raises `SolverError` naming the step. ``stats["failed"]``
+        counts these, and ``last_failure`` keeps the message."""
+        try:
+            return self.host_solve(*args)
+        except (RuntimeError, np.linalg.LinAlgError) as err:
+            self.stats["failed"] += 1
+            self.last_failure = str(err)
+            return np.full(self.n + 1, np.nan)
+
     def solve(self, blocks, col, row, r_u, r_c):
-        out = jax.pure_callback(self.host_solve, jax.ShapeDtypeStruct((self.n + 1,), jnp.float64),
+        out = jax.pure_callback(self._host_solve_or_nan, jax.ShapeDtypeStruct((self.n + 1,), jnp.float64),
                                 blocks, col, row, r_u, r_c)
         return out[:-1], out[-1]
 
