@@ -162,14 +162,12 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
     iters, s_done, ds, cuts, k = [], 0.0, 1.0 / steps, 0, 0
     while s_done < 1.0:
         s = s_done + ds if s_done + ds < 1.0 - 1e-12 else 1.0
-        try:
-            x_new, it, status, mindet = solve(x, s * f, V_start + s * (V - V_start), s)
-            status, detail = int(status), f"min det F = {float(mindet):.3g}"
-            cause = None if status == 0 and float(mindet) > 0 else {1: "newton", 2: "nonfinite"}.get(status, "detF")
-        except (RuntimeError, ValueError) as err:  # a host linear solve failed (singular tangent)
-            if "CpuCallback" not in str(err):  # JAX reports callback errors as one of these two
-                raise
-            cause, detail = "newton", f"linear solve failed: {str(err).strip().splitlines()[-1]}"
+        failed = getattr(lin, "stats", {}).get("failed", 0)
+        x_new, it, status, mindet = solve(x, s * f, V_start + s * (V - V_start), s)
+        status, detail = int(status), f"min det F = {float(mindet):.3g}"
+        cause = None if status == 0 and float(mindet) > 0 else {1: "newton", 2: "nonfinite"}.get(status, "detF")
+        if getattr(lin, "stats", {}).get("failed", 0) > failed:  # the host solve returned NaN
+            cause, detail = "newton", f"linear solve failed: {lin.last_failure}"
         if cause is None:
             x, s_done, k = x_new, s, k + 1
             iters.append(int(it))
@@ -177,7 +175,7 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
         elif cuts < cutbacks:
             ds, cuts = ds / 2, cuts + 1
         else:
-            raise SolverError(k, s, cause, f"load step {k + 1}/{steps} (load factor {s:.6g}"
+            raise SolverError(k, s, cause, f"load step {k + 1} (load factor {s:.6g} of 1, {steps} nominal steps"
                               f"{f', after {cuts} cutbacks' if cuts else ''}), {detail}")
     x = np.asarray(x)
     u = x[:-1] if constrained else x[:-1] + x[-1] * model.n ** -0.5
