@@ -7,7 +7,10 @@ Generators (boundaries tagged after meshing by the nearest analytic surface):
 - `ventricle`: idealized left ventricle of the Land et al. (2015) cardiac mechanics benchmark
   (truncated prolate ellipsoidal shell, Gmsh OCC).
 
-Their vertices lie on the exact surfaces. With ``curved=True`` (default) the mesh also carries, for
+Their vertices lie on the exact surfaces, also after ``refinements`` uniform (red) refinements
+(`hyperoc.mesh.refine`), which split every cell into 2^d and put the new boundary vertices on the
+exact surfaces: nested-looking sequences of shape-regular meshes for convergence studies, where
+Gmsh meshes of decreasing size are unrelated to each other. With ``curved=True`` (default) the mesh also carries, for
 every edge of a facet on a curved surface, the point of that surface near the edge midpoint
 (`hyperoc.mesh.Mesh.curved_edges`): P2 spaces then map those cells isoparametrically and see the
 boundary to O(h^3) (areas and volumes to O(h^4)) instead of the O(h^2) of the flat facets; P1
@@ -38,7 +41,7 @@ import numpy as np
 
 from .errors import InputError
 from .assembly import solve_dirichlet
-from .mesh import Mesh
+from .mesh import Mesh, refine
 from .spaces import VectorSpace
 
 __all__ = ["annulus", "thick_shell", "ventricle", "from_file", "to_file"]
@@ -66,6 +69,7 @@ def annulus(
     n_radial: int | None = None,
     n_theta: int | None = None,
     curved: bool = True,
+    refinements: int = 0,
 ) -> Mesh:
     """Triangulated annulus ``r_inner < |x| < r_outer`` centred at the origin.
 
@@ -85,6 +89,8 @@ def annulus(
         Number of cells across the ring and around it (structured grid only).
     curved : bool
         Carry the P2 node positions of the boundary edges on the circles (module docstring).
+    refinements : int
+        Uniform refinements of the generated mesh (module docstring), each halving h.
 
     Returns
     -------
@@ -101,10 +107,11 @@ def annulus(
     else:
         _require(n_radial is None and n_theta is None, "annulus: n_radial/n_theta need structured=True")
         mesh = _gmsh_annulus(r_inner, r_outer, h)
-    return _curved_shell(mesh, r_inner, r_outer, curved)
+    return _curved_shell(mesh, r_inner, r_outer, curved, refinements)
 
 
-def thick_shell(r_inner: float = 0.5, r_outer: float = 1.0, h: float = 0.2, *, curved: bool = True) -> Mesh:
+def thick_shell(r_inner: float = 0.5, r_outer: float = 1.0, h: float = 0.2, *, curved: bool = True,
+                refinements: int = 0) -> Mesh:
     """Tetrahedral mesh of the spherical shell ``r_inner < |x| < r_outer`` (Gmsh OCC).
 
     Parameters
@@ -115,6 +122,8 @@ def thick_shell(r_inner: float = 0.5, r_outer: float = 1.0, h: float = 0.2, *, c
         Target edge length (same units).
     curved : bool
         Carry the P2 node positions of the boundary edges on the spheres (module docstring).
+    refinements : int
+        Uniform refinements of the generated mesh (module docstring), each halving h.
 
     Returns
     -------
@@ -129,7 +138,7 @@ def thick_shell(r_inner: float = 0.5, r_outer: float = 1.0, h: float = 0.2, *, c
         occ.cut([(3, occ.addSphere(0, 0, 0, r_outer))], [(3, occ.addSphere(0, 0, 0, r_inner))])
         occ.synchronize()
         mesh = _gmsh_generate(gmsh, 3, h)
-    return _curved_shell(mesh, r_inner, r_outer, curved)
+    return _curved_shell(mesh, r_inner, r_outer, curved, refinements)
 
 
 def ventricle(
@@ -139,6 +148,7 @@ def ventricle(
     epi: tuple[float, float] = (10.0, 20.0),
     base_z: float = 5.0,
     curved: bool = True,
+    refinements: int = 0,
 ) -> Mesh:
     """Idealized left ventricle of the Land et al. (2015) benchmark: a truncated prolate shell.
 
@@ -158,6 +168,9 @@ def ventricle(
     curved : bool
         Carry the P2 node positions of the edges on the two ellipsoids (module docstring); the
         rim edges move along the base plane, onto the circles where it cuts the ellipsoids.
+    refinements : int
+        Uniform refinements of the Gmsh mesh (module docstring), each halving h: a nested
+        sequence for convergence studies (``ventricle(4, refinements=k)``, k = 0, 1, 2).
 
     Returns
     -------
@@ -179,8 +192,9 @@ def ventricle(
         occ.synchronize()
         mesh = _gmsh_generate(gmsh, 3, h)
     walls = {"endocardium": _Quadric((rs_endo, rs_endo, rl_endo)), "epicardium": _Quadric((rs_epi, rs_epi, rl_epi))}
-    return _tagged(mesh, walls, {"base": lambda x: x[:, 2] - base_z}, dirichlet="base", neumann="endocardium",
-                   curved=curved, planes={"base": (0.0, 0.0, 1.0)})
+    tag = lambda mesh, curved: _tagged(mesh, walls, {"base": lambda x: x[:, 2] - base_z}, dirichlet="base",
+                                       neumann="endocardium", curved=curved, planes={"base": (0.0, 0.0, 1.0)})
+    return _refined(mesh, tag, curved, refinements)
 
 
 def _polar_grid(r_inner: float, r_outer: float, n_radial: int, n_theta: int) -> Mesh:
@@ -226,11 +240,22 @@ class _Quadric:
         return x - (c0 / q)[:, None] * d
 
 
-def _curved_shell(mesh: Mesh, r_inner: float, r_outer: float, curved: bool) -> Mesh:
+def _curved_shell(mesh: Mesh, r_inner: float, r_outer: float, curved: bool, refinements: int) -> Mesh:
     """`_tagged` for the concentric circles/spheres ``|x| = r_outer`` (``"outer"``, ``gamma_d``) and
-    ``|x| = r_inner`` (``"inner"``, ``gamma_n``, the cavity) of an annulus or a shell."""
+    ``|x| = r_inner`` (``"inner"``, ``gamma_n``, the cavity) of an annulus or a shell, `_refined`."""
     spheres = {name: _Quadric(np.full(mesh.dim, r)) for name, r in (("outer", r_outer), ("inner", r_inner))}
-    return _tagged(mesh, spheres, {}, dirichlet="outer", neumann="inner", curved=curved)
+    tag = lambda mesh, curved: _tagged(mesh, spheres, {}, dirichlet="outer", neumann="inner", curved=curved)
+    return _refined(mesh, tag, curved, refinements)
+
+
+def _refined(mesh: Mesh, tag: Callable, curved: bool, refinements: int) -> Mesh:
+    """``tag(mesh, curved)`` (boundary names and curved edges) after ``refinements`` uniform refinements
+    (`hyperoc.mesh.refine`), each of the curved mesh: the new vertices of the boundary edges land on
+    the exact surfaces, so the refined meshes approximate the true domain, not the first mesh's."""
+    _require(isinstance(refinements, int) and refinements >= 0, f"need refinements >= 0 (an integer), got {refinements!r}")
+    for _ in range(refinements):
+        mesh = refine(tag(mesh, True))
+    return tag(mesh, curved)
 
 
 def _tagged(mesh: Mesh, walls: dict, flat: dict, *, dirichlet: str, neumann: str, curved: bool,

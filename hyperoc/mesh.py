@@ -23,7 +23,7 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["Mesh", "interval", "rectangle", "box"]
+__all__ = ["Mesh", "interval", "rectangle", "box", "refine"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -162,6 +162,78 @@ def _curved_edge_data(edges, positions, num_points: int, dim: int) -> tuple[np.n
     if not np.all(np.isfinite(positions)):
         raise InputError("mesh: curved edge positions must be finite")
     return edges, positions
+
+
+#: Red refinement: the children of a simplex as rows of local node indices, vertices ``0 .. d`` then
+#: the edge nodes ``d + 1 + k`` of the local edges ``k`` in ``itertools.combinations(range(d + 1), 2)``
+#: order. In 3D the four corner tetrahedra; the inner octahedron is split separately (`_octahedron`).
+_CORNERS = {
+    1: [[0, 2], [2, 1]],
+    2: [[0, 3, 4], [3, 1, 5], [4, 5, 2], [3, 5, 4]],
+    3: [[0, 4, 5, 6], [4, 1, 7, 8], [5, 7, 2, 9], [6, 8, 9, 3]],
+}
+#: The octahedron's three diagonals (pairs of opposite edge nodes: m01-m23, m02-m13, m03-m12), each
+#: followed by the other four edge nodes in cyclic order around it.
+_DIAGONALS = [((4, 9), (5, 6, 8, 7)), ((5, 8), (4, 6, 9, 7)), ((6, 7), (4, 5, 9, 8))]
+
+
+def refine(mesh: Mesh) -> Mesh:
+    """Uniform red refinement: every simplex splits into ``2^d`` (a segment into 2, a triangle into
+    4, a tetrahedron into 8, its inner octahedron cut along its shortest diagonal, which keeps the
+    shape quality bounded over repeated refinements); named boundaries split with their facets and
+    subdomains pass to the children.
+
+    The new vertex of an edge is its P2 node: the straight midpoint, or the mesh's curved point for
+    a curved edge (``curved_edges``), so repeated refinement of a curved mesh puts every new
+    boundary vertex on the exact surface. The result is straight-sided; curving its boundary edges
+    again is the geometry's job (`hyperoc.geometry` generators take ``refinements``).
+
+    Raises `InputError` if a child would be inverted (a curved node too far off its midpoint).
+    """
+    dim, nv = mesh.dim, len(mesh.points)
+    local = list(itertools.combinations(range(dim + 1), 2))
+    edges, inverse = np.unique(np.sort(mesh.cells[:, local], axis=2).reshape(-1, 2), axis=0, return_inverse=True)
+    straight = np.concatenate([mesh.points, 0.5 * (mesh.points[edges[:, 0]] + mesh.points[edges[:, 1]])])
+    points = straight.copy()
+    if mesh.is_curved:
+        points[nv + _edge_index(edges, mesh.curved_edges, nv)] = mesh.curved_points
+    nodes = np.concatenate([mesh.cells, nv + inverse.reshape(mesh.num_cells, len(local))], axis=1)
+    children = nodes[:, _CORNERS[dim]]  # (nc, k, dim + 1)
+    if dim == 3:
+        children = np.concatenate([children, _octahedron(nodes, points)], axis=1)
+    nchild = children.shape[1]
+    children = _orient_positively(straight, children.reshape(-1, dim + 1))
+    x = points[children]
+    if np.any(np.linalg.det(np.swapaxes(x[:, 1:] - x[:, :1], 1, 2)) <= 0):
+        raise InputError("refine: a curved edge node lies so far off its midpoint that a child cell folds")
+    boundaries = {name: _refine_facets(facets, edges, nv) for name, facets in mesh.boundaries.items()}
+    subdomains = {name: np.repeat(mask, nchild) for name, mask in mesh.subdomains.items()}
+    return Mesh(points, children, boundaries, subdomains)
+
+
+def _edge_index(edges: np.ndarray, wanted: np.ndarray, nv: int) -> np.ndarray:
+    """Rows of the sorted unique ``edges`` (ne, 2) holding the vertex pairs ``wanted`` (..., 2)."""
+    key = lambda e: e[..., 0] * nv + e[..., 1]
+    return np.searchsorted(key(edges), key(np.sort(wanted, axis=-1)))
+
+
+def _octahedron(nodes: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """The four tetrahedra (nc, 4, 4) of each cell's inner octahedron around its shortest diagonal
+    (local node indices as in `_CORNERS`)."""
+    length = np.stack([np.linalg.norm(points[nodes[:, a]] - points[nodes[:, b]], axis=1) for (a, b), _ in _DIAGONALS], 1)
+    templates = np.array([[[a, b, ring[i], ring[(i + 1) % 4]] for i in range(4)] for (a, b), ring in _DIAGONALS])
+    local = templates[np.argmin(length, axis=1)]  # (nc, 4, 4)
+    return np.take_along_axis(nodes[:, None, :], local, axis=2)
+
+
+def _refine_facets(facets: np.ndarray, edges: np.ndarray, nv: int) -> np.ndarray:
+    """The ``2^(d-1)`` children of every boundary facet (nf, d) of a mesh refined by `refine`."""
+    d = facets.shape[1]
+    if d == 1:
+        return facets
+    local = list(itertools.combinations(range(d), 2))
+    nodes = np.concatenate([facets, nv + _edge_index(edges, facets[:, local], nv)], axis=1)
+    return nodes[:, _CORNERS[d - 1]].reshape(-1, d)
 
 
 def _factorial(d: int) -> int:
