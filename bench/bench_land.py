@@ -4,7 +4,10 @@ Problem 1: beam 10 x 1 x 1 mm, ``10 n x n x n`` cubes of six P2 tetrahedra; repo
 point (10, 0.5, 1). Problem 2: idealized LV (Gmsh, target edge h mm), P2, isoparametric on the exact
 ellipsoids (``--faceted``: straight-sided cells, as before), base clamped (``--base sliding``: u_z = 0,
 rigid in-plane motions pinned); reported: z of the deformed endocardial and epicardial apex and the
-deformed cavity volume. Both:
+deformed cavity volume. ``--lv-refinements 0,1,2``: each size is the coarsest mesh of a nested
+sequence of uniform refinements (`hyperoc.mesh.refine`, h halved per level, new boundary vertices on
+the exact ellipsoids), the setting in which the observed order and the Richardson limit mean
+something; Gmsh meshes of decreasing size are unrelated to each other. Both:
 Guccione with the volumetric penalty ``kappa`` (kPa), no global volume constraint, follower pressure, full Newton steps with load stepping (halving on failure).
 
 For each kappa the values converge as h -> 0 to the compressible solution with that bulk modulus; as
@@ -15,6 +18,7 @@ largest kappa at the finest level.
 
     nice python bench/bench_land.py --json results/land.json            # default study
     nice python bench/bench_land.py --problems 2 --kappas 1000 --base sliding --json results/land-slide.json
+    nice python bench/bench_land.py --problems 2 --kappas 1000 --lv-sizes 6 --lv-refinements 0,1,2 --json results/land-nested.json
     nice python bench/bench_land.py --problems 1 --json results/land-beam.json   # one problem
     python bench/bench_land.py --beam-levels 1,2 --lv-sizes 4 --kappas 1000   # quick look
     python bench/bench_land.py --render results/land-*.json                 # tables of saved runs
@@ -87,9 +91,16 @@ def _extrapolate(by_kappa: dict, key: str) -> str:
 
 
 def _variant(params: dict) -> str:
-    """The problem 2 geometry and base of a result row (rows from before those options: faceted, clamped)."""
+    """The problem 2 geometry, base and mesh sequence of a result row (rows from before those options:
+    faceted, clamped, Gmsh sizes)."""
     geometry = "curved" if params.get("curved", False) else "faceted"
-    return f"{geometry}, base {params.get('base', 'clamped')}"
+    nested = f", nested: h0 = {params['mesh_size']:g} refined" if params.get("nested") else ""
+    return f"{geometry}, base {params.get('base', 'clamped')}{nested}"
+
+
+def _level_key(params: dict) -> str:
+    """The column that tells the levels of a problem 2 sequence apart."""
+    return "refinements" if params.get("nested") else "mesh_size"
 
 
 def render(paths: list[str]):
@@ -109,7 +120,8 @@ def render(paths: list[str]):
         label = (lambda r: "") if problem == 1 else (lambda r: ", " + _variant(r["params"]))
         for kappa, variant in sorted({(r["params"]["kappa"], label(r)) for r in mine}):
             group = sorted((r for r in mine if (r["params"]["kappa"], label(r)) == (kappa, variant)), key=lambda r: -r["h"])
-            print(_table(f"{name}, P2{variant}, kappa = {kappa:g} kPa", group, level_key, keys) + "\n")
+            key = level_key if problem == 1 else _level_key(group[0]["params"])
+            print(_table(f"{name}, P2{variant}, kappa = {kappa:g} kPa", group, key, keys) + "\n")
 
 
 def main():
@@ -117,6 +129,8 @@ def main():
     ap.add_argument("--problems", default="1,2", help="which benchmark problems to run")
     ap.add_argument("--beam-levels", default="1,2,3", help="beam refinement n (10n x n x n cubes)")
     ap.add_argument("--lv-sizes", default="4,3,2", help="ventricle target edge lengths (mm)")
+    ap.add_argument("--lv-refinements", default=None,
+                    help="uniform refinement levels of each ventricle size, e.g. 0,1,2: nested sequences")
     ap.add_argument("--kappas", default="1000,10000", help="penalty bulk moduli kappa (kPa)")
     ap.add_argument("--beam-steps", type=int, default=10)
     ap.add_argument("--lv-steps", type=int, default=20)
@@ -132,7 +146,8 @@ def main():
     kappas = _floats(args.kappas)
     results = []
 
-    def record(res):
+    def record(res, **extra):
+        res.params.update(extra)
         row = {"values": res.values, "h": res.h, "dofs": res.dofs, "newton_iterations": res.newton_iterations.tolist(),
                "seconds": res.seconds, "min_det_F": res.min_det_F, "max_volume_change": res.max_volume_change,
                "mean_volume_change": res.mean_volume_change,
@@ -143,20 +158,26 @@ def main():
 
     tables, extrap = [], []
     problems = {int(v) for v in _floats(args.problems)}
-    for number, name, levels, run, level_key, keys in (
-        (1, "Problem 1 (beam)", [int(v) for v in _floats(args.beam_levels)],
-         lambda lv, k: beam_deflection(lv, kappa=k, steps=args.beam_steps), "n", ["z_tip"]),
-        (2, "Problem 2 (ventricle)", _floats(args.lv_sizes),
-         lambda lv, k: ventricle_apex(lv, kappa=k, steps=args.lv_steps, curved=not args.faceted, base=args.base),
-         "mesh_size", LV_KEYS),
+    lv_sequences = [[(h, 0)] for h in _floats(args.lv_sizes)] if args.lv_refinements is None else \
+        [[(h, int(k)) for k in _floats(args.lv_refinements)] for h in _floats(args.lv_sizes)]
+    lv_run = lambda level, kappa: record(ventricle_apex(level[0], kappa=kappa, steps=args.lv_steps, curved=not args.faceted,
+                                                        base=args.base, refinements=level[1]),
+                                         nested=args.lv_refinements is not None)
+    for number, name, sequences, run, level_key, keys in (
+        (1, "Problem 1 (beam)", [[int(v) for v in _floats(args.beam_levels)]],
+         lambda lv, k: record(beam_deflection(lv, kappa=k, steps=args.beam_steps)), "n", ["z_tip"]),
+        (2, "Problem 2 (ventricle)", lv_sequences if args.lv_refinements is not None else [sum(lv_sequences, [])],
+         lv_run, None, LV_KEYS),
     ):
         if number not in problems:
             continue
         finest = {}
         for kappa in kappas:
-            rows = [record(run(lv, kappa)) for lv in levels]
-            variant = f", {_variant(rows[0]['params'])}" if number == 2 else ""
-            tables.append(_table(f"{name}, P2{variant}, kappa = {kappa:g} kPa", rows, level_key, keys))
+            for levels in sequences:
+                rows = [run(lv, kappa) for lv in levels]
+                variant = f", {_variant(rows[0]['params'])}" if number == 2 else ""
+                key = level_key or _level_key(rows[0]["params"])
+                tables.append(_table(f"{name}, P2{variant}, kappa = {kappa:g} kPa", rows, key, keys))
             finest[kappa] = rows[-1]["values"]
         if len(kappas) >= 2:
             extrap += [f"{name}, finest level: " + _extrapolate({k: v[key] for k, v in finest.items()}, key)

@@ -109,9 +109,10 @@ BASE_CONDITIONS = {
 
 
 def ventricle_problem(h: float, *, kappa: float, degree: int = 2, curved: bool = True,
-                      base: str = "clamped") -> tuple[StateModel, FollowerPressure]:
+                      base: str = "clamped", refinements: int = 0) -> tuple[StateModel, FollowerPressure]:
     """Problem 2 on `hyperoc.geometry.ventricle` (h, mm; ``curved``: isoparametric P2 on the exact
-    ellipsoids, else straight-sided cells): the model and the endocardial pressure.
+    ellipsoids, else straight-sided cells; ``refinements``: uniform refinements of the Gmsh mesh of
+    size h, a nested sequence): the model and the endocardial pressure.
 
     ``base``: ``"clamped"`` (u = 0) or ``"sliding"`` (u_z = 0; the three in-plane rigid motions
     pinned by an isostatic support, `StateModel` ``pin_rigid``, which carries no reaction since the
@@ -121,7 +122,7 @@ def ventricle_problem(h: float, *, kappa: float, degree: int = 2, curved: bool =
         raise InputError(f"ventricle base must be one of {sorted(BASE_CONDITIONS)}, got {base!r}")
     p = VENTRICLE
     material = Guccione(C=p["C"], bf=p["bf"], bt=p["bt"], bfs=p["bfs"], kappa=kappa)
-    model = StateModel(ventricle(h, curved=curved), material, degree=degree, frames=_fibres_along_x,
+    model = StateModel(ventricle(h, curved=curved, refinements=refinements), material, degree=degree, frames=_fibres_along_x,
                        **BASE_CONDITIONS[base])
     return model, FollowerPressure(model, "endocardium", p["pressure"])
 
@@ -160,15 +161,15 @@ def beam_deflection(n: int, *, kappa: float = 1000.0, degree: int = 2, steps: in
 
 
 def ventricle_apex(h: float, *, kappa: float = 1000.0, degree: int = 2, steps: int = 10, cutbacks: int = 8,
-                   solver="auto", curved: bool = True, base: str = "clamped") -> BenchmarkResult:
+                   solver="auto", curved: bool = True, base: str = "clamped", refinements: int = 0) -> BenchmarkResult:
     """Problem 2 (`ventricle_problem`): ``values["z_endo"]``, ``values["z_epi"]`` = z of the deformed
     endocardial and epicardial apex (mm; -17 and -20 at rest), ``values["V_cavity"]`` the deformed
     cavity volume (mm^3, `hyperoc.report.cavity_volume`: the endocardium closed by the base plane)."""
     from .report import cavity_volume
 
-    model, load = ventricle_problem(h, kappa=kappa, degree=degree, curved=curved, base=base)
+    model, load = ventricle_problem(h, kappa=kappa, degree=degree, curved=curved, base=base, refinements=refinements)
     cavity = lambda model, u: {"V_cavity": float(cavity_volume(model.space, model.expand(u)[None])[0])}
     return _solve(model, load, steps, cutbacks, solver,
                   {"z_endo": VENTRICLE["endo_apex"], "z_epi": VENTRICLE["epi_apex"]},
                   {"problem": 2, "mesh_size": h, "kappa": kappa, "degree": degree, "steps": steps,
-                   "cutbacks": cutbacks, "curved": curved, "base": base}, cavity)
+                   "cutbacks": cutbacks, "curved": curved, "base": base, "refinements": refinements}, cavity)
