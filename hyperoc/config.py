@@ -20,7 +20,7 @@ from .errors import InputError
 from .expr import expression_field, parse_expression
 from .fibres import FibreFrames, rule_based_fibres
 from .materials import Guccione, HolzapfelOgden, material_from_config
-from .mesh import Mesh, box, interval, rectangle
+from .mesh import Mesh, box, interval, rectangle, refine
 from .model import StateModel
 from .objectives import objective_from_config
 from .reduced import checkpoint_options
@@ -37,6 +37,8 @@ SCHEMA = {
         "nz": (int, ...), "size": (list, ...), "dirichlet": (str, "left"), "r_inner": (NUMBER, 0.5),
         "r_outer": (NUMBER, 1.0), "h": (NUMBER, 0.1), "structured": (bool, False), "n_radial": (int, ...),
         "n_theta": (int, ...), "file": (str, ...), "degree": (int, 1),
+        # uniform refinements of the mesh built (hyperoc.mesh.refine; curved geometries stay exact)
+        "refinements": (int, 0),
         "dirichlet_tag": (str, "gamma_d"), "neumann_tag": (str, "gamma_n"), "control_tag": (str, "omega"),
         # components fixed on gamma_d (default: all); e.g. [2] = a base sliding in its plane, with the
         # rigid in-plane motions this leaves removed by three pinned dofs (StateModel.pinned_dofs)
@@ -109,28 +111,44 @@ class Config:
     # --- builders ---------------------------------------------------------------------------------
     def mesh(self) -> Mesh:
         c = self["mesh"]
-        kind = c["kind"]
+        kind, k = c["kind"], c["refinements"]
+        if k < 0:
+            raise InputError(f"config: [mesh] refinements must be >= 0, got {k}")
+        if kind in ("annulus", "shell", "ventricle"):
+            return self._curved_mesh(kind, k)
+        mesh = self._straight_mesh(kind)
+        for _ in range(k):
+            mesh = refine(mesh)
+        return mesh
+
+    def _straight_mesh(self, kind: str) -> Mesh:
+        c = self["mesh"]
         if kind == "interval":
             return interval(c["n"], c["length"])
         if kind == "rectangle":
             return rectangle(c["nx"], c.get("ny"), tuple(c.get("size", (1.0, 1.0))), c["dirichlet"])
         if kind == "box":
             return box(c["nx"], c.get("ny"), c.get("nz"), tuple(c.get("size", (1.0, 1.0, 1.0))), c["dirichlet"])
-        from . import geometry
-
-        if kind == "annulus":
-            return geometry.annulus(c["r_inner"], c["r_outer"], c["h"], structured=c["structured"],
-                                    n_radial=c.get("n_radial"), n_theta=c.get("n_theta"))
-        if kind == "shell":
-            return geometry.thick_shell(c["r_inner"], c["r_outer"], c["h"])
-        if kind == "ventricle":
-            return geometry.ventricle(c["h"])
         if kind == "file":
+            from . import geometry
+
             if "file" not in c:
                 raise InputError("config: [mesh] kind = 'file' needs file = 'path/to/mesh.msh'")
             path = (self.base / c["file"]).resolve()
             return geometry.from_file(path, dirichlet=c["dirichlet_tag"], neumann=c["neumann_tag"], control=c["control_tag"])
         raise InputError(f"config: [mesh] kind {kind!r} unknown (interval, rectangle, box, annulus, shell, ventricle, file)")
+
+    def _curved_mesh(self, kind: str, refinements: int) -> Mesh:
+        """The generators that put refined boundary vertices on their exact surfaces."""
+        from . import geometry
+
+        c = self["mesh"]
+        if kind == "annulus":
+            return geometry.annulus(c["r_inner"], c["r_outer"], c["h"], structured=c["structured"],
+                                    n_radial=c.get("n_radial"), n_theta=c.get("n_theta"), refinements=refinements)
+        if kind == "shell":
+            return geometry.thick_shell(c["r_inner"], c["r_outer"], c["h"], refinements=refinements)
+        return geometry.ventricle(c["h"], refinements=refinements)
 
     def fibres(self, mesh: Mesh) -> FibreFrames | None:
         """Fibre frames of ``[fibres]`` on ``mesh`` (kind "rule_based"), or None (kind "none")."""

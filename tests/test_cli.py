@@ -77,6 +77,8 @@ def test_check_gradient_json(tmp_path, capsys):
         (("n = 20", "n = 20\nfixed_components = [1]"), "fixed_components"),
         (('kind = "interval"', 'kind = "file"\nfile = "missing.msh"'), "mesh file not found"),
         (("[objective]", "[objektive]"), "unknown section"),
+        (("n = 20", "n = 20\nrefinements = -1"), "refinements must be >= 0"),
+        (("n = 20", "n = 20\nrefinements = 1.5"), "refinements must be"),
     ],
 )
 def test_bad_input_exit_2(tmp_path, change, message):
@@ -126,3 +128,20 @@ def test_config_sliding_gamma_d_and_checkpointing(tmp_path):
     clamped = load_config(_write(tmp_path, text.replace("fixed_components = [1]\n", ""), "clamped.toml")).model()
     assert model.n == clamped.n + 2 * 9 - 3  # 9 nodes on y = 0: x and z free, minus the three pins
     assert build_reduced(cfg, 1.0).checkpoint_every == 5
+
+
+@pytest.mark.parametrize("mesh, cells", [('kind = "interval"\nn = 20', 20), ('kind = "rectangle"\nnx = 2', 8),
+                                         ('kind = "annulus"\nh = 0.5', None)])
+def test_config_mesh_refinements(tmp_path, mesh, cells):
+    """``[mesh] refinements = k`` refines the mesh built k times (2^(d k) cells); curved generators
+    refine onto their exact surfaces (the annulus keeps its boundary vertices on the circles)."""
+    from hyperoc.config import load_config
+
+    base = load_config(_write(tmp_path, SMALL_1D.replace('kind = "interval"\nn = 20', mesh))).mesh()
+    fine = load_config(_write(tmp_path, SMALL_1D.replace('kind = "interval"\nn = 20', mesh + "\nrefinements = 2"),
+                              "fine.toml")).mesh()
+    assert fine.num_cells == 4**base.dim * base.num_cells
+    assert cells is None or base.num_cells == cells
+    if base.dim == 2 and base.is_curved:
+        radius = np.linalg.norm(fine.points[fine.boundary_vertices("outer")], axis=1)
+        np.testing.assert_allclose(radius, 1.0, rtol=1e-12)
