@@ -2,7 +2,7 @@
 
 The curated API (see the README for a tour)::
 
-    mesh        interval, rectangle, box, Mesh; geometry: annulus, thick_shell, ventricle, from_file
+    mesh        interval, rectangle, box, refine, Mesh; geometry: annulus, thick_shell, ventricle, from_file
     materials   SaintVenantKirchhoff, Fung, Ogden, NeoHookean; Guccione, HolzapfelOgden (fibre frames)
     fibres      transmural_coordinate, rule_based_fibres (helix angle rule)
     controls    BodyForce, ActiveStress, Region
@@ -25,7 +25,7 @@ from .geometry import annulus, from_file, thick_shell, ventricle
 from .fibres import rule_based_fibres, transmural_coordinate
 from .follower import FollowerPressure  # noqa: F401  (quasi-static follower load; see hyperoc.statics)
 from .materials import Fung, Guccione, HolzapfelOgden, NeoHookean, Ogden, SaintVenantKirchhoff
-from .mesh import Mesh, box, interval, rectangle
+from .mesh import Mesh, box, interval, rectangle, refine
 from .model import StateModel
 from .objectives import ControlCost, Objective, PressureAt, PressureRise
 from .optimize import barzilai_borwein, lbfgsb
@@ -40,7 +40,7 @@ __all__ = [
     "ActiveStress", "BodyForce", "Region", "load_config", "Scheme", "StateSolution", "TimeStepper", "solve_state",
     "HyperocError", "InputError", "SolverError", "annulus", "from_file", "thick_shell", "ventricle", "Fung",
     "NeoHookean", "Ogden", "SaintVenantKirchhoff", "Guccione", "HolzapfelOgden", "rule_based_fibres",
-    "transmural_coordinate", "Mesh", "box", "interval", "rectangle", "StateModel",
+    "transmural_coordinate", "Mesh", "box", "interval", "rectangle", "refine", "StateModel",
     "ControlCost", "Objective", "PressureAt", "PressureRise", "barzilai_borwein", "lbfgsb", "ControlPoint",
     "ReducedFunctional", "solve_static", "TimeGrid", "TimeTransform", "uniform_grid", "taylor_test",
 ]

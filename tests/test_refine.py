@@ -13,7 +13,7 @@
 - Curved meshes: the new boundary vertices are the curved P2 edge nodes, on the exact surface to
   round-off; the P2 volume of the nested curved sequence converges at O(h^4) and the faceted one
   at O(h^2), with pre-asymptotic terms O(h^2) relative (tests/test_isoparametric.py), so the
-  observed orders lie within 0.2 of 4 and 2 (measured 3.99-4.00 and 2.11-2.01).
+  observed orders lie within 0.2 of 4 and 2 (measured 3.99-4.00 and 2.11-2.03).
 """
 
 import itertools
