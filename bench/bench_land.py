@@ -7,7 +7,8 @@ rigid in-plane motions pinned); reported: z of the deformed endocardial and epic
 deformed cavity volume. ``--lv-refinements 0,1,2``: each size is the coarsest mesh of a nested
 sequence of uniform refinements (`hyperoc.mesh.refine`, h halved per level, new boundary vertices on
 the exact ellipsoids), the setting in which the observed order and the Richardson limit mean
-something; Gmsh meshes of decreasing size are unrelated to each other. Both:
+something (computed with h = h0 / 2^k; the "h" column stays the largest edge); Gmsh meshes of
+decreasing size are unrelated to each other. Both:
 Guccione with the volumetric penalty ``kappa`` (kPa), no global volume constraint, follower pressure, full Newton steps with load stepping (halving on failure).
 
 For each kappa the values converge as h -> 0 to the compressible solution with that bulk modulus; as
@@ -74,13 +75,20 @@ def _table(title: str, rows: list[dict], level_key: str, value_keys: list[str]) 
             z = [row["values"].get(key, math.nan) for row in rows[: i + 1]]
             order = extrap = ""
             if i >= 2:
-                p, lim = _order([row["h"] for row in rows[i - 2 : i + 1]], z[-3:])
+                p, lim = _order([_scale(row) for row in rows[i - 2 : i + 1]], z[-3:])
                 order, extrap = f"{p:.2f}", f"{lim:.4f}"
             cells += [f"{z[-1]:.5f}", f"{z[-1] - z[-2]:+.2e}" if i else "", order, extrap]
         its = r["newton_iterations"]
         cells += [f"{sum(its)} / {max(its)}", str(len(its)), f"{r['seconds']:.1f}"]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+def _scale(row: dict) -> float:
+    """The mesh size behind the order and the limit: ``h0 / 2^k`` on a nested sequence (every cell
+    halved exactly: the ratio is 2 in any measure), else the largest edge (Gmsh meshes)."""
+    params = row["params"]
+    return params["mesh_size"] / 2 ** params["refinements"] if params.get("nested") else row["h"]
 
 
 def _extrapolate(by_kappa: dict, key: str) -> str:
