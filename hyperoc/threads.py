@@ -7,12 +7,13 @@ device by a task queued on that pool, whose only thread is the one waiting insid
 Measured with jax 0.10.2: the Land et al. ventricle (h = 9 mm, 1515 dofs, 5 load steps) hangs with
 no CPU use under ``taskset -c 0``, and runs in 14 s when the backend is started as below.
 
-`start_backend` therefore starts the backend on every CPU of the machine and then binds all the
-threads back to the CPUs the process was given: the pool keeps several threads, the process keeps
-its pinning. Where the CPU set cannot be widened (a one-CPU cpuset) it warns instead.
+`start_backend` therefore starts the backend on every CPU of the machine and then binds the calling
+thread and the threads XLA started back to the CPUs the caller had (threads that existed before keep
+their own): the pool keeps several threads, the process keeps its pinning. Where the CPU set cannot be widened (a one-CPU cpuset) it warns instead.
 """
 
 import os
+import threading
 import warnings
 
 import jax
@@ -20,11 +21,12 @@ import jax
 __all__ = ["bind_threads", "start_backend"]
 
 
-def bind_threads(cpus: set) -> None:
-    """Set the CPU set of every thread of this process (affinity is per thread on Linux)."""
-    for tid in os.listdir("/proc/self/task"):
+def bind_threads(cpus: set, skip: set = frozenset()) -> None:
+    """Set the CPU set of every thread of this process but those in ``skip`` (thread ids; affinity is
+    per thread on Linux)."""
+    for tid in set(map(int, os.listdir("/proc/self/task"))) - set(skip):
         try:
-            os.sched_setaffinity(int(tid), cpus)
+            os.sched_setaffinity(tid, cpus)
         except OSError:  # a thread that ended meanwhile
             pass
 
@@ -39,6 +41,7 @@ def start_backend() -> None:
     if len(allowed) > 1:
         jax.devices()
         return
+    others = set(map(int, os.listdir("/proc/self/task"))) - {threading.get_native_id()}  # the caller's own threads
     try:
         os.sched_setaffinity(0, set(range(os.cpu_count() or 1)))
         widened = len(os.sched_getaffinity(0)) > 1
@@ -47,7 +50,7 @@ def start_backend() -> None:
     try:
         jax.devices()
     finally:
-        bind_threads(allowed)
+        bind_threads(allowed, skip=others)  # this thread and XLA's new ones
     if not widened:
         warnings.warn("hyperoc: a single CPU: XLA's CPU thread pool has one thread, and large 3D host solves "
                       "may deadlock inside jax.pure_callback (see hyperoc.threads)", RuntimeWarning, stacklevel=2)

@@ -46,3 +46,25 @@ def test_pinned_host_solve_of_the_ventricle_completes():
     """, timeout=600)
     dofs, z_endo = out.split()
     assert int(dofs) > 1000 and float(z_endo) < -17.0  # the apex moves down from z = -17 under the load
+
+
+def test_threads_started_before_the_import_keep_their_affinity():
+    out = run_pinned("""
+        import os, threading
+        ready, done = threading.Event(), threading.Event()
+        box = {}
+        def worker():
+            box["tid"] = threading.get_native_id()
+            os.sched_setaffinity(0, set(range(os.cpu_count())))  # this thread: every CPU
+            ready.set()
+            done.wait()
+        t = threading.Thread(target=worker)
+        t.start()
+        ready.wait()
+        import hyperoc
+        print(len(os.sched_getaffinity(box["tid"])), len(os.sched_getaffinity(0)))
+        done.set()
+        t.join()
+    """, timeout=120)
+    worker_cpus, main_cpus = map(int, out.split())
+    assert worker_cpus == os.cpu_count() and main_cpus == 1
