@@ -103,7 +103,8 @@ def _variant(params: dict) -> str:
     faceted, clamped, Gmsh sizes)."""
     geometry = "curved" if params.get("curved", False) else "faceted"
     nested = f", nested: h0 = {params['mesh_size']:g} refined" if params.get("nested") else ""
-    return f"{geometry}, base {params.get('base', 'clamped')}{nested}"
+    solver = ", solver lu_reuse" if params.get("solver") == "lu_reuse" else ""
+    return f"{geometry}, base {params.get('base', 'clamped')}{nested}{solver}"
 
 
 def _level_key(params: dict) -> str:
@@ -144,6 +145,8 @@ def main():
     ap.add_argument("--lv-steps", type=int, default=20)
     ap.add_argument("--faceted", action="store_true", help="problem 2 on straight-sided P2 cells (default: curved)")
     ap.add_argument("--base", default="clamped", choices=["clamped", "sliding"], help="problem 2 base condition")
+    ap.add_argument("--solver", default="auto", choices=["auto", "lu", "lu_reuse"],
+                    help="problem 2 linear solver (hyperoc.linsolve; auto = sparse LU at these sizes)")
     ap.add_argument("--json", default=None, help="write all results here")
     ap.add_argument("--render", nargs="+", default=None, metavar="JSON",
                     help="only print the tables of earlier runs (their --json files or stdout logs)")
@@ -169,8 +172,8 @@ def main():
     lv_sequences = [[(h, 0)] for h in _floats(args.lv_sizes)] if args.lv_refinements is None else \
         [[(h, int(k)) for k in _floats(args.lv_refinements)] for h in _floats(args.lv_sizes)]
     lv_run = lambda level, kappa: record(ventricle_apex(level[0], kappa=kappa, steps=args.lv_steps, curved=not args.faceted,
-                                                        base=args.base, refinements=level[1]),
-                                         nested=args.lv_refinements is not None)
+                                                        base=args.base, refinements=level[1], solver=args.solver),
+                                         nested=args.lv_refinements is not None, solver=args.solver)
     for number, name, sequences, run, level_key, keys in (
         (1, "Problem 1 (beam)", [[int(v) for v in _floats(args.beam_levels)]],
          lambda lv, k: record(beam_deflection(lv, kappa=k, steps=args.beam_steps)), "n", ["z_tip"]),
