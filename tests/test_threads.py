@@ -12,29 +12,43 @@ import textwrap
 
 import pytest
 
+from hyperoc.threads import ONE_THREAD_POOL
+
 pytestmark = pytest.mark.skipif(not hasattr(os, "sched_setaffinity") or len(os.sched_getaffinity(0)) < 2,
                                 reason="needs Linux CPU affinity and two CPUs")
 
 
-def run_pinned(code: str, timeout: float) -> str:
+#: Prints XLA's pool size (threads named tf_XLAEigen), the number of distinct thread CPU sets, and the size of one.
+POOL_SIZE = """
+    import os
+    import hyperoc
+    import jax
+    jax.devices()
+    names = [open(f"/proc/self/task/{t}/comm").read().strip() for t in os.listdir("/proc/self/task")]
+    cpus = {frozenset(os.sched_getaffinity(int(t))) for t in os.listdir("/proc/self/task")}
+    print(names.count("tf_XLAEigen"), len(cpus), len(next(iter(cpus))))
+"""
+
+
+def run_pinned(code: str, timeout: float, env: dict | None = None) -> str:
     """stdout of ``code`` run by a fresh interpreter that binds itself to one CPU before any import."""
     pin = f"import os; os.sched_setaffinity(0, {{{min(os.sched_getaffinity(0))}}})\n"
     out = subprocess.run([sys.executable, "-c", pin + textwrap.dedent(code)], capture_output=True, text=True,
-                         timeout=timeout, check=True)
+                         timeout=timeout, check=True, env={**os.environ, **(env or {})})
     return out.stdout
 
 
 def test_import_starts_a_multithreaded_pool_and_keeps_the_pinning():
-    out = run_pinned("""
-        import os
-        import hyperoc
-        names = [open(f"/proc/self/task/{t}/comm").read().strip() for t in os.listdir("/proc/self/task")]
-        cpus = {frozenset(os.sched_getaffinity(int(t))) for t in os.listdir("/proc/self/task")}
-        print(names.count("tf_XLAEigen"), len(cpus), len(next(iter(cpus))))
-    """, timeout=120)
+    out = run_pinned(POOL_SIZE, timeout=120)
     pool, distinct_sets, cpus = map(int, out.split())
     assert pool >= 2
     assert distinct_sets == 1 and cpus == 1  # every thread still on the one CPU the process was given
+
+
+def test_one_thread_pool_on_request():
+    """``HYPEROC_ONE_THREAD_POOL=1`` (set by `hyperoc.paper` for its 1D workers) keeps the one-thread pool."""
+    out = run_pinned(POOL_SIZE, timeout=120, env={ONE_THREAD_POOL: "1"})
+    assert int(out.split()[0]) == 1
 
 
 def test_pinned_host_solve_of_the_ventricle_completes():
