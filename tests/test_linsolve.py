@@ -8,6 +8,8 @@ assembled from element blocks and solved on the host (SuperLU / MINRES) from ins
 - Every method agrees with a dense solve of the bordered system to the solver's backward-error
   tolerance ``rtol`` times the condition number (well conditioned here: K is an SPD mass-like
   matrix, so the bound is a few ulps times ``cond(K) ~ 10``; asserted 1e-10 relative).
+- The nested-dissection order is a permutation of the dofs, and the LU of the permuted K solves the
+  original system (both orderings, checked against the dense solve).
 - A singular K does not raise inside ``jax.pure_callback`` (JAX leaves an exception there undefined;
   it hung the traced Newton loop when the process had one CPU): the solve returns NaN, which makes
   Newton fail with the step named, and the solver counts and keeps the failure.
@@ -18,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hyperoc.linsolve import SparseSolver
+from hyperoc.linsolve import SparseSolver, nested_dissection
 from hyperoc.materials import SaintVenantKirchhoff
 from hyperoc.mesh import box
 from hyperoc.model import StateModel
@@ -47,12 +49,13 @@ def dense_bordered_solve(model, blocks, col, row, r_u, r_c):
     return np.linalg.solve(A, np.concatenate([r_u, [r_c]]))
 
 
+@pytest.mark.parametrize("ordering", SparseSolver.orderings)
 @pytest.mark.parametrize("method", SparseSolver.methods)
-def test_sparse_methods_match_a_dense_bordered_solve(model, method):
+def test_sparse_methods_match_a_dense_bordered_solve(model, method, ordering):
     blocks = spd_blocks(model)
     col, row, r_u, r_c = bordered_rhs(model)
     expected = dense_bordered_solve(model, blocks, col, row, r_u, r_c)
-    solver = SparseSolver(model, method)
+    solver = SparseSolver(model, method, ordering=ordering)
     for _ in range(2):  # the second call runs on the kept ordering (and kept factorization for lu_reuse)
         x = solver.host_solve(blocks, col, row, r_u, r_c)
         np.testing.assert_allclose(x, expected, rtol=1e-10, atol=1e-10 * np.abs(expected).max())
@@ -70,3 +73,17 @@ def test_singular_matrix_gives_nan_from_the_traced_solve(model):
     # A later regular solve works again.
     x = solver.host_solve(spd_blocks(model), col, row, r_u, r_c)
     assert np.all(np.isfinite(x))
+
+
+def test_nested_dissection_is_a_permutation_of_the_dofs():
+    model = StateModel(box(4, dirichlet="left"), SaintVenantKirchhoff(1.0, 1.0), degree=2)
+    q = nested_dissection(model.pattern)
+    assert q.shape == (model.n,)
+    np.testing.assert_array_equal(np.sort(q), np.arange(model.n))
+
+
+def test_unknown_ordering_is_an_input_error(model):
+    from hyperoc.errors import InputError
+
+    with pytest.raises(InputError, match="ordering"):
+        SparseSolver(model, "lu", ordering="amd")

@@ -1,0 +1,76 @@
+"""Fill-reducing ordering of the sparse LU (`hyperoc.linsolve.SparseSolver`, ``ordering=``): METIS
+nested dissection (``"nd"``, the default) against SuperLU's minimum degree on ``K + K^T``
+(``"mmd"``, the default before), on the step matrix of Land problem 2 (idealized LV, Guccione with
+kappa = 1000 kPa, curved P2, clamped base) on a nested sequence of meshes.
+
+The matrix is the tangent at rest plus the follower-pressure stiffness at the full 10 kPa, the matrix
+of the first Newton iteration of `hyperoc.benchmarks.ventricle_apex`. For each level and ordering the script
+prints the ordering time, the first factorization (``lu``: a fresh one at every call, as in Newton),
+a second factorization with the kept ordering, nonzeros in L + U, and the backward error of the
+solve; then the ratio nd / mmd of the factorization time and of the fill, measured in the same process.
+
+    nice taskset -c 0 python bench/bench_ordering.py                   # levels 0, 1 of h0 = 6
+    nice taskset -c 0 python bench/bench_ordering.py --levels 0,1,2    # + 80k dofs (about 4 min)
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import jax.numpy as jnp
+import numpy as np
+
+from hyperoc.benchmarks import ventricle_problem
+from hyperoc.linsolve import SparseSolver
+
+
+def step_blocks(model, follower):
+    """Element blocks of the first Newton matrix of problem 2 (u = 0, full pressure)."""
+    u = jnp.zeros(model.n)
+    return np.asarray(follower.add_stiffness(model.tangent_blocks(u, 1.0, 0.0), u, 1.0), dtype=np.float64)
+
+
+def measure(model, blocks, ordering: str) -> dict:
+    """Two solves with fresh factorizations (the second reuses the ordering); times in seconds."""
+    rng = np.random.default_rng(0)
+    r_u, col = rng.standard_normal(model.n), rng.standard_normal(model.n)
+    solver = SparseSolver(model, "lu", ordering=ordering)
+    t0 = time.perf_counter()
+    solver.host_solve(blocks, col, col, r_u, 0.0)
+    first = time.perf_counter() - t0
+    factor_first = solver.stats["factor_s"]
+    solver.host_solve(blocks, col, col, r_u, 0.0)
+    K = model.pattern.matrix(blocks.reshape(model.pattern.element_shape))
+    x = solver.host_solve(blocks, col, col, r_u, 0.0)
+    residual = K @ x[:-1] + col * x[-1] - r_u
+    err = np.abs(residual).max() / (abs(K).sum(axis=1).max() * np.abs(x).max() + np.abs(r_u).max())
+    return {"order_s": solver.stats["order_s"], "first_s": first, "factor_s": factor_first,
+            "refactor_s": (solver.stats["factor_s"] - factor_first) / 2, "fill": solver.stats["fill"],
+            "backward_error": float(err)}
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--h0", type=float, default=6.0, help="Gmsh size of the coarsest LV mesh (mm)")
+    ap.add_argument("--levels", default="0,1", help="uniform refinements, comma separated")
+    args = ap.parse_args()
+    print("| level | dofs | nnz(K) | ordering | order (s) | 1st factor (s) | refactor (s) | nnz(L+U) | backward err |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    ratios = []
+    for level in (int(v) for v in args.levels.split(",")):
+        model, follower = ventricle_problem(args.h0, kappa=1000.0, refinements=level)
+        blocks = step_blocks(model, follower)
+        rows = {o: measure(model, blocks, o) for o in ("mmd", "nd")}
+        for o, r in rows.items():
+            print(f"| {level} | {model.n} | {model.pattern.nnz} | {o} | {r['order_s']:.2f} | {r['factor_s']:.2f} | "
+                  f"{r['refactor_s']:.2f} | {r['fill']:,} | {r['backward_error']:.1e} |", flush=True)
+        ratios.append((level, model.n, rows["nd"]["refactor_s"] / rows["mmd"]["refactor_s"],
+                       rows["nd"]["fill"] / rows["mmd"]["fill"]))
+    print("\n| level | dofs | refactor nd / mmd | fill nd / mmd |\n|---|---|---|---|")
+    for level, n, t, f in ratios:
+        print(f"| {level} | {n} | {t:.2f} | {f:.2f} |")
+
+
+if __name__ == "__main__":
+    main()
