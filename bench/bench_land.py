@@ -143,6 +143,8 @@ def main():
     ap.add_argument("--kappas", default="1000,10000", help="penalty bulk moduli kappa (kPa)")
     ap.add_argument("--beam-steps", type=int, default=10)
     ap.add_argument("--lv-steps", type=int, default=20)
+    ap.add_argument("--cutbacks", type=int, default=8,
+                    help="failed load increments that may be halved and retried, in total per solve")
     ap.add_argument("--faceted", action="store_true", help="problem 2 on straight-sided P2 cells (default: curved)")
     ap.add_argument("--base", default="clamped", choices=["clamped", "sliding"], help="problem 2 base condition")
     ap.add_argument("--solver", default="auto", choices=["auto", "lu", "lu_reuse"],
@@ -171,12 +173,12 @@ def main():
     problems = {int(v) for v in _floats(args.problems)}
     lv_sequences = [[(h, 0)] for h in _floats(args.lv_sizes)] if args.lv_refinements is None else \
         [[(h, int(k)) for k in _floats(args.lv_refinements)] for h in _floats(args.lv_sizes)]
-    lv_run = lambda level, kappa: record(ventricle_apex(level[0], kappa=kappa, steps=args.lv_steps, curved=not args.faceted,
+    lv_run = lambda level, kappa: record(ventricle_apex(level[0], kappa=kappa, steps=args.lv_steps, cutbacks=args.cutbacks, curved=not args.faceted,
                                                         base=args.base, refinements=level[1], solver=args.solver),
                                          nested=args.lv_refinements is not None, solver=args.solver)
     for number, name, sequences, run, level_key, keys in (
         (1, "Problem 1 (beam)", [[int(v) for v in _floats(args.beam_levels)]],
-         lambda lv, k: record(beam_deflection(lv, kappa=k, steps=args.beam_steps)), "n", ["z_tip"]),
+         lambda lv, k: record(beam_deflection(lv, kappa=k, steps=args.beam_steps, cutbacks=args.cutbacks)), "n", ["z_tip"]),
         (2, "Problem 2 (ventricle)", lv_sequences if args.lv_refinements is not None else [sum(lv_sequences, [])],
          lv_run, None, LV_KEYS),
     ):
