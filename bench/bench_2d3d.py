@@ -12,7 +12,8 @@ kept here verbatim as a subclass).
     python bench/bench_2d3d.py --case 2d --methods lu,lu_reuse --steps 500
 
 Variants: ``lu_colamd`` (baseline), ``minres_amg`` (previous MINRES: smoothed-aggregation AMG of
-|K| set up at every call), and the current ``SparseSolver`` methods ``lu``, ``lu_reuse``,
+|K| set up at every call), ``lu_mmd`` (``lu`` with the minimum-degree ordering it had before
+nested dissection), and the current ``SparseSolver`` methods ``lu``, ``lu_reuse``,
 ``minres`` (see hyperoc/linsolve.py). All variants of one invocation run the same steps; the
 first step of each is run once before timing (JIT compilation), then the solver is reset.
 """
@@ -94,6 +95,8 @@ def solver_for(model, name):
         return BaselineLU(model, "lu")
     if name == "minres_amg":
         return BaselineMinresAMG(model, "minres")
+    if name == "lu_mmd":  # the ordering of `lu` before 2026-11-30 (minimum degree), now nested dissection
+        return SparseSolver(model, "lu", ordering="mmd")
     return SparseSolver(model, name)
 
 
