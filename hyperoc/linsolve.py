@@ -96,8 +96,8 @@ def nested_dissection(pattern) -> np.ndarray:
     """Fill-reducing order ``q`` (n,) of a structurally symmetric pattern, new index -> old index
     (the LU factors ``K[q][:, q]``), by METIS multilevel nested dissection of the graph of ``K``.
 
-    On 3D P2 meshes this gives 1.5x less fill and 3.7x faster SuperLU factorizations than minimum
-    degree (LV at 80k dofs: 111M against 167M nonzeros in L + U, 20 s against 75 s; bench/README.md).
+    On 3D P2 meshes this gives 1.5x less fill and 3.5x faster SuperLU factorizations than minimum
+    degree (LV at 80k dofs: 111M against 167M nonzeros in L + U, 21 s against 76 s; bench/README.md).
     """
     import pymetis
 
