@@ -14,9 +14,11 @@ The curated API (see the README for a tour)::
     optimizers  barzilai_borwein (the paper's Algorithm 1), lbfgsb
     config      load_config
 
-Importing hyperoc enables JAX's float64 mode (``jax_enable_x64``), which the solvers need.
+Importing hyperoc enables JAX's float64 mode (``jax_enable_x64``), which the solvers need, and,
+before JAX is imported, passes closed-over arrays to XLA as arguments (`hyperoc._jax`).
 """
 
+from . import _jax  # noqa: F401  (first: it sets JAX's environment before anything imports jax)
 from .controls import ActiveStress, BodyForce, Region
 from .config import load_config
 from .dynamics import Scheme, StateSolution, TimeStepper, solve_state
