@@ -8,10 +8,10 @@ Each (level, mode) runs in a fresh subprocess with the variable set, since JAX r
 (and XLA's memory is not returned between compilations). A child builds the model, compiles the
 jitted Newton solve of one load step (`hyperoc.statics`, the one `solve_static` runs) and times
 that compilation, then evaluates the internal force and the element tangents at a fixed smooth
-displacement (first call = trace + compile + run; then the fastest of five more calls: run only). Printed per level and
-mode: compile seconds, first and later evaluation seconds, peak RSS of the child (VmHWM, MB), the
-number of XLA "Constant folding ... is taking > 1s" alarms, and whether the force and tangents are
-bitwise the same in both modes; then the ratios arguments / literals of the same script run.
+displacement (first call = trace + compile + run; then the fastest of five more calls: run only).
+Printed per level and mode: compile seconds, first and later evaluation seconds, peak RSS of the
+child (VmHWM, MB), the number of XLA "Constant folding ... is taking > 1s" alarms, and whether the
+force and tangents are bitwise the same in both modes; then the ratios arguments / literals.
 
     nice taskset -c 0 python bench/bench_constants.py                  # levels 0, 1 of h0 = 6
     nice taskset -c 0 python bench/bench_constants.py --levels 0,1,2   # + 80k dofs
@@ -62,7 +62,7 @@ def child(h0: float, level: int) -> dict:
         out = jax.block_until_ready(kernel(u))
         times.append(time.perf_counter() - t0)
     digest = hashlib.sha256(b"".join(np.asarray(a).tobytes() for a in out)).hexdigest()
-    return {"dofs": model.n, "compile_s": compile_s, "first_s": times[0], "second_s": min(times[1:]),
+    return {"dofs": model.n, "compile_s": compile_s, "first_s": times[0], "later_s": min(times[1:]),
             "peak_mb": peak_rss_mb(), "digest": digest}
 
 
@@ -93,11 +93,11 @@ def main():
     for level in levels:
         res = {mode: run_child(args.h0, level, mode) for mode in MODES}
         for mode, r in res.items():
-            print(f"| {level} | {r['dofs']} | {mode} | {r['compile_s']:.2f} | {r['first_s']:.2f} | {r['second_s']:.3f} "
+            print(f"| {level} | {r['dofs']} | {mode} | {r['compile_s']:.2f} | {r['first_s']:.2f} | {r['later_s']:.3f} "
                   f"| {r['peak_mb']:.0f} | {r['folding_alarms']} |", flush=True)
         a, b = res["arguments"], res["literals"]
         ratios.append((level, a["compile_s"] / b["compile_s"], a["first_s"] / b["first_s"],
-                       a["second_s"] / b["second_s"], a["peak_mb"] / b["peak_mb"], a["digest"] == b["digest"]))
+                       a["later_s"] / b["later_s"], a["peak_mb"] / b["peak_mb"], a["digest"] == b["digest"]))
     print("\n| level | compile solve | 1st eval | later eval | peak RSS | force and tangents bitwise equal |")
     print("|---|---|---|---|---|---|")
     for level, *r, same in ratios:
