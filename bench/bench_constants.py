@@ -10,8 +10,9 @@ jitted Newton solve of one load step (`hyperoc.statics`, the one `solve_static` 
 that compilation, then evaluates the internal force and the element tangents at a fixed smooth
 displacement (first call = trace + compile + run; then the fastest of five more calls: run only).
 Printed per level and mode: compile seconds, first and later evaluation seconds, peak RSS of the
-child (VmHWM, MB), the number of XLA "Constant folding ... is taking > 1s" alarms, and whether the
-force and tangents are bitwise the same in both modes; then the ratios arguments / literals.
+child (``ru_maxrss``, MB, as in bench_checkpoint.py), the number of XLA "Constant folding ... is
+taking > 1s" alarms, and whether the force and tangents are bitwise the same in both modes; then the
+ratios arguments / literals.
 
     nice taskset -c 0 python bench/bench_constants.py                  # levels 0, 1 of h0 = 6
     nice taskset -c 0 python bench/bench_constants.py --levels 0,1,2   # + 80k dofs
@@ -23,16 +24,12 @@ import argparse
 import hashlib
 import json
 import os
+import resource
 import subprocess
 import sys
 import time
 
 MODES = {"literals": "0", "arguments": "1"}
-
-
-def peak_rss_mb() -> float:
-    with open("/proc/self/status") as fh:
-        return next(int(line.split()[1]) for line in fh if line.startswith("VmHWM")) / 1024
 
 
 def child(h0: float, level: int) -> dict:
@@ -63,7 +60,7 @@ def child(h0: float, level: int) -> dict:
         times.append(time.perf_counter() - t0)
     digest = hashlib.sha256(b"".join(np.asarray(a).tobytes() for a in out)).hexdigest()
     return {"dofs": model.n, "compile_s": compile_s, "first_s": times[0], "later_s": min(times[1:]),
-            "peak_mb": peak_rss_mb(), "digest": digest}
+            "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "digest": digest}
 
 
 def run_child(h0: float, level: int, mode: str) -> dict:
