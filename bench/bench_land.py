@@ -10,6 +10,8 @@ the exact ellipsoids), the setting in which the observed order and the Richardso
 something (computed with h = h0 / 2^k; the "h" column stays the largest edge); Gmsh meshes of
 decreasing size are unrelated to each other. Both:
 Guccione with the volumetric penalty ``kappa`` (kPa), no global volume constraint, follower pressure, full Newton steps with load stepping (halving on failure).
+``--volumetric cell-mean``: the penalty on each cell's mean J (mixed P2-P0 formulation, condensed;
+`hyperoc.model.StateModel`), which does not lock as kappa grows.
 
 For each kappa the values converge as h -> 0 to the compressible solution with that bulk modulus; as
 kappa -> infinity that solution tends to the incompressible benchmark at O(1/kappa). The script prints
@@ -22,6 +24,7 @@ largest kappa at the finest level.
     nice python bench/bench_land.py --problems 2 --kappas 1000 --lv-sizes 6 --lv-refinements 0,1,2 --json results/land-nested.json
     nice python bench/bench_land.py --problems 1 --json results/land-beam.json   # one problem
     python bench/bench_land.py --beam-levels 1,2 --lv-sizes 4 --kappas 1000   # quick look
+    nice python bench/bench_land.py --problems 1 --kappas 1000,100000 --volumetric cell-mean --json results/land-beam-p0.json
     python bench/bench_land.py --render results/land-*.json                 # tables of saved runs
 
 Seconds are wall time per solve, JIT compilation included.
@@ -98,13 +101,18 @@ def _extrapolate(by_kappa: dict, key: str) -> str:
     return f"{key}: kappa {k1:g} -> {z1:.5f}, {k2:g} -> {z2:.5f}, linear in 1/kappa -> {z2 + (z2 - z1) * k1 / (k2 - k1):.5f}"
 
 
+def _formulation(params: dict) -> str:
+    """How the penalty enters (`hyperoc.model.StateModel` ``volumetric``); rows from before: pointwise."""
+    return ", cell-mean J (P2-P0)" if params.get("volumetric", "pointwise") == "cell-mean" else ""
+
+
 def _variant(params: dict) -> str:
     """The problem 2 geometry, base and mesh sequence of a result row (rows from before those options:
     faceted, clamped, Gmsh sizes)."""
     geometry = "curved" if params.get("curved", False) else "faceted"
     nested = f", nested: h0 = {params['mesh_size']:g} refined" if params.get("nested") else ""
     solver = ", solver lu_reuse" if params.get("solver") == "lu_reuse" else ""
-    return f"{geometry}, base {params.get('base', 'clamped')}{nested}{solver}"
+    return f"{geometry}, base {params.get('base', 'clamped')}{nested}{solver}{_formulation(params)}"
 
 
 def _level_key(params: dict) -> str:
@@ -126,7 +134,7 @@ def render(paths: list[str]):
     for problem, name, level_key, keys in ((1, "Problem 1 (beam)", "n", ["z_tip"]),
                                            (2, "Problem 2 (ventricle)", "mesh_size", LV_KEYS)):
         mine = [r for r in rows if r["params"]["problem"] == problem]
-        label = (lambda r: "") if problem == 1 else (lambda r: ", " + _variant(r["params"]))
+        label = (lambda r: _formulation(r["params"])) if problem == 1 else (lambda r: ", " + _variant(r["params"]))
         for kappa, variant in sorted({(r["params"]["kappa"], label(r)) for r in mine}):
             group = sorted((r for r in mine if (r["params"]["kappa"], label(r)) == (kappa, variant)), key=lambda r: -r["h"])
             key = level_key if problem == 1 else _level_key(group[0]["params"])
@@ -147,6 +155,9 @@ def main():
                     help="failed load increments that may be halved and retried, in total per solve")
     ap.add_argument("--faceted", action="store_true", help="problem 2 on straight-sided P2 cells (default: curved)")
     ap.add_argument("--base", default="clamped", choices=["clamped", "sliding"], help="problem 2 base condition")
+    ap.add_argument("--volumetric", default="pointwise", choices=["pointwise", "cell-mean"],
+                    help="the penalty at every quadrature point, or on each cell's mean J (mixed P2-P0, "
+                         "hyperoc.model.StateModel)")
     ap.add_argument("--solver", default="auto", choices=["auto", "lu", "lu_reuse"],
                     help="problem 2 linear solver (hyperoc.linsolve; auto = sparse LU at these sizes)")
     ap.add_argument("--json", default=None, help="write all results here")
@@ -174,11 +185,13 @@ def main():
     lv_sequences = [[(h, 0)] for h in _floats(args.lv_sizes)] if args.lv_refinements is None else \
         [[(h, int(k)) for k in _floats(args.lv_refinements)] for h in _floats(args.lv_sizes)]
     lv_run = lambda level, kappa: record(ventricle_apex(level[0], kappa=kappa, steps=args.lv_steps, cutbacks=args.cutbacks, curved=not args.faceted,
-                                                        base=args.base, refinements=level[1], solver=args.solver),
+                                                        base=args.base, refinements=level[1], solver=args.solver,
+                                                        volumetric=args.volumetric),
                                          nested=args.lv_refinements is not None, solver=args.solver)
     for number, name, sequences, run, level_key, keys in (
         (1, "Problem 1 (beam)", [[int(v) for v in _floats(args.beam_levels)]],
-         lambda lv, k: record(beam_deflection(lv, kappa=k, steps=args.beam_steps, cutbacks=args.cutbacks)), "n", ["z_tip"]),
+         lambda lv, k: record(beam_deflection(lv, kappa=k, steps=args.beam_steps, cutbacks=args.cutbacks,
+                                              volumetric=args.volumetric)), "n", ["z_tip"]),
         (2, "Problem 2 (ventricle)", lv_sequences if args.lv_refinements is not None else [sum(lv_sequences, [])],
          lv_run, None, LV_KEYS),
     ):
@@ -188,7 +201,7 @@ def main():
         for kappa in kappas:
             for levels in sequences:
                 rows = [run(lv, kappa) for lv in levels]
-                variant = f", {_variant(rows[0]['params'])}" if number == 2 else ""
+                variant = f", {_variant(rows[0]['params'])}" if number == 2 else _formulation(rows[0]["params"])
                 key = level_key or _level_key(rows[0]["params"])
                 tables.append(_table(f"{name}, P2{variant}, kappa = {kappa:g} kPa", rows, key, keys))
             finest[kappa] = rows[-1]["values"]

@@ -93,11 +93,13 @@ def beam_mesh(n: int) -> Mesh:
     return mesh.with_boundary("z_bottom", mesh.boundary("front"))
 
 
-def beam_problem(n: int, *, kappa: float, degree: int = 2) -> tuple[StateModel, FollowerPressure]:
-    """Problem 1 on `beam_mesh` (n): the model and its follower pressure on the bottom face."""
+def beam_problem(n: int, *, kappa: float, degree: int = 2,
+                 volumetric: str = "pointwise") -> tuple[StateModel, FollowerPressure]:
+    """Problem 1 on `beam_mesh` (n): the model and its follower pressure on the bottom face
+    (``volumetric``: how the penalty enters, `StateModel`)."""
     p = BEAM
     material = Guccione(C=p["C"], bf=p["bf"], bt=p["bt"], bfs=p["bfs"], kappa=kappa)
-    model = StateModel(beam_mesh(n), material, degree=degree, frames=_fibres_along_x)
+    model = StateModel(beam_mesh(n), material, degree=degree, frames=_fibres_along_x, volumetric=volumetric)
     return model, FollowerPressure(model, "z_bottom", p["pressure"])
 
 
@@ -109,7 +111,8 @@ BASE_CONDITIONS = {
 
 
 def ventricle_problem(h: float, *, kappa: float, degree: int = 2, curved: bool = True,
-                      base: str = "clamped", refinements: int = 0) -> tuple[StateModel, FollowerPressure]:
+                      base: str = "clamped", refinements: int = 0,
+                      volumetric: str = "pointwise") -> tuple[StateModel, FollowerPressure]:
     """Problem 2 on `hyperoc.geometry.ventricle` (h, mm; ``curved``: isoparametric P2 on the exact
     ellipsoids, else straight-sided cells; ``refinements``: uniform refinements of the Gmsh mesh of
     size h, a nested sequence): the model and the endocardial pressure.
@@ -123,7 +126,7 @@ def ventricle_problem(h: float, *, kappa: float, degree: int = 2, curved: bool =
     p = VENTRICLE
     material = Guccione(C=p["C"], bf=p["bf"], bt=p["bt"], bfs=p["bfs"], kappa=kappa)
     model = StateModel(ventricle(h, curved=curved, refinements=refinements), material, degree=degree, frames=_fibres_along_x,
-                       **BASE_CONDITIONS[base])
+                       volumetric=volumetric, **BASE_CONDITIONS[base])
     return model, FollowerPressure(model, "endocardium", p["pressure"])
 
 
@@ -153,23 +156,27 @@ def _solve(model, follower, steps, cutbacks, solver, points: dict, params: dict,
 
 
 def beam_deflection(n: int, *, kappa: float = 1000.0, degree: int = 2, steps: int = 10, cutbacks: int = 8,
-                    solver="auto") -> BenchmarkResult:
+                    solver="auto", volumetric: str = "pointwise") -> BenchmarkResult:
     """Problem 1: ``values["z_tip"]`` = z of the deformed point (10, 0.5, 1) (mm; 1 at rest)."""
-    model, load = beam_problem(n, kappa=kappa, degree=degree)
+    model, load = beam_problem(n, kappa=kappa, degree=degree, volumetric=volumetric)
     return _solve(model, load, steps, cutbacks, solver, {"z_tip": BEAM["point"]},
-                  {"problem": 1, "n": n, "kappa": kappa, "degree": degree, "steps": steps, "cutbacks": cutbacks})
+                  {"problem": 1, "n": n, "kappa": kappa, "degree": degree, "steps": steps, "cutbacks": cutbacks,
+                   "volumetric": volumetric})
 
 
 def ventricle_apex(h: float, *, kappa: float = 1000.0, degree: int = 2, steps: int = 10, cutbacks: int = 8,
-                   solver="auto", curved: bool = True, base: str = "clamped", refinements: int = 0) -> BenchmarkResult:
+                   solver="auto", curved: bool = True, base: str = "clamped", refinements: int = 0,
+                   volumetric: str = "pointwise") -> BenchmarkResult:
     """Problem 2 (`ventricle_problem`): ``values["z_endo"]``, ``values["z_epi"]`` = z of the deformed
     endocardial and epicardial apex (mm; -17 and -20 at rest), ``values["V_cavity"]`` the deformed
     cavity volume (mm^3, `hyperoc.report.cavity_volume`: the endocardium closed by the base plane)."""
     from .report import cavity_volume
 
-    model, load = ventricle_problem(h, kappa=kappa, degree=degree, curved=curved, base=base, refinements=refinements)
+    model, load = ventricle_problem(h, kappa=kappa, degree=degree, curved=curved, base=base, refinements=refinements,
+                                    volumetric=volumetric)
     cavity = lambda model, u: {"V_cavity": float(cavity_volume(model.space, model.expand(u)[None])[0])}
     return _solve(model, load, steps, cutbacks, solver,
                   {"z_endo": VENTRICLE["endo_apex"], "z_epi": VENTRICLE["epi_apex"]},
                   {"problem": 2, "mesh_size": h, "kappa": kappa, "degree": degree, "steps": steps,
-                   "cutbacks": cutbacks, "curved": curved, "base": base, "refinements": refinements}, cavity)
+                   "cutbacks": cutbacks, "curved": curved, "base": base, "refinements": refinements,
+                   "volumetric": volumetric}, cavity)

@@ -49,7 +49,10 @@ SCHEMA = {
                  # cardiac laws (kPa): Guccione C, bf, bt, bfs; Holzapfel-Ogden a, b, af, bf, as, bs, afs, bfs
                  "C": (NUMBER, ...), "bf": (NUMBER, ...), "bt": (NUMBER, ...), "bfs": (NUMBER, ...),
                  "a": (NUMBER, ...), "b": (NUMBER, ...), "af": (NUMBER, ...), "as": (NUMBER, ...),
-                 "bs": (NUMBER, ...), "afs": (NUMBER, ...), "kappa": (NUMBER, ...)},
+                 "bs": (NUMBER, ...), "afs": (NUMBER, ...), "kappa": (NUMBER, ...),
+                 # the bulk term per quadrature point, or on each cell's mean J (mixed u-p with a
+                 # piecewise-constant pressure, condensed; StateModel volumetric): "pointwise", "cell-mean"
+                 "volumetric": (str, "pointwise")},
     # rule-based fibres (hyperoc.fibres.rule_based_fibres): helix angles in degrees, long axis apex -> base
     "fibres": {"kind": (str, "none"), "helix_endo": (NUMBER, 60.0), "helix_epi": (NUMBER, -60.0),
                "long_axis": (list, [0.0, 0.0, 1.0]), "inner": (str, "endocardium"), "outer": (str, "epicardium")},
@@ -185,13 +188,14 @@ class Config:
             raise InputError(f"config: [dynamics] traction must be a list of {mesh.dim} numbers")
         if self["mesh"]["degree"] not in (1, 2):
             raise InputError(f"config: [mesh] degree must be 1 or 2, got {self['mesh']['degree']}")
-        material = material_from_config(self["material"])
+        material = material_from_config({k: v for k, v in self["material"].items() if k != "volumetric"})
         frames = self.fibres(mesh)
         if frames is None and isinstance(material, (Guccione, HolzapfelOgden)):
             raise InputError(f"config: [material] law {self['material']['law']!r} needs fibres: add [fibres] kind = 'rule_based'")
         return StateModel(mesh, material, degree=self["mesh"]["degree"], kappa=float(d["kappa"]),
                           density=float(d["density"]), control=self.control_operator(frames), traction=traction,
-                          neumann="gamma_n", frames=frames, **self._dirichlet(mesh.dim))
+                          neumann="gamma_n", frames=frames, volumetric=self["material"]["volumetric"],
+                          **self._dirichlet(mesh.dim))
 
     def _dirichlet(self, dim: int) -> dict:
         """StateModel keywords for gamma_d: clamped, or only ``[mesh] fixed_components`` fixed."""

@@ -27,7 +27,8 @@ add the volumetric penalty ``U(J) = kappa/4 (J^2 - 1 - 2 ln J)`` (Simo-Taylor), 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
+from functools import partial
 
 import jax
 import jax.numpy as jnp
@@ -65,6 +66,12 @@ class Material:
         """``W(E(F))`` with ``E = (F^T F - I) / 2``."""
         E = 0.5 * (F.T @ F - jnp.eye(F.shape[0]))
         return self.energy(E, frame)
+
+    def volumetric_split(self):
+        """``(rest, U)`` with ``W(E) = rest.energy(E) + U(J)``, ``J = det F``, U a scalar function of J
+        that carries the law's bulk stiffness; None for U when the law has no such term. Used by
+        `hyperoc.model.StateModel` ``volumetric="cell-mean"`` to average J over each cell."""
+        return self, None
 
 
 def det(F):
@@ -159,6 +166,10 @@ class NeoHookean(Material):
         logJ = 0.5 * jnp.log(det(C))
         return 0.5 * self.mu * (jnp.trace(C) - d) - self.mu * logJ + 0.5 * self.lam * logJ**2
 
+    def volumetric_split(self):
+        """The ``lambda/2 (ln J)^2`` term as U; the rest keeps ``mu`` (and its ``-mu ln J``)."""
+        return replace(self, lam=0.0), lambda J: 0.5 * self.lam * jnp.log(J) ** 2
+
     def validate(self):
         _require(self.mu > 0, f"neo-Hookean: mu must be > 0, got {self.mu}")
         _require(self.lam >= 0, f"neo-Hookean: lambda must be >= 0, got {self.lam}")
@@ -167,10 +178,23 @@ class NeoHookean(Material):
 
 # --- fibre-dependent laws (cardiac tissue, kPa) ----------------------------------------------------
 
-def _volumetric(kappa, C):
-    """``U(J) = kappa/4 (J^2 - 1 - 2 ln J)`` with ``J^2 = det C``; U(1) = U'(1) = 0, U''(1) = kappa."""
-    J2 = det(C)
+def penalty(kappa, J):
+    """``U(J) = kappa/4 (J^2 - 1 - 2 ln J)``; U(1) = U'(1) = 0, U''(1) = kappa (Simo-Taylor)."""
+    return _penalty_of_J2(kappa, J * J)
+
+
+def _penalty_of_J2(kappa, J2):
     return 0.25 * kappa * (J2 - 1.0 - jnp.log(J2))
+
+
+def _volumetric(kappa, C):
+    """`penalty` from ``J^2 = det C``; exactly 0 (not traced) when kappa = 0, the split-off rest."""
+    return _penalty_of_J2(kappa, det(C)) if kappa else 0.0
+
+
+def _split_penalty(material):
+    """``(material without its penalty, U)`` for the laws with a ``kappa`` field."""
+    return replace(material, kappa=0.0), partial(penalty, material.kappa)
 
 
 def _frame_rows(frame, k: int, law: str):
@@ -221,6 +245,8 @@ class Guccione(Material):
         PEf, PEP = P @ Ef, P @ E @ P
         Q = self.bf * (f @ Ef) ** 2 + self.bt * jnp.sum(PEP * PEP) + 2.0 * self.bfs * (PEf @ PEf)
         return 0.5 * self.C * jnp.expm1(Q) + _volumetric(self.kappa, 2.0 * E + jnp.eye(E.shape[0]))
+
+    volumetric_split = _split_penalty
 
     def validate(self):
         _check_moduli("Guccione", {"C": self.C, "bf": self.bf, "bt": self.bt, "bfs": self.bfs}, {"kappa": self.kappa})
@@ -277,6 +303,8 @@ class HolzapfelOgden(Material):
                 + self.as_ / (2 * self.bs) * jnp.expm1(self.bs * tension(s) ** 2)
                 + self.afs / (2 * self.bfs) * jnp.expm1(self.bfs * (2.0 * (f @ E @ s)) ** 2)
                 + _volumetric(self.kappa, C))
+
+    volumetric_split = _split_penalty
 
     def validate(self):
         _check_moduli("Holzapfel-Ogden",

@@ -8,6 +8,11 @@ Everything nonlinear derives from two scalar functionals of the reduced displace
 
 so the hyperelastic force and the volume-constraint vector are gradients, and the step tangent is
 the element Hessian of ``a W(F) + b det F`` at each quadrature point, all by JAX.
+
+With ``volumetric="cell-mean"`` the law's bulk term ``U(J)`` is evaluated on the cell average of J
+instead (``Pi = int W_rest dx + sum_e |e| U(theta_e)``, ``theta_e = |e|^-1 int_e J dx``): the
+mixed displacement-pressure formulation with a pressure constant on each cell, condensed cell by
+cell (see `StateModel`).
 """
 
 from __future__ import annotations
@@ -26,7 +31,10 @@ from .materials import Material, det
 from .mesh import Mesh
 from .spaces import VectorSpace
 
-__all__ = ["StateModel", "det"]
+__all__ = ["StateModel", "det", "VOLUMETRIC"]
+
+#: `StateModel` ``volumetric`` choices.
+VOLUMETRIC = ("pointwise", "cell-mean")
 
 
 def _to_bcoo(mat):
@@ -95,6 +103,19 @@ _CLOSED_FORM_T = {1: np.eye(1)[None], 2: np.stack([np.eye(2), _EPS2]),
                   3: np.concatenate([np.eye(3)[None], np.moveaxis(_EPS3, 2, 0)])}
 
 
+def _split(material: Material, volumetric: str):
+    """``(pointwise law, cell-mean U or None)`` for `StateModel` ``volumetric``."""
+    if volumetric not in VOLUMETRIC:
+        raise InputError(f"volumetric must be one of {list(VOLUMETRIC)}, got {volumetric!r}")
+    if volumetric == "pointwise":
+        return material, None
+    rest, bulk = material.volumetric_split()
+    if bulk is None:
+        raise InputError(f"volumetric='cell-mean' needs a law with a separate bulk term (Guccione, "
+                         f"Holzapfel-Ogden, neo-Hookean); {type(material).__name__} has none")
+    return rest, bulk
+
+
 class StateModel:
     """Damped hyperelastic body with a global volume constraint, discretized in space.
 
@@ -123,6 +144,21 @@ class StateModel:
         (`rigid_modes`); the dynamics stays well posed through the mass matrix (the rigid motion
         is then driven by the net load), a static solve does not (its K is singular).
         Rigid motions left by ``dirichlet`` alone (e.g. a degenerate Gamma_D) are only reported.
+    volumetric : how the material's bulk term ``U(J)`` (`Material.volumetric_split`: Guccione and
+        Holzapfel-Ogden ``kappa/4 (J^2 - 1 - 2 ln J)``, neo-Hookean ``lambda/2 (ln J)^2``) enters.
+        ``"pointwise"`` (default): ``U(J)`` at every quadrature point, the pure displacement
+        formulation, which locks (is too stiff on coarse meshes) as the bulk modulus grows.
+        ``"cell-mean"``: ``|e| U(theta_e)`` with ``theta_e`` the mean of J over the cell e. This is
+        the mixed displacement-pressure formulation with a pressure ``p_e`` constant per cell
+        (P2-P0, P1-P0) and the constraint ``theta_e - 1 = p_e / kappa`` in the weak sense, after
+        eliminating ``p_e = U'(theta_e)`` cell by cell (mean dilatation: Nagtegaal, Parks & Rice
+        1974; Simo, Taylor & Pister 1985); same unknowns and sparsity as "pointwise". It
+        constrains one volume per cell instead of one per quadrature point. P2-P0 satisfies the
+        inf-sup condition on triangles (P1-P0 does not, and locks); on tetrahedra we know no proof,
+        but the Land beam does not lock (`tests/test_volumetric.py`). Limitation: J is then free
+        *inside* a cell, held only by the rest of the law; one that stays bounded as J -> 0
+        (Guccione's ``exp(Q)``) lets a cell fold under its mean at large strain: Land problem 2
+        reaches det F = 0 at 3.6 kPa of 10 (`bench/README.md`), where "pointwise" converges.
 
     Attributes ``rigid_modes`` (n, m): orthonormal reduced vectors of the rigid motions that the
     constraints (with pins) leave free, m = 0 normally; ``pinned_dofs``: global dofs
@@ -131,10 +167,12 @@ class StateModel:
 
     def __init__(self, mesh: Mesh, material: Material, *, degree: int = 1, kappa: float = 0.0, density: float = 1.0,
                  control=None, traction=None, dirichlet: str | None = "gamma_d", neumann: str = "gamma_n", frames=None,
-                 dirichlet_components: dict | None = None, pin_rigid: bool = True):
+                 dirichlet_components: dict | None = None, pin_rigid: bool = True, volumetric: str = "pointwise"):
         if kappa < 0 or density <= 0:
             raise InputError(f"need kappa >= 0 and density > 0, got kappa = {kappa}, density = {density}")
         self.mesh, self.material = mesh, material.validate()
+        self.volumetric = volumetric
+        self._point_material, self._bulk = _split(self.material, volumetric)
         self.kappa, self.density = float(kappa), float(density)
         self.space = VectorSpace(mesh, degree)
         self.dim = mesh.dim
@@ -156,6 +194,7 @@ class StateModel:
         self._frames = None if frames is None else jnp.asarray(frames(self.quad.x))
         self._dN = jnp.asarray(self.quad.dN)
         self._w = jnp.asarray(self.quad.wdx)
+        self._cell_volume = jnp.sum(self._w, axis=1)  # (nc,)
         self._gather = jnp.asarray(np.where(self.cell_dofs < 0, self.n, self.cell_dofs))
 
     def _dirichlet_dofs(self, dirichlet, components: dict) -> tuple[np.ndarray, np.ndarray]:
@@ -298,9 +337,21 @@ class StateModel:
         return jax.vmap(jax.vmap(fn))(F, frames)
 
     def strain_energy(self, u):
-        """Pi(u) = int W(E) dx (scalar)."""
-        W = self._pointwise(self.material.energy_of_F, self.deformation_gradient(u))
-        return jnp.sum(self._w * W)
+        """Pi(u) = int W(E) dx, or with ``volumetric="cell-mean"`` int W_rest(E) dx + sum_e |e| U(theta_e),
+        theta_e = |e|^-1 int_e det F dx (scalar)."""
+        F = self.deformation_gradient(u)
+        energy = jnp.sum(self._w * self._pointwise(self._point_material.energy_of_F, F))
+        if self._bulk is None:
+            return energy
+        return energy + jnp.sum(self._cell_volume * self._bulk(self._cell_mean(det(F))))
+
+    def _cell_mean(self, values):
+        """|e|^-1 int_e values dx per cell, (nc,), for values at the quadrature points (nc, nq)."""
+        return jnp.sum(self._w * values, axis=1) / self._cell_volume
+
+    def cell_mean_J(self, u):
+        """theta_e = |e|^-1 int_e det F dx per cell, (nc,): the dilatation "cell-mean" constrains."""
+        return self._cell_mean(det(self.deformation_gradient(u)))
 
     def volume(self, u):
         """vol(u) = int det(I + grad u) dx (scalar)."""
@@ -335,11 +386,12 @@ class StateModel:
         """``(d2W/de2 (nv, nv), dW/de (nv,))`` at one point, W as a function of the nv = d(d+1)/2
         independent strains ``e_alpha = E_{I_alpha J_alpha}`` (`_VOIGT`: E = e[sym])."""
         sym = _VOIGT[self.dim][2]
-        g = jax.grad(lambda e: self.material.energy(e[sym], frame))
+        g = jax.grad(lambda e: self._point_material.energy(e[sym], frame))
         return jax.jacfwd(lambda e: (g(e), g(e)), has_aux=True)(e)
 
     def _element_tangent(self, ue, dN, w, frames, a, b):
-        """Hessian of ``sum_q w_q (a W(F_q) + b det F_q)`` in the cell's dofs ue (nloc, d): (k, k).
+        """Hessian of ``sum_q w_q (a W(F_q) + b det F_q)`` in the cell's dofs ue (nloc, d): (k, k)
+        (with ``volumetric="cell-mean"`` W is the rest and ``a |e| U(theta)`` is added, below).
 
         With ``dF = e_i (x) grad N_a`` and ``E = (F^T F - I) / 2`` (W depends on F through E only):
 
@@ -349,7 +401,9 @@ class StateModel:
         - parts known in closed form, each ``(sum_q w_q dN_a^T M_r dN_b) T_r[i, k]``: the geometric
           (stress) term ``M_0 = a S``, ``S = dW/dE``, ``T_0 = I``, and the Hessian of det F,
           ``d2 det F / dF_iJ dF_kL = eps_ik eps_JL`` (2D: ``M_1 = b eps``, ``T_1 = eps``) and
-          ``eps_ikm eps_JLN F_mN`` (3D: ``M_m = b eps_JLN F_mN``, ``T_m = eps_ikm``, m = 0, 1, 2).
+          ``eps_ikm eps_JLN F_mN`` (3D: ``M_m = b eps_JLN F_mN``, ``T_m = eps_ikm``, m = 0, 1, 2);
+        - cell-mean bulk term: ``a U''(theta) / |e| g g^T`` with ``g = sum_q w_q (cof F_q) dN_q`` the
+          gradient of ``|e| theta``, plus ``a U'(theta)`` added to b in the det F Hessian.
 
         Shapes: dN (nq, nloc, d) physical shape gradients, w (nq,) weights times |det J|, frames
         (nq, kf, d) or None; a, b scalars.
@@ -357,6 +411,8 @@ class StateModel:
         d, n = self.dim, ue.shape[0]
         I, J, sym, half = _VOIGT[d]
         F = jnp.eye(d) + jnp.einsum("qaj,ai->qij", dN, ue)  # (nq, d, d)
+        if self._bulk is not None:
+            b, bulk = self._cell_bulk_tangent(F, dN, w, a, b)
         e = (0.5 * (jnp.einsum("qkI,qkJ->qIJ", F, F) - jnp.eye(d)))[:, I, J]  # (nq, nv)
         if frames is None:
             H, s = jax.vmap(lambda x: self._voigt_derivatives(x, None))(e)
@@ -376,7 +432,17 @@ class StateModel:
         M = jnp.concatenate(M, axis=1)  # (nq, r, d, d)
         G = jnp.einsum("qaJ,qrJb->rab", dN, jnp.einsum("q,qrJL,qbL->qrJb", w, M, dN))
         K = K.reshape(n, d, n, d) + jnp.einsum("rab,rik->aibk", G, _CLOSED_FORM_T[d])
-        return K.reshape(n * d, n * d)
+        K = K.reshape(n * d, n * d)
+        return K if self._bulk is None else K + bulk
+
+    def _cell_bulk_tangent(self, F, dN, w, a, b):
+        """``(b + a U'(theta), a U''(theta) / |e| g g^T (k, k))`` for one cell: the cell-mean bulk
+        term's share of the det F Hessian's coefficient and its rank-one part."""
+        vol = jnp.sum(w)
+        theta = jnp.sum(w * det(F)) / vol
+        dU = jax.grad(self._bulk)
+        g = jnp.einsum("q,qiJ,qaJ->ai", w, jax.vmap(jax.grad(det))(F), dN).reshape(-1)  # d(|e| theta)/d ue
+        return b + a * dU(theta), (a * jax.grad(dU)(theta) / vol) * jnp.outer(g, g)
 
     def min_det_F(self, u):
         return jnp.min(det(self.deformation_gradient(u)))

@@ -79,6 +79,8 @@ def test_check_gradient_json(tmp_path, capsys):
         (("[objective]", "[objektive]"), "unknown section"),
         (("n = 20", "n = 20\nrefinements = -1"), "refinements must be >= 0"),
         (("n = 20", "n = 20\nrefinements = 1.5"), "refinements must be"),
+        (("mu = 0.05", 'mu = 0.05\nvolumetric = "cell-mean"'), "needs a law with a separate bulk term"),
+        (("mu = 0.05", 'mu = 0.05\nvolumetric = "mean"'), "volumetric must be one of"),
     ],
 )
 def test_bad_input_exit_2(tmp_path, change, message):
@@ -145,3 +147,19 @@ def test_config_mesh_refinements(tmp_path, mesh, cells):
     if base.dim == 2 and base.is_curved:
         radius = np.linalg.norm(fine.points[fine.boundary_vertices("outer")], axis=1)
         np.testing.assert_allclose(radius, 1.0, rtol=1e-12)
+
+
+def test_config_cell_mean_volumetric(tmp_path):
+    """``[material] volumetric = "cell-mean"`` reaches the model; its energy is the cell-mean one."""
+    from hyperoc.config import load_config
+
+    text = SMALL_1D.replace('law = "svk"', 'law = "neo-hookean"\nvolumetric = "cell-mean"')
+    model = load_config(_write(tmp_path, text.replace("n = 20", "n = 20\ndegree = 2"))).model()
+    assert model.volumetric == "cell-mean"
+    u = model.interpolate(lambda x: 0.1 * x**2)  # exact in P2: J = 1 + 0.2 x, linear in each cell
+    J, w = 1 + 0.2 * model.quad.x[..., 0], model.quad.wdx
+    theta = np.sum(w * J, axis=1) / np.sum(w, axis=1)
+    np.testing.assert_allclose(np.asarray(model.cell_mean_J(u)), theta, rtol=1e-14)
+    mu, lam = 0.05, 0.05  # W = mu/2 (J^2 - 1) - mu ln J  +  lam/2 (ln J)^2 on theta
+    expected = np.sum(w * (0.5 * mu * (J**2 - 1) - mu * np.log(J))) + np.sum(np.sum(w, axis=1) * 0.5 * lam * np.log(theta) ** 2)
+    assert abs(float(model.strain_energy(u)) - expected) <= 1e-13 * abs(expected)

@@ -69,3 +69,12 @@ def test_wrong_gradient_is_detected():
     r = [abs(J(m + dm * h) - J0 - h * dJdm) for h in hs]
     rates = np.log2(np.array(r[:-1]) / np.array(r[1:]))
     assert np.all(np.abs(rates - 1.0) < 0.1)
+
+
+def test_taylor_2d_annulus_cell_mean():
+    """The bulk term on each cell's mean J (mixed P2-P0, `StateModel` volumetric): still exact."""
+    mesh = annulus(0.5, 1.0, structured=True, n_radial=2, n_theta=12)
+    model = StateModel(mesh, NeoHookean(1.0, 50.0), degree=2, kappa=0.05, volumetric="cell-mean",
+                       control=ActiveStress(Region("sector", r_range=(0.5, 1.0), theta_range=(-1.0, 1.0))))
+    J = ReducedFunctional(model, TimeTransform.for_step(1.0, 0.05, 0.5, 0.1), Objective(at_tau=PressureRise(0.1)))
+    _assert_rates(J, _point(J, 0.5, 0.5))
