@@ -39,6 +39,7 @@ import os
 
 
 from hyperoc.benchmarks import beam_deflection, ventricle_apex
+from hyperoc.errors import SolverError
 
 
 #: Problem 2 values: apex z (mm) and deformed cavity volume (mm^3; missing in rows from before it).
@@ -141,6 +142,17 @@ def render(paths: list[str]):
             print(_table(f"{name}, P2{variant}, kappa = {kappa:g} kPa", group, key, keys) + "\n")
 
 
+def solved_or_reported(run, level, kappa: float, failures: list):
+    """``run(level, kappa)``, or None after noting a `SolverError` (the solve's step and cause) in
+    ``failures``: one failed level does not lose the others."""
+    try:
+        return run(level, kappa)
+    except SolverError as exc:
+        failures.append(f"level {level}, kappa {kappa:g} kPa: {exc}")
+        print(f"FAILED: {failures[-1]}", flush=True)
+        return None
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--problems", default="1,2", help="which benchmark problems to run")
@@ -180,7 +192,7 @@ def main():
         print(json.dumps(row), flush=True)
         return row
 
-    tables, extrap = [], []
+    tables, extrap, failures = [], [], []
     problems = {int(v) for v in _floats(args.problems)}
     lv_sequences = [[(h, 0)] for h in _floats(args.lv_sizes)] if args.lv_refinements is None else \
         [[(h, int(k)) for k in _floats(args.lv_refinements)] for h in _floats(args.lv_sizes)]
@@ -200,21 +212,24 @@ def main():
         finest = {}
         for kappa in kappas:
             for levels in sequences:
-                rows = [run(lv, kappa) for lv in levels]
+                rows = [row for row in (solved_or_reported(run, lv, kappa, failures) for lv in levels) if row]
+                if not rows:
+                    continue
                 variant = f", {_variant(rows[0]['params'])}" if number == 2 else _formulation(rows[0]["params"])
                 key = level_key or _level_key(rows[0]["params"])
                 tables.append(_table(f"{name}, P2{variant}, kappa = {kappa:g} kPa", rows, key, keys))
-            finest[kappa] = rows[-1]["values"]
-        if len(kappas) >= 2:
+                finest[kappa] = rows[-1]["values"]
+        if len(finest) >= 2:
             extrap += [f"{name}, finest level: " + _extrapolate({k: v[key] for k, v in finest.items()}, key)
                        for key in keys]
 
     print("\n" + "\n\n".join(tables) + "\n")
-    print("\n".join(f"- {line}" for line in extrap))
+    print("\n".join(f"- {line}" for line in extrap + failures))
     if args.json:
         os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
         with open(args.json, "w") as fh:
-            json.dump({"results": results, "tables": tables, "kappa_extrapolation": extrap}, fh, indent=1)
+            json.dump({"results": results, "tables": tables, "kappa_extrapolation": extrap, "failures": failures},
+                      fh, indent=1)
 
 
 if __name__ == "__main__":
