@@ -40,6 +40,7 @@ import os
 
 from hyperoc.benchmarks import beam_deflection, ventricle_apex
 from hyperoc.errors import SolverError
+from hyperoc.model import VOLUMETRIC
 
 
 #: Problem 2 values: apex z (mm) and deformed cavity volume (mm^3; missing in rows from before it).
@@ -167,7 +168,7 @@ def main():
                     help="failed load increments that may be halved and retried, in total per solve")
     ap.add_argument("--faceted", action="store_true", help="problem 2 on straight-sided P2 cells (default: curved)")
     ap.add_argument("--base", default="clamped", choices=["clamped", "sliding"], help="problem 2 base condition")
-    ap.add_argument("--volumetric", default="pointwise", choices=["pointwise", "cell-mean"],
+    ap.add_argument("--volumetric", default="pointwise", choices=VOLUMETRIC,
                     help="the penalty at every quadrature point, or on each cell's mean J (mixed P2-P0, "
                          "hyperoc.model.StateModel)")
     ap.add_argument("--solver", default="auto", choices=["auto", "lu", "lu_reuse"],
