@@ -11,7 +11,8 @@ something (computed with h = h0 / 2^k; the "h" column stays the largest edge); G
 decreasing size are unrelated to each other. Both:
 Guccione with the volumetric penalty ``kappa`` (kPa), no global volume constraint, follower pressure, full Newton steps with load stepping (halving on failure).
 ``--volumetric cell-mean``: the penalty on each cell's mean J (mixed P2-P0 formulation, condensed;
-`hyperoc.model.StateModel`), which does not lock as kappa grows.
+`hyperoc.model.StateModel`), which does not lock as kappa grows. ``--isochoric``: Guccione's Q on
+the isochoric strain (`hyperoc.materials.Guccione`), which problem 2 needs with ``cell-mean``.
 
 For each kappa the values converge as h -> 0 to the compressible solution with that bulk modulus; as
 kappa -> infinity that solution tends to the incompressible benchmark at O(1/kappa). The script prints
@@ -25,6 +26,7 @@ largest kappa at the finest level.
     nice python bench/bench_land.py --problems 1 --json results/land-beam.json   # one problem
     python bench/bench_land.py --beam-levels 1,2 --lv-sizes 4 --kappas 1000   # quick look
     nice python bench/bench_land.py --problems 1 --kappas 1000,100000 --volumetric cell-mean --json results/land-beam-p0.json
+    nice python bench/bench_land.py --problems 2 --kappas 1000,100000 --lv-sizes 6 --lv-refinements 0,1,2 --volumetric cell-mean --isochoric
     python bench/bench_land.py --render results/land-*.json                 # tables of saved runs
 
 Seconds are wall time per solve, JIT compilation included.
@@ -104,8 +106,10 @@ def _extrapolate(by_kappa: dict, key: str) -> str:
 
 
 def _formulation(params: dict) -> str:
-    """How the penalty enters (`hyperoc.model.StateModel` ``volumetric``); rows from before: pointwise."""
-    return ", cell-mean J (P2-P0)" if params.get("volumetric", "pointwise") == "cell-mean" else ""
+    """How the penalty enters (`hyperoc.model.StateModel` ``volumetric``) and whether Q uses the
+    isochoric strain; rows from before those options: pointwise, full strain."""
+    mixed = ", cell-mean J (P2-P0)" if params.get("volumetric", "pointwise") == "cell-mean" else ""
+    return mixed + (", isochoric Q" if params.get("isochoric", False) else "")
 
 
 def _variant(params: dict) -> str:
@@ -171,6 +175,8 @@ def main():
     ap.add_argument("--volumetric", default="pointwise", choices=VOLUMETRIC,
                     help="the penalty at every quadrature point, or on each cell's mean J (mixed P2-P0, "
                          "hyperoc.model.StateModel)")
+    ap.add_argument("--isochoric", action="store_true",
+                    help="Guccione's Q on the isochoric strain (J^(-2/3) C - I) / 2 (hyperoc.materials.Guccione)")
     ap.add_argument("--solver", default="auto", choices=["auto", "lu", "lu_reuse"],
                     help="problem 2 linear solver (hyperoc.linsolve; auto = sparse LU at these sizes)")
     ap.add_argument("--json", default=None, help="write all results here")
@@ -199,12 +205,12 @@ def main():
         [[(h, int(k)) for k in _floats(args.lv_refinements)] for h in _floats(args.lv_sizes)]
     lv_run = lambda level, kappa: record(ventricle_apex(level[0], kappa=kappa, steps=args.lv_steps, cutbacks=args.cutbacks, curved=not args.faceted,
                                                         base=args.base, refinements=level[1], solver=args.solver,
-                                                        volumetric=args.volumetric),
+                                                        volumetric=args.volumetric, isochoric=args.isochoric),
                                          nested=args.lv_refinements is not None, solver=args.solver)
     for number, name, sequences, run, level_key, keys in (
         (1, "Problem 1 (beam)", [[int(v) for v in _floats(args.beam_levels)]],
          lambda lv, k: record(beam_deflection(lv, kappa=k, steps=args.beam_steps, cutbacks=args.cutbacks,
-                                              volumetric=args.volumetric)), "n", ["z_tip"]),
+                                              volumetric=args.volumetric, isochoric=args.isochoric)), "n", ["z_tip"]),
         (2, "Problem 2 (ventricle)", lv_sequences if args.lv_refinements is not None else [sum(lv_sequences, [])],
          lv_run, None, LV_KEYS),
     ):

@@ -93,12 +93,13 @@ def beam_mesh(n: int) -> Mesh:
     return mesh.with_boundary("z_bottom", mesh.boundary("front"))
 
 
-def beam_problem(n: int, *, kappa: float, degree: int = 2,
-                 volumetric: str = "pointwise") -> tuple[StateModel, FollowerPressure]:
+def beam_problem(n: int, *, kappa: float, degree: int = 2, volumetric: str = "pointwise",
+                 isochoric: bool = False) -> tuple[StateModel, FollowerPressure]:
     """Problem 1 on `beam_mesh` (n): the model and its follower pressure on the bottom face
-    (``volumetric``: how the penalty enters, `StateModel`)."""
+    (``volumetric``: how the penalty enters, `StateModel`; ``isochoric``: `Guccione` on the isochoric
+    strain)."""
     p = BEAM
-    material = Guccione(C=p["C"], bf=p["bf"], bt=p["bt"], bfs=p["bfs"], kappa=kappa)
+    material = Guccione(C=p["C"], bf=p["bf"], bt=p["bt"], bfs=p["bfs"], kappa=kappa, isochoric=isochoric)
     model = StateModel(beam_mesh(n), material, degree=degree, frames=_fibres_along_x, volumetric=volumetric)
     return model, FollowerPressure(model, "z_bottom", p["pressure"])
 
@@ -111,8 +112,8 @@ BASE_CONDITIONS = {
 
 
 def ventricle_problem(h: float, *, kappa: float, degree: int = 2, curved: bool = True,
-                      base: str = "clamped", refinements: int = 0,
-                      volumetric: str = "pointwise") -> tuple[StateModel, FollowerPressure]:
+                      base: str = "clamped", refinements: int = 0, volumetric: str = "pointwise",
+                      isochoric: bool = False) -> tuple[StateModel, FollowerPressure]:
     """Problem 2 on `hyperoc.geometry.ventricle` (h, mm; ``curved``: isoparametric P2 on the exact
     ellipsoids, else straight-sided cells; ``refinements``: uniform refinements of the Gmsh mesh of
     size h, a nested sequence): the model and the endocardial pressure.
@@ -120,11 +121,12 @@ def ventricle_problem(h: float, *, kappa: float, degree: int = 2, curved: bool =
     ``base``: ``"clamped"`` (u = 0) or ``"sliding"`` (u_z = 0; the three in-plane rigid motions
     pinned by an isostatic support, `StateModel` ``pin_rigid``, which carries no reaction since the
     pressure on the cavity has no net in-plane force or moment about z). With ``bf = bt = bfs = 1``
-    the Guccione law is isotropic (``Q = tr(E^2)``): the constant frame it is given does not matter."""
+    the Guccione law is isotropic (``Q = tr(E^2)``): the constant frame it is given does not matter.
+    ``volumetric``, ``isochoric``: as in `beam_problem`."""
     if base not in BASE_CONDITIONS:
         raise InputError(f"ventricle base must be one of {sorted(BASE_CONDITIONS)}, got {base!r}")
     p = VENTRICLE
-    material = Guccione(C=p["C"], bf=p["bf"], bt=p["bt"], bfs=p["bfs"], kappa=kappa)
+    material = Guccione(C=p["C"], bf=p["bf"], bt=p["bt"], bfs=p["bfs"], kappa=kappa, isochoric=isochoric)
     model = StateModel(ventricle(h, curved=curved, refinements=refinements), material, degree=degree, frames=_fibres_along_x,
                        volumetric=volumetric, **BASE_CONDITIONS[base])
     return model, FollowerPressure(model, "endocardium", p["pressure"])
@@ -156,27 +158,27 @@ def _solve(model, follower, steps, cutbacks, solver, points: dict, params: dict,
 
 
 def beam_deflection(n: int, *, kappa: float = 1000.0, degree: int = 2, steps: int = 10, cutbacks: int = 8,
-                    solver="auto", volumetric: str = "pointwise") -> BenchmarkResult:
+                    solver="auto", volumetric: str = "pointwise", isochoric: bool = False) -> BenchmarkResult:
     """Problem 1: ``values["z_tip"]`` = z of the deformed point (10, 0.5, 1) (mm; 1 at rest)."""
-    model, load = beam_problem(n, kappa=kappa, degree=degree, volumetric=volumetric)
+    model, load = beam_problem(n, kappa=kappa, degree=degree, volumetric=volumetric, isochoric=isochoric)
     return _solve(model, load, steps, cutbacks, solver, {"z_tip": BEAM["point"]},
                   {"problem": 1, "n": n, "kappa": kappa, "degree": degree, "steps": steps, "cutbacks": cutbacks,
-                   "volumetric": volumetric})
+                   "volumetric": volumetric, "isochoric": isochoric})
 
 
 def ventricle_apex(h: float, *, kappa: float = 1000.0, degree: int = 2, steps: int = 10, cutbacks: int = 8,
                    solver="auto", curved: bool = True, base: str = "clamped", refinements: int = 0,
-                   volumetric: str = "pointwise") -> BenchmarkResult:
+                   volumetric: str = "pointwise", isochoric: bool = False) -> BenchmarkResult:
     """Problem 2 (`ventricle_problem`): ``values["z_endo"]``, ``values["z_epi"]`` = z of the deformed
     endocardial and epicardial apex (mm; -17 and -20 at rest), ``values["V_cavity"]`` the deformed
     cavity volume (mm^3, `hyperoc.report.cavity_volume`: the endocardium closed by the base plane)."""
     from .report import cavity_volume
 
     model, load = ventricle_problem(h, kappa=kappa, degree=degree, curved=curved, base=base, refinements=refinements,
-                                    volumetric=volumetric)
+                                    volumetric=volumetric, isochoric=isochoric)
     cavity = lambda model, u: {"V_cavity": float(cavity_volume(model.space, model.expand(u)[None])[0])}
     return _solve(model, load, steps, cutbacks, solver,
                   {"z_endo": VENTRICLE["endo_apex"], "z_epi": VENTRICLE["epi_apex"]},
                   {"problem": 2, "mesh_size": h, "kappa": kappa, "degree": degree, "steps": steps,
                    "cutbacks": cutbacks, "curved": curved, "base": base, "refinements": refinements,
-                   "volumetric": volumetric}, cavity)
+                   "volumetric": volumetric, "isochoric": isochoric}, cavity)

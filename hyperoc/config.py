@@ -50,6 +50,8 @@ SCHEMA = {
                  "C": (NUMBER, ...), "bf": (NUMBER, ...), "bt": (NUMBER, ...), "bfs": (NUMBER, ...),
                  "a": (NUMBER, ...), "b": (NUMBER, ...), "af": (NUMBER, ...), "as": (NUMBER, ...),
                  "bs": (NUMBER, ...), "afs": (NUMBER, ...), "kappa": (NUMBER, ...),
+                 # Guccione's Q on the isochoric strain (J^(-2/3) C - I)/2; needed with "cell-mean"
+                 "isochoric": (bool, ...),
                  # the bulk term per quadrature point, or on each cell's mean J (mixed u-p with a
                  # piecewise-constant pressure, condensed; StateModel volumetric): "pointwise", "cell-mean"
                  "volumetric": (str, "pointwise")},

@@ -226,6 +226,17 @@ class Guccione(Material):
     with ``P = I - f f^T`` (equal to the component form for any orthonormal ``(f, s, n)``: the law is
     transversely isotropic about f). Works in 1D-3D; stress free at E = 0.
 
+    ``isochoric=True``: Q from the isochoric strain ``Ebar = (J^(-2/d) C - I) / 2`` instead of E (the
+    Simo-Taylor-Pister split ``W = W_iso(Cbar) + U(J)``). The same law at J = 1, so the same
+    incompressible limit, but a different compressible one: the bulk response is U alone, and at
+    a given kappa the body is more compressible (Land problem 2 at kappa = 1000 kPa: the apex
+    0.4-0.5 mm lower, `bench/README.md`). Without U, the exponential part then grows without bound
+    when a point is compressed to J -> 0 in any way other than a pure dilatation (``Cbar`` does;
+    uniaxially ``Ebar_11 ~ -lambda^(-2/3) / 2``), whereas on E it stays bounded (``|E_ij| <= 1/2``
+    as F -> 0) and loses ellipticity in uniaxial compression below the stretch where
+    ``lambda^6 - 2 lambda^4 + 4 lambda^2 = 1`` (0.534 for bf = 1). Use it with
+    `hyperoc.model.StateModel` ``volumetric="cell-mean"``, which takes the bulk term off the points.
+
     Units: C and kappa in kPa, bf, bt, bfs dimensionless. Defaults: Land et al. (2015) problems 1
     and 3 (C = 2 kPa, bf = 8, bt = 2, bfs = 4); problem 2 is C = 10 kPa, bf = bt = bfs = 1. The
     benchmark is incompressible; here ``kappa`` (kPa, >= 0, default 1000 = 500 C; ``Q`` alone
@@ -237,19 +248,25 @@ class Guccione(Material):
     bt: float = 2.0
     bfs: float = 4.0
     kappa: float = 1000.0
+    isochoric: bool = False
 
     def energy(self, E, frame=None):
         f = _frame_rows(frame, 1, "Guccione")[0]
+        C = 2.0 * E + jnp.eye(E.shape[0])
+        volumetric = _volumetric(self.kappa, C)
+        if self.isochoric:
+            E = 0.5 * (det(C) ** (-1.0 / E.shape[0]) * C - jnp.eye(E.shape[0]))
         P = jnp.eye(E.shape[0]) - jnp.outer(f, f)
         Ef = E @ f
         PEf, PEP = P @ Ef, P @ E @ P
         Q = self.bf * (f @ Ef) ** 2 + self.bt * jnp.sum(PEP * PEP) + 2.0 * self.bfs * (PEf @ PEf)
-        return 0.5 * self.C * jnp.expm1(Q) + _volumetric(self.kappa, 2.0 * E + jnp.eye(E.shape[0]))
+        return 0.5 * self.C * jnp.expm1(Q) + volumetric
 
     volumetric_split = _split_penalty
 
     def validate(self):
         _check_moduli("Guccione", {"C": self.C, "bf": self.bf, "bt": self.bt, "bfs": self.bfs}, {"kappa": self.kappa})
+        _require(isinstance(self.isochoric, bool), f"Guccione: isochoric must be True or False, got {self.isochoric!r}")
         return self
 
 
@@ -378,7 +395,8 @@ _ALIASES = {"lambda": "lam", "as": "as_"}  # config spellings of field names
 
 
 def material_from_config(cfg: dict) -> Material:
-    """Build a material from ``{"law": "svk", "mu": 0.05, "lambda": 0.05, ...}`` (``"as"`` for ``as_``)."""
+    """Build a material from ``{"law": "svk", "mu": 0.05, "lambda": 0.05, ...}`` (``"as"`` for ``as_``;
+    switches such as Guccione's ``isochoric`` take true or false)."""
     cfg = dict(cfg)
     law = str(cfg.pop("law", "svk")).lower()
     if law not in MATERIALS:
@@ -396,7 +414,11 @@ def material_from_config(cfg: dict) -> Material:
     defaults = {f.name: f.default for f in fields(cls)}
     kwargs = {}
     for k, v in cfg.items():
-        if isinstance(defaults[k], tuple):  # a list parameter (Ogden terms)
+        if isinstance(defaults[k], bool):  # a switch (Guccione isochoric)
+            if not isinstance(v, bool):
+                raise InputError(f"material {law!r}: {k} must be true or false, got {type(v).__name__} {v!r}")
+            kwargs[k] = v
+        elif isinstance(defaults[k], tuple):  # a list parameter (Ogden terms)
             if not (isinstance(v, (list, tuple)) and v and all(is_number(x) for x in v)):
                 raise InputError(f"material {law!r}: {k} must be a non-empty list of finite numbers, got {v!r}")
             kwargs[k] = tuple(float(x) for x in v)

@@ -155,10 +155,13 @@ class StateModel:
         1974; Simo, Taylor & Pister 1985); same unknowns and sparsity as "pointwise". It
         constrains one volume per cell instead of one per quadrature point. P2-P0 satisfies the
         inf-sup condition on triangles (P1-P0 does not, and locks); on tetrahedra we know no proof,
-        but the Land beam does not lock (`tests/test_volumetric.py`). Limitation: J is then free
-        *inside* a cell, held only by the rest of the law; one that stays bounded as J -> 0
-        (Guccione's ``exp(Q)``) lets a cell fold under its mean at large strain: Land problem 2
-        reaches det F = 0 at 3.6 kPa of 10 (`bench/README.md`), where "pointwise" converges.
+        but the Land beam does not lock (`tests/test_volumetric.py`). J is then free *inside* a
+        cell, held only by the rest of the law: one that stays bounded as J -> 0 (Guccione on the
+        full strain) lets a cell fold under its mean at large strain (Land problem 2: det F = 0 at
+        3.6 kPa of 10); a rest that grows without bound as J -> 0 (`Guccione` ``isochoric=True``
+        except under a pure dilatation, neo-Hookean's ``-mu ln J``) resists it, and problem 2
+        reaches 10 kPa. The pressure is one constant per cell, so on coarse meshes the solution
+        can be far softer than the limit (`bench/README.md`).
 
     Attributes ``rigid_modes`` (n, m): orthonormal reduced vectors of the rigid motions that the
     constraints (with pins) leave free, m = 0 normally; ``pinned_dofs``: global dofs

@@ -39,6 +39,7 @@ from test_materials import rotation  # a proper rotation; its rows serve as an o
 MATERIALS = {
     "guccione-p1": Guccione(),  # Land et al. 2015 problems 1/3, kappa = 1000 kPa
     "guccione-p2": Guccione(C=10.0, bf=1.0, bt=1.0, bfs=1.0, kappa=50.0),
+    "guccione-isochoric": Guccione(kappa=50.0, isochoric=True),
     "holzapfel-ogden": HolzapfelOgden(),  # the 2009 fit, kappa = 1000 kPa
     "holzapfel-ogden-soft-bulk": HolzapfelOgden(kappa=5.0),
 }
@@ -165,6 +166,46 @@ def test_guccione_energy_is_the_component_formula(d):
     assert W(material, F, frame) == pytest.approx(expected, rel=1e-13)
 
 
+@pytest.mark.parametrize("d", [2, 3])
+def test_isochoric_guccione_is_the_law_on_the_isochoric_strain(d):
+    """``isochoric=True``: W = C/2 (exp(Q(Ebar)) - 1) + U(J), Ebar = (J^(-2/d) C - I)/2. It equals the
+    plain law at J = 1, and without U it does not see a dilatation: W(s F) = W(F)."""
+    plain, iso = Guccione(kappa=30.0), Guccione(kappa=30.0, isochoric=True)
+    F, frame = sample_points(d)["generic"]
+    J = np.linalg.det(F)
+    unimodular = F / J ** (1.0 / d)
+    assert W(iso, unimodular, frame) == pytest.approx(W(plain, unimodular, frame), rel=1e-13)
+    U = lambda J: iso.kappa / 4 * (J**2 - 1 - 2 * np.log(J))
+    assert W(iso, F, frame) == pytest.approx(W(plain, unimodular, frame) + U(J), rel=1e-13)
+    rest = Guccione(kappa=0.0, isochoric=True)
+    assert W(rest, 1.3 * F, frame) == pytest.approx(W(rest, F, frame), rel=1e-13)
+
+
+def _uniaxial_stress(material, stretches):
+    """``P_11(lambda)`` for ``F = diag(lambda, 1, 1)`` (fibre along x), the first Piola stress."""
+    stress = jax.vmap(lambda s: first_piola(material, jnp.diag(jnp.array([s, 1.0, 1.0])), jnp.eye(3))[0, 0])
+    return np.asarray(stress(jnp.asarray(stretches)))
+
+
+def test_guccione_without_bulk_term_loses_ellipticity_in_compression_unless_isochoric():
+    """Land problem 2's law with kappa = 0 (the rest a cell-mean bulk term leaves pointwise): on the full
+    strain, the uniaxial stress P(lambda) = C exp(Q) lambda (lambda^2 - 1)/2 peaks where
+    3 lambda^2 - 1 + lambda^2 (lambda^2 - 1)^2 = 0, lambda = 0.534 (a compression that the law no longer
+    resists); on the isochoric strain it increases for every lambda in (0, 1] and its W grows without
+    bound as lambda -> 0 (Ebar ~ lambda^(-2/3))."""
+    p2 = dict(C=10.0, bf=1.0, bt=1.0, bfs=1.0, kappa=0.0)
+    stretches = np.linspace(0.05, 1.0, 400)
+    plain = _uniaxial_stress(Guccione(**p2), stretches)
+    iso = _uniaxial_stress(Guccione(**p2, isochoric=True), stretches)
+    peak = stretches[np.argmin(plain)]  # P < 0 in compression: the peak magnitude is the minimum
+    roots = np.roots([1.0, 0.0, -2.0, 0.0, 4.0, 0.0, -1.0])  # lambda^6 - 2 lambda^4 + 4 lambda^2 - 1 = 0
+    expected = min(r.real for r in roots if abs(r.imag) < 1e-12 and 0 < r.real < 1)
+    assert abs(peak - expected) <= stretches[1] - stretches[0] and abs(expected - 0.534) < 5e-4
+    assert np.all(np.diff(iso) > 0)
+    material = Guccione(**p2, isochoric=True)
+    assert W(material, np.diag([1e-3, 1.0, 1.0]), np.eye(3)) > 1e6 * W(material, np.diag([0.5, 1.0, 1.0]), np.eye(3))
+
+
 @pytest.mark.parametrize("label", ["generic", "fibre-tension", "fibre-slack"])
 def test_holzapfel_ogden_energy_is_the_documented_formula(label):
     m = HolzapfelOgden(kappa=30.0)
@@ -261,6 +302,8 @@ def test_holzapfel_ogden_fibres_bear_no_compression():
     ({"law": "holzapfel-ogden", "bfs": 0.0}, "bfs"),
     ({"law": "holzapfel-ogden", "kappa": 0.0}, "kappa"),
     ({"law": "holzapfel-ogden", "bs": "big"}, "bs"),
+    ({"law": "guccione", "isochoric": 1}, "isochoric"),
+    ({"law": "guccione", "isochoric": "yes"}, "isochoric"),
 ])
 def test_bad_parameters_raise_input_error_naming_the_parameter(cfg, word):
     with pytest.raises(InputError, match=word):
@@ -283,6 +326,7 @@ def test_missing_frame_is_an_input_error():
 
 def test_config_builds_the_laws():
     assert material_from_config({"law": "Guccione", "C": 10, "bf": 1, "bt": 1, "bfs": 1}) == Guccione(C=10.0, bf=1.0, bt=1.0, bfs=1.0)
+    assert material_from_config({"law": "guccione", "isochoric": True}) == Guccione(isochoric=True)
     ho = material_from_config({"law": "holzapfel-ogden", "as": 2.0, "kappa": 500})
     assert ho == HolzapfelOgden(as_=2.0, kappa=500.0)
 

@@ -81,6 +81,7 @@ def test_check_gradient_json(tmp_path, capsys):
         (("n = 20", "n = 20\nrefinements = 1.5"), "refinements must be"),
         (("mu = 0.05", 'mu = 0.05\nvolumetric = "cell-mean"'), "needs a law with a separate bulk term"),
         (("mu = 0.05", 'mu = 0.05\nvolumetric = "mean"'), "volumetric must be one of"),
+        (('law = "svk"\nmu = 0.05\nlambda = 0.05', 'law = "guccione"\nisochoric = "yes"'), "isochoric must be"),
     ],
 )
 def test_bad_input_exit_2(tmp_path, change, message):

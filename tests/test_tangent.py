@@ -77,13 +77,18 @@ CELL_MEAN_CASES = [  # the laws with a separate bulk term, cell-mean J
     (lambda: rectangle(3), ho.HolzapfelOgden(), 2, FRAME2, 0.5, -2.0),
     (lambda: box(2), ho.NeoHookean(1.0, 50.0), 1, None, 1.0, 0.7),
     (lambda: box(1), ho.Guccione(), 2, FRAME3, 0.5, -2.0),
+    (lambda: box(1), ho.Guccione(isochoric=True), 2, FRAME3, 1.0, 0.7),
 ]
+
+
+def _case_id(case):
+    iso = "-isochoric" if getattr(case[1], "isochoric", False) else ""
+    return f"{type(case[1]).__name__}{iso}-{case[0]().dim}d-P{case[2]}"
 
 
 @pytest.mark.parametrize("mesh_fn,material,degree,frames,a,b,volumetric",
                          [c + ("pointwise",) for c in CASES] + [c + ("cell-mean",) for c in CELL_MEAN_CASES],
-                         ids=[f"{type(c[1]).__name__}-{c[0]().dim}d-P{c[2]}" for c in CASES]
-                         + [f"{type(c[1]).__name__}-{c[0]().dim}d-P{c[2]}-cell-mean" for c in CELL_MEAN_CASES])
+                         ids=[_case_id(c) for c in CASES] + [_case_id(c) + "-cell-mean" for c in CELL_MEAN_CASES])
 def test_tangent_equals_hessian_of_the_element_energy(mesh_fn, material, degree, frames, a, b, volumetric):
     model = ho.StateModel(mesh_fn(), material, degree=degree, frames=frames, volumetric=volumetric)
     # A smooth finite strain (|grad u| ~ 0.3), different in every component.
