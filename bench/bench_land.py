@@ -26,7 +26,7 @@ largest kappa at the finest level.
     nice python bench/bench_land.py --problems 1 --json results/land-beam.json   # one problem
     python bench/bench_land.py --beam-levels 1,2 --lv-sizes 4 --kappas 1000   # quick look
     nice python bench/bench_land.py --problems 1 --kappas 1000,100000 --volumetric cell-mean --json results/land-beam-p0.json
-    nice python bench/bench_land.py --problems 2 --kappas 1000,100000 --lv-sizes 6 --lv-refinements 0,1,2 --volumetric cell-mean --isochoric
+    nice python bench/bench_land.py --problems 2 --kappas 10000,100000 --lv-sizes 6 --lv-refinements 0,1 --lv-steps 80 --cutbacks 80 --volumetric cell-mean --isochoric
     python bench/bench_land.py --render results/land-*.json                 # tables of saved runs
 
 Seconds are wall time per solve, JIT compilation included.

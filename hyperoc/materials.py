@@ -230,10 +230,11 @@ class Guccione(Material):
     Simo-Taylor-Pister split ``W = W_iso(Cbar) + U(J)``). The same law at J = 1, so the same
     incompressible limit, but a different compressible one: the bulk response is U alone, and at
     a given kappa the body is more compressible (Land problem 2 at kappa = 1000 kPa: the apex
-    0.4-0.5 mm lower, `bench/README.md`). Without U, the exponential part then grows without bound
-    when a point is compressed to J -> 0 in any way other than a pure dilatation (``Cbar`` does;
-    uniaxially ``Ebar_11 ~ -lambda^(-2/3) / 2``), whereas on E it stays bounded (``|E_ij| <= 1/2``
-    as F -> 0) and loses ellipticity in uniaxial compression below the stretch where
+    0.47 mm below its kappa -> infinity value, `bench/README.md`). Without U, the exponential part
+    then grows without bound as a point is compressed to J -> 0, unless it keeps its shape (``Cbar``
+    bounded, e.g. a pure dilatation): uniaxially (``F = diag(lambda, 1, 1)``) the transverse
+    ``Ebar_22 = Ebar_33 ~ lambda^(-2/3) / 2``. On E it stays bounded (``|E_ij| <= 1/2`` as F -> 0)
+    and loses ellipticity in uniaxial compression below the stretch where
     ``lambda^6 - 2 lambda^4 + 4 lambda^2 = 1`` (0.534 for bf = 1). Use it with
     `hyperoc.model.StateModel` ``volumetric="cell-mean"``, which takes the bulk term off the points.
 

@@ -159,7 +159,7 @@ class StateModel:
         cell, held only by the rest of the law: one that stays bounded as J -> 0 (Guccione on the
         full strain) lets a cell fold under its mean at large strain (Land problem 2: det F = 0 at
         3.6 kPa of 10); a rest that grows without bound as J -> 0 (`Guccione` ``isochoric=True``
-        except under a pure dilatation, neo-Hookean's ``-mu ln J``) resists it, and problem 2
+        unless the point keeps its shape, neo-Hookean's ``-mu ln J``) resists it, and problem 2
         reaches 10 kPa. The pressure is one constant per cell, so on coarse meshes the solution
         can be far softer than the limit (`bench/README.md`).
 

@@ -192,7 +192,7 @@ def test_guccione_without_bulk_term_loses_ellipticity_in_compression_unless_isoc
     strain, the uniaxial stress P(lambda) = C exp(Q) lambda (lambda^2 - 1)/2 peaks where
     3 lambda^2 - 1 + lambda^2 (lambda^2 - 1)^2 = 0, lambda = 0.534 (a compression that the law no longer
     resists); on the isochoric strain it increases for every lambda in (0, 1] and its W grows without
-    bound as lambda -> 0 (Ebar ~ lambda^(-2/3))."""
+    bound as lambda -> 0 (the transverse Ebar_22 ~ lambda^(-2/3) / 2)."""
     p2 = dict(C=10.0, bf=1.0, bt=1.0, bfs=1.0, kappa=0.0)
     stretches = np.linspace(0.05, 1.0, 400)
     plain = _uniaxial_stress(Guccione(**p2), stretches)
