@@ -18,12 +18,14 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
+import scipy.sparse as sp
+from scipy.spatial import cKDTree
 
 from .errors import InputError
 from .mesh import Mesh
 from .quadrature import simplex_rule
 
-__all__ = ["VectorSpace", "CellQuadrature", "reference_shape"]
+__all__ = ["VectorSpace", "CellQuadrature", "reference_shape", "prolong"]
 
 
 def _local_edges(dim: int) -> list[tuple[int, int]]:
@@ -259,3 +261,81 @@ class VectorSpace:
         l2 = np.sqrt(np.sum(quad.wdx * np.sum((val - ev) ** 2, axis=-1)))
         h1 = np.sqrt(np.sum(quad.wdx * np.sum((grad - eg) ** 2, axis=(-2, -1))))
         return float(l2), float(h1)
+
+
+def prolong(coarse: VectorSpace, fine: VectorSpace, u: np.ndarray) -> np.ndarray:
+    """Nodal interpolant on ``fine`` (its num_dofs,) of the field ``u`` of ``coarse`` (num_dofs,), when
+    ``fine.mesh`` is a uniform refinement of ``coarse.mesh`` (`hyperoc.mesh.refine`, or a generator's
+    ``refinements``): the value at each fine node X is the coarse field at the material point X.
+
+    Every fine cell lies in one coarse cell, its parent: its vertices are nodes of the parent's P2
+    geometry (vertices and edge points), the points of barycentric coordinates ``e_i`` and
+    ``(e_i + e_j) / 2``. A fine node's reference point in the parent is found from there: on
+    straight-sided cells it is the mean of its edge's vertices; on a curved mesh (isoparametric
+    parents) Newton's method on ``x_parent(xi) = X`` corrects it, since the fine mesh is straighter
+    inside than its curved parents and puts its boundary edge nodes on the exact surface, O(h^3)
+    outside the parent (where the coarse field is extrapolated). Without that correction a starting
+    guess can invert thin boundary cells. Coarse functions are reproduced exactly by nested spaces
+    (P1 -> P1, P1 -> P2, P2 -> P2 on straight-sided cells).
+
+    Raises `InputError` if a fine vertex is not such a node or a fine cell has no parent.
+    """
+    if coarse.components != fine.components or coarse.dim != fine.dim:
+        raise InputError("prolong: the spaces differ in dimension or number of components")
+    dim = coarse.dim
+    geometry = coarse if coarse.degree == 2 else VectorSpace(coarse.mesh, 2, components=1)
+    parent, local = _parents(geometry, fine.mesh)
+    eye = np.eye(dim + 1)
+    node_bary = np.concatenate([eye, [(eye[i] + eye[j]) / 2 for i, j in _local_edges(dim)]])
+    bary = node_bary[local]  # (ncf, dim + 1, dim + 1): the fine cells' vertices in their parents
+    if fine.degree == 2:
+        bary = np.concatenate([bary, np.stack([(bary[:, i] + bary[:, j]) / 2 for i, j in _local_edges(dim)], axis=1)], axis=1)
+    xi = bary[..., 1:]  # (ncf, nloc_fine, dim)
+    if geometry.isoparametric:
+        xi = _inverse_map(geometry.nodes[geometry.cell_nodes[parent]], fine.nodes[fine.cell_nodes], xi)
+    N, _ = reference_shape(dim, coarse.degree, xi.reshape(-1, dim))
+    N = N.reshape(xi.shape[0], xi.shape[1], -1)  # (ncf, nloc_fine, nloc_coarse)
+    uc = np.asarray(u, dtype=np.float64).reshape(coarse.num_nodes, coarse.components)[coarse.cell_nodes[parent]]
+    out = np.empty((fine.num_nodes, fine.components))
+    out[fine.cell_nodes] = np.einsum("cab,cbi->cai", N, uc)  # a node shared by cells: the same value
+    return out.ravel()
+
+
+def _inverse_map(cell_x: np.ndarray, X: np.ndarray, xi: np.ndarray, max_iter: int = 20) -> np.ndarray:
+    """Reference points ``xi`` (nc, m, dim) with ``sum_a N_a(xi) cell_x[:, a] = X`` (nc, m, dim) in the
+    isoparametric P2 cells of nodes ``cell_x`` (nc, nloc, dim), by Newton's method from ``xi``, until
+    the step is round-off (a reference cell has unit size)."""
+    nc, m, dim = xi.shape
+    for _ in range(max_iter):
+        N, dN = reference_shape(dim, 2, xi.reshape(-1, dim))
+        N, dN = N.reshape(nc, m, -1), dN.reshape(nc, m, -1, dim)
+        r = np.einsum("cpa,cai->cpi", N, cell_x) - X
+        jac = np.einsum("cai,cpaj->cpij", cell_x, dN)
+        step = np.linalg.solve(jac, r[..., None])[..., 0]
+        xi = xi - step
+        if np.abs(step).max() < 1e-13:
+            return xi
+    raise InputError("prolong: the inverse isoparametric map of a fine node did not converge (a fine node far outside its parent)")
+
+
+def _parents(geometry: VectorSpace, fine: Mesh) -> tuple[np.ndarray, np.ndarray]:
+    """For each cell of ``fine``: its parent cell in ``geometry.mesh`` (ncf,) and the local P2 node
+    index in the parent of each of its vertices (ncf, dim + 1)."""
+    scale = np.ptp(geometry.nodes, axis=0).max()
+    dist, node = cKDTree(geometry.nodes).query(fine.points)
+    if np.any(dist > 1e-9 * scale):
+        raise InputError("prolong: the fine mesh is not a refinement of the coarse one (a vertex is not a coarse P2 node)")
+    nodes = node[fine.cells]  # (ncf, dim + 1) coarse node of each fine vertex
+    nc, nloc = geometry.cell_nodes.shape
+    incidence = sp.csr_matrix((np.ones(nc * nloc), geometry.cell_nodes.ravel(), np.arange(nc + 1) * nloc),
+                              shape=(nc, geometry.num_nodes))
+    vertices = sp.csr_matrix((np.ones(nodes.size), nodes.ravel(), np.arange(0, nodes.size + 1, fine.dim + 1)),
+                             shape=(len(nodes), geometry.num_nodes))
+    shared = (vertices @ incidence.T).tocoo()  # (ncf, nc): how many of the fine vertices each coarse cell holds
+    full = shared.data == fine.dim + 1
+    parent = np.full(len(nodes), -1)
+    parent[shared.row[full]] = shared.col[full]
+    if np.any(parent < 0) or np.count_nonzero(full) != len(nodes):
+        raise InputError("prolong: some fine cell lies in no single coarse cell (not a uniform refinement)")
+    local = np.argmax(geometry.cell_nodes[parent][:, None, :] == nodes[:, :, None], axis=2)
+    return parent, local

@@ -25,7 +25,7 @@ import pytest
 from hyperoc import geometry
 from hyperoc.errors import InputError
 from hyperoc.mesh import box, interval, rectangle, refine
-from hyperoc.spaces import VectorSpace
+from hyperoc.spaces import VectorSpace, prolong
 
 
 def facet_measures(points, facets):
@@ -165,3 +165,52 @@ def test_nested_annulus_area_converges_at_the_geometric_order(curved, order):
 def test_geometry_rejects_bad_refinements(bad):
     with pytest.raises(InputError, match="refinements"):
         geometry.annulus(0.5, 1.0, 0.4, refinements=bad)
+
+
+# ---- transfer between nested levels (`hyperoc.spaces.prolong`) ---------------------------------
+
+
+def _polynomial(degree: int, components: int):
+    """A field of total degree ``degree`` with ``components`` components, nonzero in every monomial."""
+    def fn(x):
+        s = x.sum(axis=1)
+        base = 0.3 + x @ np.arange(1.0, x.shape[1] + 1) + (degree == 2) * (s**2 - 0.7 * x[:, 0] * x[:, -1])
+        return np.stack([(c + 1.0) * base - c * x[:, 0] for c in range(components)], axis=1)
+    return fn
+
+
+@pytest.mark.parametrize("name", ["interval", "rectangle", "box", "annulus-straight"])
+@pytest.mark.parametrize("coarse_degree, fine_degree", [(1, 1), (1, 2), (2, 2)])
+def test_prolong_reproduces_coarse_fields_in_nested_spaces(name, coarse_degree, fine_degree):
+    """P1 -> P1, P1 -> P2, P2 -> P2 on straight-sided cells: the fine space contains the coarse
+    one, so a coarse polynomial comes back as the fine interpolant, to round-off."""
+    meshes = {"interval": lambda: interval(3), "rectangle": lambda: rectangle(3, 2),
+              "box": lambda: box(2, 1, 2), "annulus-straight": lambda: geometry.annulus(0.5, 1.0, 0.4, curved=False)}
+    mesh = meshes[name]()
+    coarse, fine = VectorSpace(mesh, coarse_degree), VectorSpace(refine(mesh), fine_degree)
+    fn = _polynomial(coarse_degree, coarse.components)
+    out = prolong(coarse, fine, coarse.interpolate(fn))
+    exact = fine.interpolate(fn)
+    assert np.max(np.abs(out - exact)) <= 1e-13 * np.max(np.abs(exact))
+
+
+@pytest.mark.parametrize("make", [lambda k: geometry.annulus(0.5, 1.0, 0.3, refinements=k),
+                                  lambda k: geometry.ventricle(9.0, refinements=k)], ids=["annulus", "ventricle"])
+def test_prolong_on_curved_meshes_evaluates_at_the_material_points(make):
+    """Isoparametric P2 parents: the coordinate field X is in the coarse space, and the value at a
+    fine node is the coarse field at that node's material point (inverse map by Newton), so X comes
+    back as the fine nodes, to round-off, although the fine boundary edge nodes lie on the exact
+    surface, off the parents' curved images, and the fine cells are straight inside."""
+    coarse, fine = VectorSpace(make(0), 2), VectorSpace(make(1), 2)
+    X = prolong(coarse, fine, coarse.nodes.ravel()).reshape(fine.nodes.shape)
+    size = np.ptp(fine.nodes, axis=0).max()
+    assert np.max(np.abs(X - fine.nodes)) <= 1e-13 * size
+    straight = VectorSpace(make(1).faceted(), 2).nodes
+    assert np.max(np.abs(straight - fine.nodes)) > 1e-3 * size  # the fine mesh is curved too
+
+
+def test_prolong_rejects_meshes_that_are_not_nested():
+    with pytest.raises(InputError, match="refinement"):
+        prolong(VectorSpace(rectangle(3), 1), VectorSpace(rectangle(5), 1), np.zeros(2 * 16))
+    with pytest.raises(InputError, match="components"):
+        prolong(VectorSpace(rectangle(2), 1), VectorSpace(refine(rectangle(2)), 1, components=1), np.zeros(18))
