@@ -14,7 +14,8 @@ formulation with a pressure constant per cell, condensed. What is checked:
 - Land problem 2 (the ventricle inflated to 10 kPa, coarsest mesh): with Guccione on the full strain
   a cell folds inside while keeping its mean J (det F -> 0 at about 0.36 of the load, `bench/README.md`);
   with Guccione on the isochoric strain (`Guccione(isochoric=True)`, the Simo-Taylor-Pister split)
-  the energy grows without bound as J -> 0 at a point and the full load is reached;
+  the rest energy grows without bound as a point is compressed to J -> 0 (unless it keeps its
+  shape) and the full load is reached;
 - exact gradients of the reduced functional through it (Taylor rate 2, `tests/test_gradients.py`);
 - the tangent is the Hessian of this energy: `tests/test_tangent.py` (cell-mean cases).
 """
