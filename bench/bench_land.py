@@ -107,9 +107,11 @@ def _extrapolate(by_kappa: dict, key: str) -> str:
 
 def _formulation(params: dict) -> str:
     """How the penalty enters (`hyperoc.model.StateModel` ``volumetric``) and whether Q uses the
-    isochoric strain; rows from before those options: pointwise, full strain."""
+    isochoric strain, and the Newton predictor; rows from before those options: pointwise, full strain,
+    previous equilibrium."""
     mixed = ", cell-mean J (P2-P0)" if params.get("volumetric", "pointwise") == "cell-mean" else ""
-    return mixed + (", isochoric Q" if params.get("isochoric", False) else "")
+    secant = ", secant predictor" if params.get("predictor") == "secant" else ""
+    return mixed + (", isochoric Q" if params.get("isochoric", False) else "") + secant
 
 
 def _variant(params: dict) -> str:
@@ -179,6 +181,8 @@ def main():
                     help="Guccione's Q on the isochoric strain (J^(-2/3) C - I) / 2 (hyperoc.materials.Guccione)")
     ap.add_argument("--solver", default="auto", choices=["auto", "lu", "lu_reuse"],
                     help="problem 2 linear solver (hyperoc.linsolve; auto = sparse LU at these sizes)")
+    ap.add_argument("--predictor", default="previous", choices=["previous", "secant"],
+                    help="Newton start at each load increment (hyperoc.statics.solve_static)")
     ap.add_argument("--json", default=None, help="write all results here")
     ap.add_argument("--render", nargs="+", default=None, metavar="JSON",
                     help="only print the tables of earlier runs (their --json files or stdout logs)")
@@ -205,12 +209,14 @@ def main():
         [[(h, int(k)) for k in _floats(args.lv_refinements)] for h in _floats(args.lv_sizes)]
     lv_run = lambda level, kappa: record(ventricle_apex(level[0], kappa=kappa, steps=args.lv_steps, cutbacks=args.cutbacks, curved=not args.faceted,
                                                         base=args.base, refinements=level[1], solver=args.solver,
-                                                        volumetric=args.volumetric, isochoric=args.isochoric),
+                                                        volumetric=args.volumetric, isochoric=args.isochoric,
+                                                        predictor=args.predictor),
                                          nested=args.lv_refinements is not None, solver=args.solver)
     for number, name, sequences, run, level_key, keys in (
         (1, "Problem 1 (beam)", [[int(v) for v in _floats(args.beam_levels)]],
          lambda lv, k: record(beam_deflection(lv, kappa=k, steps=args.beam_steps, cutbacks=args.cutbacks,
-                                              volumetric=args.volumetric, isochoric=args.isochoric)), "n", ["z_tip"]),
+                                              volumetric=args.volumetric, isochoric=args.isochoric,
+                                              predictor=args.predictor)), "n", ["z_tip"]),
         (2, "Problem 2 (ventricle)", lv_sequences if args.lv_refinements is not None else [sum(lv_sequences, [])],
          lv_run, None, LV_KEYS),
     ):

@@ -147,7 +147,7 @@ def _solve(model, follower, steps, cutbacks, solver, points: dict, params: dict,
     """Solve; ``values`` are the z of the deformed ``points`` (name -> X) and ``extra(model, u)`` (a dict)."""
     t0 = time.perf_counter()
     sol = solve_static(model, follower=follower, constrained=False, steps=steps, solver=solver,
-                       line_search=False, cutbacks=cutbacks)
+                       line_search=False, cutbacks=cutbacks, predictor=params["predictor"])
     seconds = time.perf_counter() - t0
     J = np.asarray(det(model.deformation_gradient(jnp.asarray(sol.u))))  # (nc, nq)
     values = {name: float(node_position(model, sol.u, X)[2]) for name, X in points.items()}
@@ -158,17 +158,18 @@ def _solve(model, follower, steps, cutbacks, solver, points: dict, params: dict,
 
 
 def beam_deflection(n: int, *, kappa: float = 1000.0, degree: int = 2, steps: int = 10, cutbacks: int = 8,
-                    solver="auto", volumetric: str = "pointwise", isochoric: bool = False) -> BenchmarkResult:
+                    solver="auto", volumetric: str = "pointwise", isochoric: bool = False,
+                    predictor: str = "previous") -> BenchmarkResult:
     """Problem 1: ``values["z_tip"]`` = z of the deformed point (10, 0.5, 1) (mm; 1 at rest)."""
     model, load = beam_problem(n, kappa=kappa, degree=degree, volumetric=volumetric, isochoric=isochoric)
     return _solve(model, load, steps, cutbacks, solver, {"z_tip": BEAM["point"]},
                   {"problem": 1, "n": n, "kappa": kappa, "degree": degree, "steps": steps, "cutbacks": cutbacks,
-                   "volumetric": volumetric, "isochoric": isochoric})
+                   "volumetric": volumetric, "isochoric": isochoric, "predictor": predictor})
 
 
 def ventricle_apex(h: float, *, kappa: float = 1000.0, degree: int = 2, steps: int = 10, cutbacks: int = 8,
                    solver="auto", curved: bool = True, base: str = "clamped", refinements: int = 0,
-                   volumetric: str = "pointwise", isochoric: bool = False) -> BenchmarkResult:
+                   volumetric: str = "pointwise", isochoric: bool = False, predictor: str = "previous") -> BenchmarkResult:
     """Problem 2 (`ventricle_problem`): ``values["z_endo"]``, ``values["z_epi"]`` = z of the deformed
     endocardial and epicardial apex (mm; -17 and -20 at rest), ``values["V_cavity"]`` the deformed
     cavity volume (mm^3, `hyperoc.report.cavity_volume`: the endocardium closed by the base plane)."""
@@ -181,4 +182,4 @@ def ventricle_apex(h: float, *, kappa: float = 1000.0, degree: int = 2, steps: i
                   {"z_endo": VENTRICLE["endo_apex"], "z_epi": VENTRICLE["epi_apex"]},
                   {"problem": 2, "mesh_size": h, "kappa": kappa, "degree": degree, "steps": steps,
                    "cutbacks": cutbacks, "curved": curved, "base": base, "refinements": refinements,
-                   "volumetric": volumetric, "isochoric": isochoric}, cavity)
+                   "volumetric": volumetric, "isochoric": isochoric, "predictor": predictor}, cavity)

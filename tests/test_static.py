@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from hyperoc.controls import BodyForce, Region
+from hyperoc.errors import InputError
 from hyperoc.materials import NeoHookean, Ogden, SaintVenantKirchhoff
 from hyperoc.mesh import rectangle
 from hyperoc.model import StateModel
@@ -68,3 +69,25 @@ def test_ramped_loading_reaches_the_same_equilibrium(loaded_problem):
     scale_u = np.max(np.abs(one.u))
     assert np.max(np.abs(ramp.u - one.u)) <= 1e-9 * scale_u
     assert abs(ramp.p - one.p) <= 1e-9 * max(abs(one.p), 1.0)  # p in units of the moduli (= 1)
+
+
+def test_secant_predictor_reaches_the_same_equilibrium_in_fewer_newton_iterations(loaded_problem):
+    """The secant start ``u_k + (u_k - u_{k-1}) ds_k / ds_{k-1}`` is O(ds^2) from the next
+    equilibrium of a smooth load path, the previous equilibrium O(ds): the same end point, and from
+    the second increment on Newton starts closer, so it needs no more iterations per increment."""
+    model, load, xi, V = loaded_problem
+    steps = 8
+    previous = solve_static(model, load=load, xi=xi, volume=V, steps=steps)
+    secant = solve_static(model, load=load, xi=xi, volume=V, steps=steps, predictor="secant")
+    print(f"\nNewton its per increment: previous {previous.newton_iterations}, secant {secant.newton_iterations}")
+    assert np.max(np.abs(secant.u - previous.u)) <= 1e-9 * np.max(np.abs(previous.u))
+    assert abs(secant.p - previous.p) <= 1e-9 * max(abs(previous.p), 1.0)
+    assert secant.newton_iterations[0] == previous.newton_iterations[0]  # no history yet: the same start
+    assert np.all(secant.newton_iterations[1:] <= previous.newton_iterations[1:])
+    assert secant.newton_iterations.sum() < previous.newton_iterations.sum()
+
+
+def test_unknown_predictor_is_an_input_error(loaded_problem):
+    model, load, xi, V = loaded_problem
+    with pytest.raises(InputError, match="predictor"):
+        solve_static(model, load=load, steps=2, predictor="quadratic")
