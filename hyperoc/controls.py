@@ -151,6 +151,15 @@ class ControlData:
     def size(self) -> int:
         return self.nodes.size * self.components
 
+    @property
+    def lumped_mass(self) -> np.ndarray:
+        """Positive diagonal (n_ctrl,) spectrally equivalent to ``mass``: its diagonal scaled to the
+        same total, ``m_i = M_ii sum(M) / tr(M)`` (Hinton-Rock-Zienkiewicz lumping). For P1 it equals
+        the row sums (``M_ii`` is a fixed fraction of each row in every simplex); for P2 the row
+        sums vanish at vertices (straight cells) or turn negative (curved ones), these do not."""
+        diag = self.mass.diagonal()
+        return diag * (self.mass.sum() / diag.sum())
+
     def coordinates(self, space: VectorSpace) -> np.ndarray:
         """Coordinates (n_nodes, dim) of the control nodes."""
         return space.nodes[self.nodes]

@@ -16,7 +16,7 @@ from .config import Config
 from .dynamics import TimeStepper, detect_regimes
 from .errors import InputError
 from .io import read_json, write_json
-from .optimize import BBStepRule, OptimizationResult, barzilai_borwein, lbfgsb
+from .optimize import BBStepRule, OptimizationResult, barzilai_borwein, check_tau_scale, lbfgsb
 from .reduced import ControlPoint, ReducedFunctional
 from .report import write_state_outputs
 from .verification import random_directions, taylor_test
@@ -67,11 +67,12 @@ def optimize_single(cfg: Config, tau0: float, *, checkpoint=None, method: str | 
         raise InputError(f"config: [optimize] steps must be 'joint' or 'blockwise', got {o['steps']!r}")
     if o["bb_step"] not in BBStepRule.RULES:
         raise InputError(f"config: [optimize] bb_step must be one of {', '.join(BBStepRule.RULES)}, got {o['bb_step']!r}")
+    check_tau_scale(o["tau_scale"])  # used by L-BFGS-B only, checked for every method
     if method == "bb":
         res = barzilai_borwein(J, J.zero(tau0), xi_bounds=cfg.xi_bounds(), steps=o["steps"], bb_step=o["bb_step"],
                                **kwargs)
     elif method == "lbfgsb":
-        res = lbfgsb(J, J.zero(tau0), xi_bounds=cfg.xi_bounds(), **kwargs)
+        res = lbfgsb(J, J.zero(tau0), xi_bounds=cfg.xi_bounds(), tau_scale=o["tau_scale"], **kwargs)
     else:
         raise InputError(f"config: [optimize] method {method!r} unknown (bb, lbfgsb)")
     if bar is not None:

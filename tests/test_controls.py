@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from hyperoc import ActiveStress, BodyForce, InputError, Region, SaintVenantKirchhoff, StateModel, interval, rectangle
+from hyperoc import (ActiveStress, BodyForce, InputError, NeoHookean, Region, SaintVenantKirchhoff, StateModel, annulus,
+                     interval, rectangle)
 from hyperoc.config import parse_config
 
 
@@ -67,3 +68,21 @@ def test_active_stress_fibres_must_match_the_points():
     bad = ActiveStress(Region(), fibres=lambda x, cells: x[..., :1])
     with pytest.raises(InputError, match="fibres must return vectors"):
         StateModel(rectangle(2), SaintVenantKirchhoff(), control=bad)
+
+
+@pytest.mark.parametrize("degree, curved", [(1, False), (2, False), (2, True)])
+def test_lumped_mass_is_positive_and_keeps_the_total(degree, curved):
+    """HRZ lumping (`ControlData.lumped_mass`): positive, the same total as the mass matrix (the
+    measure of omega), equal to the row sums for P1; for P2 the row sums are no lumping at all
+    (zero at the vertices of straight cells, negative on curved ones)."""
+    mesh = annulus(0.5, 1.0, structured=True, n_radial=2, n_theta=12, curved=curved)
+    model = StateModel(mesh, NeoHookean(1.0, 2.0), degree=degree,
+                       control=ActiveStress(Region("sector", r_range=(0.5, 1.0), theta_range=(-1.0, 1.0))))
+    M, lumped = model.control.mass, model.control.lumped_mass
+    rows = np.asarray(M.sum(axis=1)).ravel()
+    assert lumped.shape == (model.control.size,) and lumped.min() > 0
+    assert lumped.sum() == pytest.approx(M.sum(), rel=1e-13)
+    if degree == 1:
+        np.testing.assert_allclose(lumped, rows, rtol=1e-12)
+    else:
+        assert rows.min() <= 1e-13 * rows.max()

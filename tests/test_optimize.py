@@ -8,7 +8,7 @@ from hyperoc import (BodyForce, ControlPoint, NeoHookean, Objective, ReducedFunc
                      SolverError, StateModel, TimeTransform, barzilai_borwein, interval, lbfgsb)
 from hyperoc.errors import InputError
 from hyperoc.objectives import ControlCost, PressureAt
-from hyperoc.optimize import BBStepRule
+from hyperoc.optimize import BBStepRule, tau_scaling
 from hyperoc.problems import vibrating_bar
 
 
@@ -18,7 +18,8 @@ def _J(tau=1.0, T=3.0, dt=0.05, n=20, alpha=2e-2, omega=(0.75, 1.0), material=Sa
     return ReducedFunctional(model, TimeTransform.for_step(T, dt, tau), Objective(running=(ControlCost(alpha),), at_tau=PressureAt()))
 
 
-@pytest.mark.parametrize("method", ["bb", "bb-abbmin", "bb-blockwise", "lbfgsb"])
+@pytest.mark.parametrize("method", ["bb", "bb-abbmin", "bb-blockwise", "lbfgsb", "lbfgsb-tau-x10", "lbfgsb-tau-x0.1",
+                                    "lbfgsb-inactive-bounds"])
 def test_optimizers_converge_on_a_well_posed_case(method, bar_reference):
     """`vibrating_bar` has an interior, nondegenerate maximizer. Every method must reach
     ||G|| <= 1e-6 ||G0|| with J increasing at the first step, and all must agree on the maximizer.
@@ -27,8 +28,13 @@ def test_optimizers_converge_on_a_well_posed_case(method, bar_reference):
     ||G|| <= 1e-6 ||G0|| here and <= 1e-7 ||G0|| at the reference, the two points lie within
     1.1e-6 ||G0|| / lambda of each other, and their J within O(||G||^2 / lambda) (quadratic model)."""
     ref, lam, J = bar_reference
-    if method == "lbfgsb":
-        res = lbfgsb(J, J.zero(2.0), max_iter=100, gtol=1e-6)
+    if method == "lbfgsb-inactive-bounds":  # the "range" scaling of tau applies (`tau_scaling`)
+        bound = 10 * np.max(np.abs(ref.point.xi))
+        res = lbfgsb(J, J.zero(2.0), max_iter=100, gtol=1e-6, xi_bounds=(-bound, bound))
+        assert np.max(np.abs(res.point.xi)) < bound
+    elif method.startswith("lbfgsb"):
+        res = lbfgsb(J, J.zero(2.0), max_iter=100, gtol=1e-6,
+                     tau_scale=float(method.rpartition("x")[2]) if "tau" in method else "range")
     else:
         res = barzilai_borwein(J, J.zero(2.0), max_iter=300, gtol=1e-6,
                                steps="blockwise" if method == "bb-blockwise" else "joint",
@@ -165,3 +171,34 @@ def test_optimal_value_does_not_decrease_with_tau():
         values.append(res.objective)
     assert values[0] > 0
     assert all(b >= a * (1 - 1e-8) for a, b in zip(values, values[1:])), values
+
+
+def test_tau_scaling_normalizes_both_blocks_to_their_ranges(bar_reference):
+    """``"range"``: c L_tau = (hi - lo) sqrt(|Q|), |Q| = 2 |omega| (omega = [0.25, 0.5], s in (0, 2));
+    1 without two finite bounds or with tau fixed; a number passes through; anything else is an
+    input error."""
+    _, _, J = bar_reference
+    c = tau_scaling(J, "range", (0.5, 3.0), (-0.2, 0.2))
+    assert c == pytest.approx(0.4 * np.sqrt(2 * 0.25) / 2.5, rel=1e-12)
+    assert tau_scaling(J, "range", (0.5, 3.0), (None, 0.2)) == 1.0
+    assert tau_scaling(J, "range", (2.0, 2.0), (-0.2, 0.2)) == 1.0
+    assert tau_scaling(J, 7, (0.5, 3.0), (-0.2, 0.2)) == 7.0
+    for bad in (0.0, -1.0, float("nan"), "auto", True):
+        with pytest.raises(InputError, match="tau_scale"):
+            tau_scaling(J, bad, (0.5, 3.0), (-0.2, 0.2))
+
+
+def test_lbfgsb_with_a_p2_control_on_a_curved_annulus():
+    """P2 control nodes (row-sum lumping of their mass is zero or negative at vertices): the scaled
+    variables stay finite, J increases from the start and the bounds hold."""
+    from hyperoc import ActiveStress, PressureRise, annulus
+
+    mesh = annulus(0.5, 1.0, structured=True, n_radial=2, n_theta=12)
+    model = StateModel(mesh, NeoHookean(1.0, 2.0), degree=2, kappa=0.05,
+                       control=ActiveStress(Region("sector", r_range=(0.5, 1.0), theta_range=(-1.0, 1.0))))
+    J = ReducedFunctional(model, TimeTransform.for_step(1.0, 0.05, 0.5, 0.1),
+                          Objective(running=(ControlCost(1e-2),), at_tau=PressureRise(0.1)))
+    res = lbfgsb(J, J.zero(0.5), xi_bounds=(-0.05, 0.05), max_iter=3)
+    assert np.all(np.isfinite(res.point.xi)) and np.isfinite(res.objective)
+    assert res.objective > res.history["objective"][0]
+    assert np.max(np.abs(res.point.xi)) <= 0.05 + 1e-12
