@@ -270,12 +270,13 @@ def tau_scaling(J: ReducedFunctional, tau_scale: float | str, tau_range, xi_boun
 
     ``"range"``: with finite bounds ``lo < xi < hi``, the admissible tau interval (length ``L_tau``)
     gets the length of the xi box's diagonal in L2(0,2; L2(omega)): ``c = (hi - lo) sqrt(|Q|) /
-    L_tau``, ``|Q| = 2 |omega|`` the measure of the control's space-time domain; both blocks are
-    normalized to their ranges, as bound-constrained codes commonly normalize variables. Why: tau and
-    xi have unrelated units, while scipy's line search and L-BFGS's initial Hessian ``gamma I`` treat
-    all variables alike (the ventricle example converges to gtol = 1e-4 in 50-57 iterations for c
-    from 10 to 67, and not in 120 with c = 1 or 0.1: bench/README.md). c = 1 without finite bounds or with tau fixed.
-    A number: that factor (> 0).
+    L_tau``, ``|Q| = 2 |omega|`` per control component (s in (0, 2); the sum of the control mass
+    matrix is |omega| per component); both blocks are normalized to their ranges, as
+    bound-constrained codes commonly normalize variables. Why: tau and xi have unrelated units, while
+    scipy's line search and L-BFGS's initial Hessian ``gamma I`` treat all variables alike (the
+    ventricle example converges to gtol = 1e-4 in 50-57 iterations for c from 10 to 67, and not in
+    120 with c = 1 or 0.1: bench/README.md). c = 1 without finite bounds or with tau fixed. A number:
+    that factor (> 0).
     """
     if check_tau_scale(tau_scale) == "range":
         lo, hi = xi_bounds

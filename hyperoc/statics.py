@@ -136,7 +136,8 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
     predictor : Newton's starting point at each load increment: ``"previous"`` (default), the last
         equilibrium; ``"secant"``, the linear extrapolation of the last two equilibria (u and p) to
         the new load factor, first-order accurate in the increment where the previous one is
-        zeroth-order: fewer Newton iterations, and fewer diverging full Newton steps.
+        zeroth-order: fewer Newton iterations on a smooth path, but on a response that stiffens
+        along the path it overshoots (Land problem 2: more halved increments, bench/README.md).
     solver : a linear solver or its name (`hyperoc.linsolve.make_solver`); with follower pressures the
         tangent is not symmetric, so ``"minres"`` is refused.
 
