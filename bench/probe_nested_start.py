@@ -30,7 +30,7 @@ from hyperoc.errors import SolverError
 from hyperoc.linsolve import make_solver
 from hyperoc.materials import det
 from hyperoc.spaces import prolong
-from hyperoc.statics import _compiled_solve, solve_static
+from hyperoc.statics import _compiled_solve, initial_unknown, solve_static
 
 
 def min_det(model, u) -> float:
@@ -42,8 +42,7 @@ def homotopy(model, load, u0, steps: int, budget: int) -> tuple[float, int]:
     lin = make_solver(model, "auto")
     solve = _compiled_solve(model, lin, Scheme(), (load,), False, False)
     r0 = model.internal_force(jnp.asarray(u0)) - load.force(jnp.asarray(u0), 1.0)
-    e = model.n ** -0.5
-    x = jnp.concatenate([jnp.asarray(u0 - u0.sum() * e * e), jnp.full(1, u0.sum() * e)])
+    x = initial_unknown(model, u0, constrained=False)
     lam, dlam, cuts, its = 0.0, 1.0 / steps, 0, 0
     while lam < 1.0 and cuts <= budget:
         trial = min(1.0, lam + dlam)

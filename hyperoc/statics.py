@@ -117,6 +117,15 @@ def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, co
     return solve
 
 
+def initial_unknown(model: StateModel, u: np.ndarray, constrained: bool) -> jnp.ndarray:
+    """The Newton unknown (n + 1,) of the compiled solve for the displacement u (n,): ``(u, p = 0)``
+    with the constraint, else ``(w, t)`` with ``u = w + t e``, ``e = n^-1/2 (1, ..., 1)``, ``e . w = 0``."""
+    if constrained:
+        return jnp.concatenate([jnp.asarray(u), jnp.zeros(1)])
+    t = u.sum() * model.n ** -0.5
+    return jnp.concatenate([jnp.asarray(u - t * model.n ** -0.5), jnp.full(1, t)])
+
+
 def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None = None, steps: int = 1,
                  scheme: Scheme = Scheme(), solver="auto", u0=None, follower=(), constrained: bool = True,
                  line_search: bool = True, cutbacks: int = 0, predictor: str = "previous") -> StaticSolution:
@@ -161,11 +170,7 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
     V = V_start if volume is None else float(volume)
 
     solve = _compiled_solve(model, lin, scheme, followers, constrained, line_search)
-    if constrained:
-        x = jnp.concatenate([jnp.asarray(u), jnp.zeros(1)])
-    else:
-        t = u.sum() * model.n ** -0.5
-        x = jnp.concatenate([jnp.asarray(u - t * model.n ** -0.5), jnp.full(1, t)])
+    x = initial_unknown(model, u, constrained)
     iters, s_done, ds, cuts, k = [], 0.0, 1.0 / steps, 0, 0
     last = None  # (x, s) of the equilibrium before the current one, for the secant predictor
     while s_done < 1.0:
