@@ -40,9 +40,8 @@ import math
 import os
 
 
-from hyperoc.benchmarks import beam_deflection, ventricle_apex
+from hyperoc.benchmarks import FORMULATIONS, beam_deflection, ventricle_apex
 from hyperoc.errors import SolverError
-from hyperoc.model import VOLUMETRIC
 
 
 #: Problem 2 values: apex z (mm) and deformed cavity volume (mm^3; missing in rows from before it).
@@ -109,7 +108,8 @@ def _formulation(params: dict) -> str:
     """How the penalty enters (`hyperoc.model.StateModel` ``volumetric``) and whether Q uses the
     isochoric strain, and the Newton predictor; rows from before those options: pointwise, full strain,
     previous equilibrium."""
-    mixed = ", cell-mean J (P2-P0)" if params.get("volumetric", "pointwise") == "cell-mean" else ""
+    mixed = {"cell-mean": ", cell-mean J (P2-P0)", "taylor-hood": ", Taylor-Hood (P2-P1)"}.get(
+        params.get("volumetric", "pointwise"), "")
     secant = ", secant predictor" if params.get("predictor") == "secant" else ""
     return mixed + (", isochoric Q" if params.get("isochoric", False) else "") + secant
 
@@ -174,9 +174,10 @@ def main():
                     help="failed load increments that may be halved and retried, in total per solve")
     ap.add_argument("--faceted", action="store_true", help="problem 2 on straight-sided P2 cells (default: curved)")
     ap.add_argument("--base", default="clamped", choices=["clamped", "sliding"], help="problem 2 base condition")
-    ap.add_argument("--volumetric", default="pointwise", choices=VOLUMETRIC,
-                    help="the penalty at every quadrature point, or on each cell's mean J (mixed P2-P0, "
-                         "hyperoc.model.StateModel)")
+    ap.add_argument("--volumetric", default="pointwise", choices=FORMULATIONS,
+                    help="the penalty at every quadrature point, on each cell's mean J (mixed P2-P0, "
+                         "hyperoc.model.StateModel), or a continuous P1 pressure (Taylor-Hood, "
+                         "hyperoc.mixed.TaylorHoodModel; there kappa may be inf: incompressible)")
     ap.add_argument("--isochoric", action="store_true",
                     help="Guccione's Q on the isochoric strain (J^(-2/3) C - I) / 2 (hyperoc.materials.Guccione)")
     ap.add_argument("--solver", default="auto", choices=["auto", "lu", "lu_reuse"],
@@ -197,7 +198,7 @@ def main():
         res.params.update(extra)
         row = {"values": res.values, "h": res.h, "dofs": res.dofs, "newton_iterations": res.newton_iterations.tolist(),
                "seconds": res.seconds, "min_det_F": res.min_det_F, "max_volume_change": res.max_volume_change,
-               "mean_volume_change": res.mean_volume_change,
+               "mean_volume_change": res.mean_volume_change, "volume_change": res.volume_change,
                "params": res.params}
         results.append(row)
         print(json.dumps(row), flush=True)

@@ -6,7 +6,7 @@ The curated API (see the README for a tour)::
     materials   SaintVenantKirchhoff, Fung, Ogden, NeoHookean; Guccione, HolzapfelOgden (fibre frames)
     fibres      transmural_coordinate, rule_based_fibres (helix angle rule)
     controls    BodyForce, ActiveStress, Region
-    model       StateModel
+    model       StateModel; mixed: TaylorHoodModel (P2-P1, quasi-static, incompressible allowed)
     dynamics    Scheme, TimeStepper, solve_state, StateSolution; statics: solve_static
     time        uniform_grid, TimeGrid, TimeTransform
     objectives  Objective, ControlCost, PressureAt, PressureRise
@@ -28,6 +28,7 @@ from .fibres import rule_based_fibres, transmural_coordinate
 from .follower import FollowerPressure  # noqa: F401  (quasi-static follower load; see hyperoc.statics)
 from .materials import Fung, Guccione, HolzapfelOgden, NeoHookean, Ogden, SaintVenantKirchhoff
 from .mesh import Mesh, box, interval, rectangle, refine
+from .mixed import TaylorHoodModel
 from .model import StateModel
 from .objectives import ControlCost, Objective, PressureAt, PressureRise
 from .optimize import barzilai_borwein, lbfgsb
@@ -42,7 +43,7 @@ __all__ = [
     "ActiveStress", "BodyForce", "Region", "load_config", "Scheme", "StateSolution", "TimeStepper", "solve_state",
     "HyperocError", "InputError", "SolverError", "annulus", "from_file", "thick_shell", "ventricle", "Fung",
     "NeoHookean", "Ogden", "SaintVenantKirchhoff", "Guccione", "HolzapfelOgden", "rule_based_fibres",
-    "transmural_coordinate", "Mesh", "box", "interval", "rectangle", "refine", "StateModel",
+    "transmural_coordinate", "Mesh", "box", "interval", "rectangle", "refine", "StateModel", "TaylorHoodModel",
     "ControlCost", "Objective", "PressureAt", "PressureRise", "barzilai_borwein", "lbfgsb", "ControlPoint",
     "ReducedFunctional", "solve_static", "TimeGrid", "TimeTransform", "uniform_grid", "taylor_test",
 ]

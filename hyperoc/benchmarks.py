@@ -23,11 +23,15 @@ constraint (``solve_static(..., constrained=False)``). For a fixed ``kappa`` the
 converge as h -> 0 to the solution ``u_kappa`` of that compressible problem; ``u_kappa`` tends to
 the incompressible solution as ``kappa -> infinity``, at first order in ``1 / kappa`` (the volume
 change is ``O(p / kappa)``). Pure-displacement elements lock as ``kappa / C`` grows (P1 severely,
-P2 mildly), so a study must vary both h and kappa; ``bench/bench_land.py`` does.
+P2 mildly), so a study must vary both h and kappa; ``bench/bench_land.py`` does. With
+``volumetric="taylor-hood"`` (`hyperoc.mixed.TaylorHoodModel`: a continuous P1 pressure, inf-sup
+stable, no locking) kappa may be ``math.inf``, and the values converge to the incompressible benchmark
+itself; problem 2 then needs ``isochoric=True`` (on the full strain the law folds between the vertices).
 """
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -39,10 +43,11 @@ from .follower import FollowerPressure
 from .geometry import ventricle
 from .materials import Guccione, det
 from .mesh import Mesh, box
-from .model import StateModel
+from .mixed import TaylorHoodModel
+from .model import VOLUMETRIC, StateModel
 from .statics import solve_static
 
-__all__ = ["BEAM", "VENTRICLE", "BASE_CONDITIONS", "BenchmarkResult", "beam_mesh", "beam_problem", "ventricle_problem",
+__all__ = ["BEAM", "VENTRICLE", "BASE_CONDITIONS", "FORMULATIONS", "BenchmarkResult", "beam_mesh", "beam_problem", "ventricle_problem",
            "node_position", "beam_deflection", "ventricle_apex"]
 
 #: Problem 1 parameters (Land et al. 2015): Guccione moduli (kPa, dimensionless) and pressure (kPa).
@@ -58,11 +63,12 @@ class BenchmarkResult:
 
     values : reported quantities (mm), by name.
     h : largest edge length of the mesh (mm).
-    dofs : free displacement dofs.
+    dofs : unknowns (free displacement dofs; with Taylor-Hood also the vertex pressures).
     newton_iterations : per accepted load increment (`solve_static` with ``cutbacks``).
     seconds : wall time of the solve (JIT compilation included).
     min_det_F, max_volume_change : ``min det F`` and ``max |det F - 1|`` over quadrature points.
     mean_volume_change : ``int |det F - 1| dX / |Omega|`` (how far the penalty is from incompressible).
+    volume_change : ``vol(u) / |Omega| - 1``, the change of the body's total volume.
     """
 
     values: dict
@@ -73,7 +79,28 @@ class BenchmarkResult:
     min_det_F: float
     max_volume_change: float
     mean_volume_change: float
+    volume_change: float
     params: dict = field(default_factory=dict)
+
+
+#: how the bulk term enters: `StateModel` ``volumetric`` or ``"taylor-hood"`` (`TaylorHoodModel`, P2-P1).
+FORMULATIONS = VOLUMETRIC + ("taylor-hood",)
+
+
+def _model(mesh: Mesh, params: dict, kappa: float, isochoric: bool, volumetric: str, degree: int,
+           **kwargs) -> StateModel:
+    """The Guccione model of a benchmark: ``params`` the moduli, ``kappa`` the bulk modulus (kPa; with
+    ``"taylor-hood"`` also ``math.inf``: incompressible), ``volumetric`` one of `FORMULATIONS`."""
+    if volumetric not in FORMULATIONS:
+        raise InputError(f"volumetric must be one of {list(FORMULATIONS)}, got {volumetric!r}")
+    mixed = volumetric == "taylor-hood"
+    if mixed and degree != 2:
+        raise InputError(f"the Taylor-Hood formulation is P2-P1: degree must be 2, got {degree}")
+    material = Guccione(C=params["C"], bf=params["bf"], bt=params["bt"], bfs=params["bfs"],
+                        kappa=0.0 if mixed and math.isinf(kappa) else kappa, isochoric=isochoric)
+    if mixed:
+        return TaylorHoodModel(mesh, material, bulk_modulus=kappa, frames=_fibres_along_x, **kwargs)
+    return StateModel(mesh, material, degree=degree, frames=_fibres_along_x, volumetric=volumetric, **kwargs)
 
 
 def _fibres_along_x(x):
@@ -97,11 +124,9 @@ def beam_problem(n: int, *, kappa: float, degree: int = 2, volumetric: str = "po
                  isochoric: bool = False) -> tuple[StateModel, FollowerPressure]:
     """Problem 1 on `beam_mesh` (n): the model and its follower pressure on the bottom face
     (``volumetric``: how the penalty enters, `StateModel`; ``isochoric``: `Guccione` on the isochoric
-    strain)."""
-    p = BEAM
-    material = Guccione(C=p["C"], bf=p["bf"], bt=p["bt"], bfs=p["bfs"], kappa=kappa, isochoric=isochoric)
-    model = StateModel(beam_mesh(n), material, degree=degree, frames=_fibres_along_x, volumetric=volumetric)
-    return model, FollowerPressure(model, "z_bottom", p["pressure"])
+    strain; ``"taylor-hood"``: `hyperoc.mixed.TaylorHoodModel`, kappa may then be ``math.inf``)."""
+    model = _model(beam_mesh(n), BEAM, kappa, isochoric, volumetric, degree)
+    return model, FollowerPressure(model, "z_bottom", BEAM["pressure"])
 
 
 #: Problem 2 base conditions: `StateModel` keyword arguments.
@@ -125,11 +150,9 @@ def ventricle_problem(h: float, *, kappa: float, degree: int = 2, curved: bool =
     ``volumetric``, ``isochoric``: as in `beam_problem`."""
     if base not in BASE_CONDITIONS:
         raise InputError(f"ventricle base must be one of {sorted(BASE_CONDITIONS)}, got {base!r}")
-    p = VENTRICLE
-    material = Guccione(C=p["C"], bf=p["bf"], bt=p["bt"], bfs=p["bfs"], kappa=kappa, isochoric=isochoric)
-    model = StateModel(ventricle(h, curved=curved, refinements=refinements), material, degree=degree, frames=_fibres_along_x,
-                       volumetric=volumetric, **BASE_CONDITIONS[base])
-    return model, FollowerPressure(model, "endocardium", p["pressure"])
+    model = _model(ventricle(h, curved=curved, refinements=refinements), VENTRICLE, kappa, isochoric, volumetric,
+                   degree, **BASE_CONDITIONS[base])
+    return model, FollowerPressure(model, "endocardium", VENTRICLE["pressure"])
 
 
 def node_position(model: StateModel, u, point, tol: float = 1e-9) -> np.ndarray:
@@ -154,7 +177,8 @@ def _solve(model, follower, steps, cutbacks, solver, points: dict, params: dict,
     values.update(extra(model, sol.u) if extra is not None else {})
     return BenchmarkResult(values, model.mesh.h(), model.n, sol.newton_iterations, seconds,
                            float(J.min()), float(np.abs(J - 1).max()),
-                           float(np.sum(model.quad.wdx * np.abs(J - 1)) / np.sum(model.quad.wdx)), params)
+                           float(np.sum(model.quad.wdx * np.abs(J - 1)) / np.sum(model.quad.wdx)),
+                           sol.volume / float(np.sum(model.quad.wdx)) - 1.0, params)
 
 
 def beam_deflection(n: int, *, kappa: float = 1000.0, degree: int = 2, steps: int = 10, cutbacks: int = 8,

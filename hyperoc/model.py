@@ -409,7 +409,8 @@ class StateModel:
           gradient of ``|e| theta``, plus ``a U'(theta)`` added to b in the det F Hessian.
 
         Shapes: dN (nq, nloc, d) physical shape gradients, w (nq,) weights times |det J|, frames
-        (nq, kf, d) or None; a, b scalars.
+        (nq, kf, d) or None; a a scalar, b a scalar or one value per point (nq,) (the Taylor-Hood
+        pressure, `hyperoc.mixed`).
         """
         d, n = self.dim, ue.shape[0]
         I, J, sym, half = _VOIGT[d]
@@ -428,10 +429,11 @@ class StateModel:
         K = jnp.einsum("qak,qal->kl", B, jnp.einsum("qab,qbl->qal", (a * w)[:, None, None] * H, B))
         S = (s * half)[:, sym]  # (nq, d, d): the off-diagonal e_alpha stands for E_IJ and E_JI
         M = [a * S[:, None]]
+        b = jnp.broadcast_to(b, w.shape)
         if d == 2:
-            M.append(jnp.broadcast_to(b * _EPS2, (len(w), 1, 2, 2)))
+            M.append(b[:, None, None, None] * _EPS2)
         elif d == 3:
-            M.append(b * jnp.einsum("JLN,qmN->qmJL", _EPS3, F))
+            M.append(jnp.einsum("q,JLN,qmN->qmJL", b, _EPS3, F))
         M = jnp.concatenate(M, axis=1)  # (nq, r, d, d)
         G = jnp.einsum("qaJ,qrJb->rab", dN, jnp.einsum("q,qrJL,qbL->qrJb", w, M, dN))
         K = K.reshape(n, d, n, d) + jnp.einsum("rab,rik->aibk", G, _CLOSED_FORM_T[d])

@@ -161,10 +161,9 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
     lin = make_solver(model, solver) if isinstance(solver, str) else solver
     if followers and getattr(lin, "method", None) == "minres":
         raise InputError("solve_static: follower pressures make the tangent non-symmetric; MINRES does not apply")
-    B = model.jax_operators[2]
     f = jnp.zeros(model.n) if load is None else jnp.asarray(load)
-    if xi is not None:
-        f = f + B @ jnp.asarray(xi)
+    if xi is not None:  # B only then: jax_operators also builds M and K, which a static solve never needs
+        f = f + model.jax_operators[2] @ jnp.asarray(xi)
     u = np.zeros(model.n) if u0 is None else np.asarray(u0, dtype=np.float64)
     V_start = float(model.jitted["volume"](jnp.asarray(u)))
     V = V_start if volume is None else float(volume)

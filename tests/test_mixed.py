@@ -1,0 +1,113 @@
+"""Taylor-Hood P2-P1 (`hyperoc.mixed.TaylorHoodModel`): ``L(u, p) = int W_rest + p (J - 1) - p^2/(2 kappa)``.
+
+What is checked:
+
+- the element tangent is the Hessian of the Lagrangian (plus ``b`` times the volume), to round-off;
+- patch test: uniaxial tension of an incompressible neo-Hookean cube. The exact solution (an affine
+  displacement, a constant pressure) lies in P2 x P1, so the discrete solution is exact up to
+  Newton's stopping test, and its pressure is the analytical one;
+- at ``kappa = inf`` the deformed volume equals the reference volume (the constraint tested with the
+  P1 hats, which sum to 1);
+- no locking on the Land beam: raising kappa from 1e3 to inf moves the tip by at most the bound of
+  `tests/test_volumetric.py` (``max(mu) / 1e3`` relative);
+- Land problem 2 at kappa = inf on the coarsest ventricle: Guccione on the full strain folds (det F -> 0
+  before half the load, as with the cell-mean form); on the isochoric strain the full load is reached;
+- bad arguments are `InputError`.
+"""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import hyperoc as ho
+from hyperoc.benchmarks import BEAM, VENTRICLE, beam_deflection, ventricle_apex
+from hyperoc.errors import InputError, SolverError
+from hyperoc.linsolve import DenseSolver
+from hyperoc.mesh import box, rectangle
+from hyperoc.mixed import TaylorHoodModel
+from hyperoc.statics import solve_static
+
+ROUNDOFF = 1e-12  # relative: the same sums in another order
+
+
+def _fixed_frame(dim):
+    return lambda x: np.broadcast_to(np.eye(dim), x.shape[:-1] + (dim, dim))
+
+
+@pytest.mark.parametrize("mesh,material,bulk", [
+    (rectangle(2), ho.NeoHookean(1.0, 40.0), None),
+    (box(1), ho.Guccione(isochoric=True), None),
+    (box(1), ho.Guccione(kappa=0.0), math.inf),
+], ids=["neo-Hookean-2d", "Guccione-isochoric-3d", "Guccione-incompressible-3d"])
+def test_tangent_is_the_hessian_of_the_lagrangian(mesh, material, bulk):
+    model = TaylorHoodModel(mesh, material, bulk_modulus=bulk, frames=_fixed_frame(mesh.dim), dirichlet=None,
+                            pin_rigid=False)
+    rng = np.random.default_rng(1)
+    x = jnp.asarray(model.unknowns(0.05 * rng.standard_normal(model.n_u), rng.standard_normal(model.n_p)))
+    b = 0.3
+    K = DenseSolver(model).assemble(model.tangent_blocks(x, 1.0, b))
+    H = jax.hessian(lambda y: model.strain_energy(y) + b * model.volume(y))(x)
+    assert float(jnp.max(jnp.abs(K - H))) <= ROUNDOFF * float(jnp.max(jnp.abs(H)))
+
+
+def test_uniaxial_patch_test_is_exact():
+    """Cube [0, 1]^3 on three symmetry planes (u_x = 0 at x = 0, u_y = 0 at y = 0, u_z = 0 at z = 0), dead
+    traction t e_x on x = 1, incompressible neo-Hookean (``W_rest = mu/2 (I1 - 3) - mu ln J``). Exact:
+    ``F = diag(l, l^-1/2, l^-1/2)`` with ``t = mu (l - l^-2)`` and ``p = mu (1 - 1/l)`` (from
+    ``P = mu (F - F^-T) + p cof F``, lateral faces free)."""
+    mu, stretch = 1.5, 1.2
+    t = mu * (stretch - stretch**-2)
+    model = TaylorHoodModel(box(2), ho.NeoHookean(mu, 0.0), bulk_modulus=math.inf, dirichlet=None,
+                            dirichlet_components={"left": (0,), "bottom": (1,), "front": (2,)}, pin_rigid=False,
+                            neumann="right", traction=(t, 0.0, 0.0))
+    sol = solve_static(model, load=model.traction_load, constrained=False, steps=4)
+    F = np.asarray(model.deformation_gradient(jnp.asarray(sol.u)))
+    exact = np.diag([stretch, stretch**-0.5, stretch**-0.5])
+    # The error left is below Newton's last increment, <= rtol |x|_inf (Scheme: rtol = 1e-11, |x|_inf = 0.25
+    # here); F's error is the gradient of a P2 field of that size on cells of size h = 1/2, at most
+    # 2 degree / h = 8 times it (inverse inequality on the reference shape functions, up to its constant).
+    tol = 10 * ho.Scheme().rtol
+    assert np.max(np.abs(F - exact)) <= tol
+    assert np.max(np.abs(model.pressure(sol.u) - mu * (1 - 1 / stretch))) <= tol * mu
+    assert abs(sol.volume - 1.0) <= tol
+
+
+def test_incompressible_beam_keeps_its_volume_and_does_not_lock():
+    moduli = BEAM["C"] * max(BEAM["bf"], BEAM["bt"], BEAM["bfs"])  # kPa, the largest small-strain modulus
+    res = {kappa: beam_deflection(1, kappa=kappa, volumetric="taylor-hood") for kappa in (1e3, math.inf)}
+    z = {kappa: r.values["z_tip"] for kappa, r in res.items()}
+    print(f"\nTaylor-Hood beam n = 1: z_tip {z[1e3]:.5f} (kappa 1e3), {z[math.inf]:.5f} (inf)")
+    assert abs(z[math.inf] - z[1e3]) <= moduli / 1e3 * abs(z[math.inf])
+    # Newton's last increment is <= rtol |x| (1e-11) and the constraint residual after it is of its square:
+    # what is left is the round-off of the quadrature sums.
+    assert abs(res[math.inf].volume_change) <= ROUNDOFF
+    assert abs(res[1e3].volume_change) > ROUNDOFF  # the compressible body does change its volume
+
+
+def test_incompressible_ventricle_needs_the_isochoric_law():
+    """Land problem 2, h = 6 mm (1706 unknowns), kappa = inf: with Q on the full strain J folds to 0
+    between the vertices although every hat-weighted mean of J - 1 vanishes; on the isochoric strain the
+    10 kPa are reached with det F > 0 and the apex pushed down (z = -17 mm at rest; ~9 mm in the benchmark)."""
+    with pytest.raises(SolverError) as failure:
+        ventricle_apex(6.0, kappa=math.inf, volumetric="taylor-hood", steps=20, cutbacks=8)
+    assert failure.value.time < 0.5
+    res = ventricle_apex(6.0, kappa=math.inf, volumetric="taylor-hood", isochoric=True, steps=20)
+    print(f"\nTaylor-Hood, isochoric, kappa = inf: z_endo {res.values['z_endo']:.5f}, min det F {res.min_det_F:.3f}")
+    assert res.min_det_F > 0
+    assert res.values["z_endo"] < VENTRICLE["endo_apex"][2] - 5.0
+
+
+def test_bad_arguments_are_input_errors():
+    with pytest.raises(InputError, match="bulk modulus must be > 0"):
+        TaylorHoodModel(box(1), ho.Guccione(), bulk_modulus=-1.0)
+    with pytest.raises(InputError, match="no separate bulk term"):
+        TaylorHoodModel(box(1), ho.SaintVenantKirchhoff(1.0, 1.0))
+    with pytest.raises(InputError, match="'degree' is fixed"):
+        TaylorHoodModel(box(1), ho.Guccione(), degree=1)
+    with pytest.raises(InputError, match="P2-P1"):
+        beam_deflection(1, volumetric="taylor-hood", degree=1)
+    with pytest.raises(InputError, match="no mass on p"):
+        TaylorHoodModel(box(1), ho.NeoHookean()).mass
