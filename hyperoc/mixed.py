@@ -39,14 +39,9 @@ from .errors import InputError
 from .materials import Material, det
 from .mesh import Mesh
 from .model import StateModel
-from .quadrature import simplex_rule
 from .spaces import reference_shape
 
 __all__ = ["TaylorHoodModel"]
-
-#: quadrature degree of the P2 model (`StateModel`: 4), whose points carry the P1 pressure too.
-_QUADRATURE_DEGREE = 4
-
 
 def _bulk_modulus(material: Material, bulk_modulus) -> tuple[Material, float]:
     """``(W_rest, kappa)``: the law without its bulk term, and kappa = ``bulk_modulus`` or the law's U''(1)."""
@@ -74,8 +69,8 @@ class TaylorHoodModel(StateModel):
         ``dirichlet_components``, ``pin_rigid``, ``frames``, ``neumann``, ``traction``).
 
     Attributes: ``n_u`` displacement unknowns, ``n_p`` pressure unknowns (mesh vertices), ``n``
-    their sum; ``cell_dofs`` (nc, 10 d + d + 1 ... ) the element unknowns, displacement first (node-major) then
-    the cell's vertex pressures.
+    their sum; ``cell_dofs`` (nc, k_u + d + 1) the element unknowns, displacement first (node-major),
+    then the cell's vertex pressures.
     """
 
     def __init__(self, mesh: Mesh, material: Material, *, bulk_modulus: float | None = None, **kwargs):
@@ -89,8 +84,7 @@ class TaylorHoodModel(StateModel):
         self.n = self.n_u + self.n_p
         self.cell_dofs = np.concatenate([self.cell_dofs, mesh.cells + self.n_u], axis=1)
         self.pattern = SparsePattern(self.cell_dofs, self.n)
-        xi, _ = simplex_rule(self.dim, _QUADRATURE_DEGREE)
-        self._Np = jnp.asarray(reference_shape(self.dim, 1, xi)[0])  # (nq, d + 1) P1 hats at the points
+        self._Np = jnp.asarray(reference_shape(self.dim, 1, self.quad.xi)[0])  # (nq, d + 1) P1 hats at the points
         self._cells = jnp.asarray(mesh.cells)
 
     # --- unknowns ---------------------------------------------------------------------------------
@@ -140,10 +134,6 @@ class TaylorHoodModel(StateModel):
         """``p^2 / (2 kappa)``, exactly 0 for an incompressible body."""
         return 0.0 if math.isinf(self.bulk_modulus) else p * p / (2.0 * self.bulk_modulus)
 
-    def constraint_residual(self, x):
-        """``int N_a (J - 1 - p / kappa) dx`` per vertex a, (n_p,): 0 at a solution."""
-        return self.pressure(self.internal_force(x))
-
     def tangent_blocks(self, x, a, b):
         """Element Hessians of ``a L_e + b int_e det F`` in the element unknowns ``(u_e, p_e)``,
         (nc, k, k), k = 10 d + (d + 1) in 3D (6 d + 3 in 2D): displacement rows node-major, then
@@ -153,13 +143,9 @@ class TaylorHoodModel(StateModel):
         the det F Hessian weighted by ``b + a p`` at each point; ``G_(ai),c = a sum_q w_q (cof F_q)_iJ
         dN_aJ N^p_c`` couples the pressures to dJ; ``M_p = sum_q w_q N^p N^p^T`` (0 when kappa = inf).
         """
-        u = self.displacement_part(x)
-        ue = jnp.concatenate([u, jnp.zeros(1, u.dtype)])[self._gather].reshape(self._gather.shape[0], -1, self.dim)
-        kernel = lambda xs: self._element_block(*xs, a, b)
-        xs = (ue, self.pressure(x)[self._cells], self._dN, self._w, self._frames)
-        nc, nq = self._w.shape
-        batch = max(1, self.tangent_chunk_points // nq)
-        return jax.vmap(kernel)(xs) if nc <= batch else jax.lax.map(kernel, xs, batch_size=batch)
+        return self._map_cells(lambda xs: self._element_block(*xs, a, b),
+                               (self._cell_values(self.displacement_part(x)), self.pressure(x)[self._cells],
+                                self._dN, self._w, self._frames))
 
     def _element_block(self, ue, pe, dN, w, frames, a, b):
         """The (k, k) saddle-point block of one cell (`tangent_blocks`); ue (nloc, d), pe (d + 1,)."""

@@ -327,11 +327,14 @@ class StateModel:
         return np.stack(rows)
 
     # --- traced kernels -------------------------------------------------------------------------
+    def _cell_values(self, u):
+        """The reduced displacement u (n_u,) on each cell's nodes, (nc, nloc, d); 0 on Dirichlet dofs."""
+        ue = jnp.concatenate([u, jnp.zeros(1, u.dtype)])[self._gather]
+        return ue.reshape(ue.shape[0], -1, self.dim)
+
     def deformation_gradient(self, u):
         """F = I + grad u at every quadrature point, (nc, nq, d, d)."""
-        ue = jnp.concatenate([u, jnp.zeros(1, u.dtype)])[self._gather]
-        ue = ue.reshape(ue.shape[0], -1, self.dim)
-        return jnp.eye(self.dim) + jnp.einsum("cqaj,cai->cqij", self._dN, ue)
+        return jnp.eye(self.dim) + jnp.einsum("cqaj,cai->cqij", self._dN, self._cell_values(u))
 
     def _pointwise(self, fn, F):
         frames = self._frames
@@ -378,9 +381,12 @@ class StateModel:
 
         Cells are processed ``tangent_chunk_points // nq`` at a time (`_element_tangent` on each).
         """
-        ue = jnp.concatenate([u, jnp.zeros(1, u.dtype)])[self._gather].reshape(self._gather.shape[0], -1, self.dim)
-        kernel = lambda xs: self._element_tangent(*xs, a, b)
-        xs = (ue, self._dN, self._w, self._frames)
+        return self._map_cells(lambda xs: self._element_tangent(*xs, a, b),
+                               (self._cell_values(u), self._dN, self._w, self._frames))
+
+    def _map_cells(self, kernel, xs):
+        """``kernel`` over the cells (the leading axis of every array in xs), ``tangent_chunk_points // nq``
+        cells at a time: one vmap when they all fit, else a chunked map (bounds the kernel's memory)."""
         nc, nq = self._w.shape
         batch = max(1, self.tangent_chunk_points // nq)
         return jax.vmap(kernel)(xs) if nc <= batch else jax.lax.map(kernel, xs, batch_size=batch)

@@ -79,12 +79,14 @@ class CellQuadrature:
     dN : (nc, nq, nloc, dim) physical gradients dN/dX.
     wdx : (nc, nq) weights times |det J|, so that ``sum(wdx * f) = int_Omega f``.
     x : (nc, nq, dim) physical coordinates of the quadrature points.
+    xi : (nq, dim) the reference points (other bases on the same points, e.g. a P1 pressure).
     """
 
     N: np.ndarray
     dN: np.ndarray
     wdx: np.ndarray
     x: np.ndarray
+    xi: np.ndarray
 
 
 class VectorSpace:
@@ -187,7 +189,7 @@ class VectorSpace:
         detJ = np.abs(np.linalg.det(J))
         x0 = self.mesh.points[self.mesh.cells[:, 0]]
         x = x0[:, None, :] + np.einsum("cij,qj->cqi", J, xi)
-        return CellQuadrature(N=N, dN=dN, wdx=detJ[:, None] * w[None, :], x=x)
+        return CellQuadrature(N=N, dN=dN, wdx=detJ[:, None] * w[None, :], x=x, xi=xi)
 
     def _isoparametric_quadrature(self, xi, w, N, dN_ref) -> CellQuadrature:
         """P2 geometry: ``x_q = sum_a N_a(xi_q) X_a``, ``J_q = sum_a X_a (x) dN_a/dxi (xi_q)`` (nc, nq,
@@ -202,7 +204,7 @@ class VectorSpace:
                              "by the curved edge nodes; refine near the curved boundary or use Mesh.faceted())")
         dN = np.einsum("qaj,cqjk->cqak", dN_ref, np.linalg.inv(J))
         x = np.einsum("qa,cai->cqi", N, X)
-        return CellQuadrature(N=N, dN=dN, wdx=detJ * w[None, :], x=x)
+        return CellQuadrature(N=N, dN=dN, wdx=detJ * w[None, :], x=x, xi=xi)
 
     def facet_quadrature(self, facets: np.ndarray, degree: int):
         """Quadrature on boundary facets (nf, dim) (vertex indices) for a rule exact to ``degree``
