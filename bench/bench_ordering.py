@@ -31,11 +31,12 @@ def step_blocks(model, follower):
     return np.asarray(follower.add_stiffness(model.tangent_blocks(u, 1.0, 0.0), u, 1.0), dtype=np.float64)
 
 
-def measure(model, blocks, ordering: str) -> dict:
-    """Two solves with fresh factorizations (the second reuses the ordering); times in seconds."""
+def measure(model, blocks, ordering: str = "nd", **solver_options) -> dict:
+    """Three solves with fresh factorizations (the later two reuse the ordering); times in seconds.
+    ``solver_options``: further `SparseSolver` keywords (``pivot_thresh``)."""
     rng = np.random.default_rng(0)
     r_u, col = rng.standard_normal(model.n), rng.standard_normal(model.n)
-    solver = SparseSolver(model, "lu", ordering=ordering)
+    solver = SparseSolver(model, "lu", ordering=ordering, **solver_options)
     solver.host_solve(blocks, col, col, r_u, 0.0)
     factor_first = solver.stats["factor_s"]
     solver.host_solve(blocks, col, col, r_u, 0.0)
@@ -45,7 +46,8 @@ def measure(model, blocks, ordering: str) -> dict:
     err = np.abs(residual).max() / (abs(K).sum(axis=1).max() * np.abs(x).max() + np.abs(r_u).max())
     return {"order_s": solver.stats["order_s"], "factor_s": factor_first,
             "refactor_s": (solver.stats["factor_s"] - factor_first) / 2, "fill": solver.stats["fill"],
-            "backward_error": float(err)}
+            "off_diagonal_pivots": solver.stats["off_diagonal_pivots"],
+            "pivoting_fallbacks": solver.stats["pivoting_fallbacks"], "backward_error": float(err)}
 
 
 def main():

@@ -115,8 +115,8 @@ class SparseSolver:
     """Host solver on the sparsity pattern of the model, reached through ``jax.pure_callback``.
 
     method
-        ``"lu"`` (default): SuperLU, robust for indefinite K (threshold partial pivoting,
-        ``pivot_thresh``), with a symmetric fill-reducing ordering (``ordering``) computed once
+        ``"lu"`` (default): SuperLU with diagonal pivots first (``pivot_thresh``, below) and
+        threshold partial pivoting as the fallback, robust for indefinite K, with a symmetric fill-reducing ordering (``ordering``) computed once
         and reused: the element blocks are summed by one ``np.bincount`` straight into the CSC
         data of the permuted matrix (no COO/CSR->CSC conversion, no re-ordering), then factored
         with the natural ordering.
@@ -128,6 +128,15 @@ class SparseSolver:
         ``"minres"``: MINRES preconditioned by the absolute diagonal (K is mass dominated in
         dynamics), restarted until the true backward error is ``<= rtol``. (Smoothed-aggregation
         AMG of ``|K|``, set up at every call, was 10x slower here: see bench/README.md.)
+    pivot_thresh, fallback_thresh : SuperLU keeps the diagonal pivot while
+        ``|K_jj| >= thresh * max_i |K_ij|`` and swaps a row in otherwise, which breaks the
+        nested-dissection structure and adds fill. The first factorization of a call uses
+        ``pivot_thresh`` (default 0: the diagonal unless it is exactly zero, i.e. the ordering's
+        structure is kept); when iterative refinement with it does not reach ``rtol`` (tiny pivots),
+        K is factored again with ``fallback_thresh`` (default 0.1) and ``stats["pivoting_fallbacks"]``
+        counts it. On the Taylor-Hood saddle point (zero pressure diagonal, indefinite K_uu under
+        load) threshold 0.1 swapped thousands of rows: LV P2-P1 at 84k dofs, 266M stored entries
+        and 97 s against 122M and 26 s (bench/bench_pivot.py, bench/README.md).
     rtol : backward-error tolerance of the iterative parts (``<= 1e-12``; the gradients are exact
         up to it).
     ordering : ``"nd"`` (default): METIS nested dissection of the pattern (`nested_dissection`),
@@ -139,7 +148,8 @@ class SparseSolver:
     and the host seconds ``order_s`` (nested dissection), ``assembly_s`` (blocks -> matrix),
     ``factor_s``, ``solve_s`` and ``host_s`` (whole ``host_solve``); ``fill`` is the number of
     entries SuperLU stores for L and U in the last factorization (``SuperLU.nnz``: supernodal, the
-    zeros inside supernodes included); ``failed`` counts traced solves that returned NaN (singular K,
+    zeros inside supernodes included) and ``off_diagonal_pivots`` the pivots it took off the
+    diagonal (``perm_r != perm_c``); ``failed`` counts traced solves that returned NaN (singular K,
     MINRES failure; ``last_failure`` holds the message).
     """
 
@@ -147,7 +157,8 @@ class SparseSolver:
     methods = ("lu", "lu_reuse", "minres")
     orderings = ("nd", "mmd")
 
-    def __init__(self, model, method: str = "lu", rtol: float = 1e-13, *, pivot_thresh: float = 0.1,
+    def __init__(self, model, method: str = "lu", rtol: float = 1e-13, *, pivot_thresh: float = 0.0,
+                 fallback_thresh: float = 0.1,
                  reuse_rate: float = 0.25, reuse_max_iter: int = 8, ordering: str = "nd"):
         if method not in self.methods:
             raise InputError(f"unknown sparse method {method!r} ({', '.join(self.methods)})")
@@ -156,7 +167,7 @@ class SparseSolver:
         if not 0 < rtol <= 1e-12:
             raise InputError(f"the iterative tolerance must lie in (0, 1e-12], got {rtol}")
         self.pattern, self.n, self.method, self.rtol = model.pattern, model.n, method, rtol
-        self.pivot_thresh, self.ordering = pivot_thresh, ordering
+        self.pivot_thresh, self.fallback_thresh, self.ordering = pivot_thresh, fallback_thresh, ordering
         self.reuse_rate, self.reuse_max_iter = reuse_rate, reuse_max_iter
         self._order = None  # (q, position, indices, indptr) of the permuted CSC, after the first call
         self._lu = None  # kept factorization ("lu_reuse")
@@ -165,16 +176,18 @@ class SparseSolver:
 
     def reset_stats(self):
         self.stats = {"calls": 0, "factorizations": 0, "iterations": 0, "refactor_after_stall": 0, "failed": 0,
-                      "order_s": 0.0, "assembly_s": 0.0, "factor_s": 0.0, "solve_s": 0.0, "host_s": 0.0, "fill": 0}
+                      "order_s": 0.0, "assembly_s": 0.0, "factor_s": 0.0, "solve_s": 0.0, "host_s": 0.0, "fill": 0,
+                      "off_diagonal_pivots": 0, "pivoting_fallbacks": 0}
 
     # --- structure ----------------------------------------------------------------------------
-    def _factor(self, K):
+    def _factor(self, K, thresh):
         t0 = time.perf_counter()
         lu = spla.splu(K, permc_spec="NATURAL" if self._order is not None else "MMD_AT_PLUS_A",
-                       diag_pivot_thresh=self.pivot_thresh, options={"SymmetricMode": True})
+                       diag_pivot_thresh=thresh, options={"SymmetricMode": True})
         self.stats["factor_s"] += time.perf_counter() - t0
         self.stats["factorizations"] += 1
         self.stats["fill"] = lu.nnz  # not lu.L / lu.U: each builds a copy of the factor (+2.8 GB at 80k dofs)
+        self.stats["off_diagonal_pivots"] = int(np.count_nonzero(lu.perm_r != lu.perm_c))
         return lu
 
     def _set_order(self, q):
@@ -222,16 +235,15 @@ class SparseSolver:
             if q is not None:
                 rhs = rhs[q]
             if self.method == "lu" or self._lu is None:
-                self._lu = self._direct(K)
-                ab = self._solve_refined(K, rhs, self._lu, max_iter=2)
+                self._lu, ab = self._fresh_solve(K, rhs)
                 if q is None:  # first "mmd" call: K in the original numbering; later ones are permuted
                     self._lu = None
             else:
                 ab = self._solve_refined(K, rhs, self._lu, max_iter=self.reuse_max_iter, rate=self.reuse_rate)
                 if ab is None:  # the kept factorization is too far from K: refresh it
                     self.stats["refactor_after_stall"] += 1
-                    self._lu = self._direct(K)
-                    ab = self._solve_refined(K, rhs, self._lu, max_iter=2)
+                    self._lu = None  # freed before the new factorization is built
+                    self._lu, ab = self._fresh_solve(K, rhs)
             if self.method == "lu":
                 self._lu = None
             if q is not None:
@@ -244,11 +256,23 @@ class SparseSolver:
         self.stats["host_s"] += time.perf_counter() - t_start
         return np.concatenate([a - b * qmult, [qmult]])
 
-    def _direct(self, K):
+    def _fresh_solve(self, K, rhs):
+        """Factor K and solve with refinement: ``(lu, x)``. Diagonal pivots first; when they leave
+        the refinement short of ``rtol``, threshold partial pivoting (`SparseSolver` pivot_thresh)."""
+        lu = self._direct(K, self.pivot_thresh)
+        x = self._solve_refined(K, rhs, lu, max_iter=2, rate=self.reuse_rate)
+        if x is None:
+            self.stats["pivoting_fallbacks"] += 1
+            lu = None  # freed before the second factorization is built (GBs at 80k dofs)
+            lu = self._direct(K, self.fallback_thresh)
+            x = self._solve_refined(K, rhs, lu, max_iter=2)
+        return lu, x
+
+    def _direct(self, K, thresh):
         """Factor K; with ``ordering="mmd"`` the first call also fixes the ordering reused afterwards."""
         if self._order is not None:
-            return self._factor(K)
-        lu = self._factor(K)
+            return self._factor(K, thresh)
+        lu = self._factor(K, thresh)
         self._set_order(np.argsort(lu.perm_c))
         return lu
 

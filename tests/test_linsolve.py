@@ -13,6 +13,12 @@ assembled from element blocks and solved on the host (SuperLU / MINRES) from ins
 - A singular K does not raise inside ``jax.pure_callback`` (JAX leaves an exception there undefined;
   it hung the traced Newton loop when the process had one CPU): the solve returns NaN, which makes
   Newton fail with the step named, and the solver counts and keeps the failure.
+- On an indefinite saddle point (Taylor-Hood at kappa = inf: a zero pressure block) the default
+  threshold pivoting and refinement reach the solver's normwise backward error ``rtol`` on the
+  bordered system, so the solution agrees with a dense solve to the forward-error bound
+  ``2 cond_inf(A) rtol`` (relative, inf-norm).
+- Tiny diagonal pivots (kept by the default ``pivot_thresh = 0``) leave the refinement short of
+  ``rtol``; the solver then factors again with threshold partial pivoting and still meets the bound.
 """
 
 import jax
@@ -21,8 +27,9 @@ import numpy as np
 import pytest
 
 from hyperoc.linsolve import SparseSolver, nested_dissection
-from hyperoc.materials import SaintVenantKirchhoff
+from hyperoc.materials import Guccione, SaintVenantKirchhoff
 from hyperoc.mesh import box
+from hyperoc.mixed import TaylorHoodModel
 from hyperoc.model import StateModel
 
 
@@ -87,3 +94,39 @@ def test_unknown_ordering_is_an_input_error(model):
 
     with pytest.raises(InputError, match="ordering"):
         SparseSolver(model, "lu", ordering="amd")
+
+
+def test_saddle_point_solve_meets_the_forward_error_bound():
+    model = TaylorHoodModel(box(2, dirichlet="left"), Guccione(kappa=0.0), bulk_modulus=np.inf,
+                            frames=lambda x: np.broadcast_to(np.eye(3), x.shape[:-1] + (3, 3)))
+    rng = np.random.default_rng(2)
+    x0 = jnp.asarray(model.unknowns(0.02 * rng.standard_normal(model.n_u), rng.standard_normal(model.n_p)))
+    blocks = np.asarray(model.tangent_blocks(x0, 1.0, 0.0))
+    col, row, r_u, r_c = bordered_rhs(model)
+    expected = dense_bordered_solve(model, blocks, col, row, r_u, r_c)
+    K = model.pattern.matrix(blocks).toarray()
+    A = np.block([[K, col[:, None]], [row[None, :], np.zeros((1, 1))]])
+    solver = SparseSolver(model, "lu")
+    x = solver.host_solve(blocks, col, row, r_u, r_c)
+    b = np.concatenate([r_u, [r_c]])
+    backward = np.abs(A @ x - b).max() / (np.abs(A).sum(axis=1).max() * np.abs(x).max() + np.abs(b).max())
+    assert backward <= solver.rtol
+    bound = 2 * np.linalg.cond(A, np.inf) * solver.rtol
+    assert np.abs(x - expected).max() <= bound * np.abs(expected).max()
+    assert solver.stats["fill"] > 0 and 0 <= solver.stats["off_diagonal_pivots"] < model.n
+
+
+def test_tiny_diagonal_pivots_fall_back_to_partial_pivoting(model):
+    nc, k, _ = model.pattern.element_shape
+    P = np.random.default_rng(3).standard_normal((nc, k, k))
+    blocks = P + np.swapaxes(P, 1, 2)
+    blocks[:, np.arange(k), np.arange(k)] = 1e-12  # indefinite, nonsingular, with pivots 1e-12 of the column
+    col, row, r_u, r_c = bordered_rhs(model)
+    expected = dense_bordered_solve(model, blocks, col, row, r_u, r_c)
+    K = model.pattern.matrix(blocks).toarray()
+    A = np.block([[K, col[:, None]], [row[None, :], np.zeros((1, 1))]])
+    solver = SparseSolver(model, "lu")
+    x = solver.host_solve(blocks, col, row, r_u, r_c)
+    assert solver.stats["pivoting_fallbacks"] == 1 and solver.stats["off_diagonal_pivots"] > 0
+    bound = 2 * np.linalg.cond(A, np.inf) * solver.rtol
+    assert np.abs(x - expected).max() <= bound * np.abs(expected).max()

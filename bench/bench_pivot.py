@@ -1,0 +1,94 @@
+"""Pivot threshold of the sparse LU (`hyperoc.linsolve.SparseSolver`, ``pivot_thresh=``): SuperLU keeps
+the diagonal pivot while ``|K_jj| >= pivot_thresh * max_i |K_ij|``, else swaps a row in, which breaks
+the nested-dissection structure and adds fill. Compared: 0.1 (the default before 2026-12-01) and 0
+(the default now: the diagonal unless exactly zero, threshold pivoting only as the fallback when
+refinement falls short; none happened here), on the first Newton matrix of Land problem 2 (`bench_ordering.step_blocks`: tangent
+at rest plus the follower stiffness at 10 kPa; idealized LV, curved P2, clamped base, nested meshes of
+h0 = 6) in two formulations:
+
+- ``pointwise``: P2 displacement, Guccione with the penalty kappa = 1000 kPa (positive definite at rest);
+- ``taylor-hood``: P2-P1 (`hyperoc.mixed.TaylorHoodModel`), isochoric Guccione at kappa = inf, whose
+  pressure block is zero: a saddle point.
+
+For each it prints the factorization times, the stored L + U entries, the off-diagonal pivots and the
+backward error, then the ratios 0 / 0.1 measured in the same process. ``--solves LEVELS``: also the
+whole Taylor-Hood solve (20 increments to 10 kPa, `hyperoc.statics.solve_static`) with each threshold:
+Newton iterations, summed factorization seconds, and the fill and off-diagonal pivots of the last
+factorization (the loaded state, where K_uu is indefinite too).
+
+    nice taskset -c 0 python bench/bench_pivot.py                   # levels 0, 1
+    nice taskset -c 0 python bench/bench_pivot.py --levels 0,1,2    # + 80k dofs (about 10 min)
+    nice taskset -c 0 python bench/bench_pivot.py --levels 0 --solves 1   # + whole solves, 12k dofs
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+import time
+
+from bench_ordering import measure, step_blocks
+from hyperoc.benchmarks import VENTRICLE, node_position, ventricle_problem
+from hyperoc.linsolve import SparseSolver
+from hyperoc.statics import solve_static
+
+THRESHOLDS = (0.1, 0.0)  # before, now
+FORMULATIONS = {"pointwise": {"kappa": 1000.0},
+                "taylor-hood": {"kappa": math.inf, "volumetric": "taylor-hood", "isochoric": True}}
+
+
+def whole_solve(level: int, h0: float, thresh: float) -> dict:
+    """Problem 2, Taylor-Hood at kappa = inf, isochoric, clamped: the solve with ``pivot_thresh``."""
+    model, follower = ventricle_problem(h0, refinements=level, **FORMULATIONS["taylor-hood"])
+    solver = SparseSolver(model, "lu", pivot_thresh=thresh)
+    t0 = time.perf_counter()
+    sol = solve_static(model, follower=follower, constrained=False, steps=20, solver=solver, line_search=False,
+                       cutbacks=40)
+    return {"n": model.n, "seconds": time.perf_counter() - t0, "newton": sum(sol.newton_iterations),
+            "z_endo": float(node_position(model, sol.u, VENTRICLE["endo_apex"])[2]), **solver.stats}
+
+
+def print_solves(levels, h0: float):
+    print("\n| level | dofs | pivot_thresh | Newton its | z_endo (mm) | solve (s) | factor (s, sum) | "
+          "last stored L+U | last off-diagonal pivots | fallbacks |\n|---|---|---|---|---|---|---|---|---|---|")
+    for level in levels:
+        rows = {t: whole_solve(level, h0, t) for t in THRESHOLDS}
+        for t, r in rows.items():
+            print(f"| {level} | {r['n']} | {t:g} | {r['newton']} | {r['z_endo']:.5f} | {r['seconds']:.1f} | "
+                  f"{r['factor_s']:.1f} | {r['fill']:,} | {r['off_diagonal_pivots']} | {r['pivoting_fallbacks']} |",
+                  flush=True)
+        new, old = rows[THRESHOLDS[1]], rows[THRESHOLDS[0]]
+        print(f"| {level} | ratio 0 / 0.1 | | | | {new['seconds'] / old['seconds']:.2f} | "
+              f"{new['factor_s'] / old['factor_s']:.2f} | {new['fill'] / old['fill']:.2f} | | |", flush=True)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--h0", type=float, default=6.0, help="Gmsh size of the coarsest LV mesh (mm)")
+    ap.add_argument("--levels", default="0,1", help="uniform refinements, comma separated")
+    ap.add_argument("--solves", default="", help="levels of whole Taylor-Hood solves (none by default)")
+    args = ap.parse_args()
+    print("| level | formulation | dofs | pivot_thresh | 1st factor (s) | refactor (s) | stored L+U | "
+          "off-diagonal pivots | fallbacks | backward err |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    ratios = []
+    for level in (int(v) for v in args.levels.split(",")):
+        for name, options in FORMULATIONS.items():
+            model, follower = ventricle_problem(args.h0, refinements=level, **options)
+            blocks = step_blocks(model, follower)
+            rows = {t: measure(model, blocks, pivot_thresh=t) for t in THRESHOLDS}
+            for t, r in rows.items():
+                print(f"| {level} | {name} | {model.n} | {t:g} | {r['factor_s']:.2f} | {r['refactor_s']:.2f} | "
+                      f"{r['fill']:,} | {r['off_diagonal_pivots']} | {r['pivoting_fallbacks']} | {r['backward_error']:.1e} |", flush=True)
+            new, old = rows[THRESHOLDS[1]], rows[THRESHOLDS[0]]
+            ratios.append((level, name, model.n, new["refactor_s"] / old["refactor_s"], new["fill"] / old["fill"]))
+    print("\n| level | formulation | dofs | refactor 0 / 0.1 | fill 0 / 0.1 |\n|---|---|---|---|---|")
+    for level, name, n, t, f in ratios:
+        print(f"| {level} | {name} | {n} | {t:.2f} | {f:.2f} |")
+    if args.solves:
+        print_solves([int(v) for v in args.solves.split(",")], args.h0)
+
+
+if __name__ == "__main__":
+    main()
