@@ -115,11 +115,11 @@ class SparseSolver:
     """Host solver on the sparsity pattern of the model, reached through ``jax.pure_callback``.
 
     method
-        ``"lu"`` (default): SuperLU with diagonal pivots first (``pivot_thresh``, below) and
-        threshold partial pivoting as the fallback, robust for indefinite K, with a symmetric fill-reducing ordering (``ordering``) computed once
-        and reused: the element blocks are summed by one ``np.bincount`` straight into the CSC
-        data of the permuted matrix (no COO/CSR->CSC conversion, no re-ordering), then factored
-        with the natural ordering.
+        ``"lu"`` (default): SuperLU with diagonal pivots first and threshold partial pivoting as
+        the fallback (``pivot_thresh``, below), robust for indefinite K, with a symmetric
+        fill-reducing ordering (``ordering``) computed once and reused: the element blocks are
+        summed by one ``np.bincount`` straight into the CSC data of the permuted matrix (no
+        COO/CSR->CSC conversion, no re-ordering), then factored with the natural ordering.
         ``"lu_reuse"``: the same factorization, kept across calls (Newton iterations, time steps,
         the adjoint sweep) and used as the preconditioner of iterative refinement on the current
         K until the normwise backward error ``|r| / (|K| |x| + |b|)`` is ``<= rtol``; K is
@@ -135,8 +135,8 @@ class SparseSolver:
         structure is kept); when iterative refinement with it does not reach ``rtol`` (tiny pivots),
         K is factored again with ``fallback_thresh`` (default 0.1) and ``stats["pivoting_fallbacks"]``
         counts it. On the Taylor-Hood saddle point (zero pressure diagonal, indefinite K_uu under
-        load) threshold 0.1 swapped thousands of rows: LV P2-P1 at 84k dofs, 266M stored entries
-        and 97 s against 122M and 26 s (bench/bench_pivot.py, bench/README.md).
+        load) threshold 0.1 swapped thousands of rows: LV P2-P1 at 84k dofs, 249M stored entries
+        and 73 s per factorization against 122M and 21 s (bench/bench_pivot.py, bench/README.md).
     rtol : backward-error tolerance of the iterative parts (``<= 1e-12``; the gradients are exact
         up to it).
     ordering : ``"nd"`` (default): METIS nested dissection of the pattern (`nested_dissection`),
@@ -258,7 +258,7 @@ class SparseSolver:
 
     def _fresh_solve(self, K, rhs):
         """Factor K and solve with refinement: ``(lu, x)``. Diagonal pivots first; when they leave
-        the refinement short of ``rtol``, threshold partial pivoting (`SparseSolver` pivot_thresh)."""
+        the refinement short of ``rtol``, threshold partial pivoting (``fallback_thresh``)."""
         lu = self._direct(K, self.pivot_thresh)
         x = self._solve_refined(K, rhs, lu, max_iter=2, rate=self.reuse_rate)
         if x is None:
