@@ -2,9 +2,9 @@
 the diagonal pivot while ``|K_jj| >= pivot_thresh * max_i |K_ij|``, else swaps a row in, which breaks
 the nested-dissection structure and adds fill. Compared: 0.1 (the default before 2026-12-01) and 0
 (the default now: the diagonal unless exactly zero, threshold pivoting only as the fallback when
-refinement falls short; none happened here), on the first Newton matrix of Land problem 2 (`bench_ordering.step_blocks`: tangent
-at rest plus the follower stiffness at 10 kPa; idealized LV, curved P2, clamped base, nested meshes of
-h0 = 6) in two formulations:
+refinement falls short), on the first Newton matrix of Land problem 2 (`bench_ordering.step_blocks`:
+tangent at rest plus the follower stiffness at 10 kPa; idealized LV, curved P2, clamped base, nested
+meshes of h0 = 6) in two formulations:
 
 - ``pointwise``: P2 displacement, Guccione with the penalty kappa = 1000 kPa (positive definite at rest);
 - ``taylor-hood``: P2-P1 (`hyperoc.mixed.TaylorHoodModel`), isochoric Guccione at kappa = inf, whose
@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import math
-
 import time
 
 from bench_ordering import measure, step_blocks
@@ -80,7 +79,8 @@ def main():
             rows = {t: measure(model, blocks, pivot_thresh=t) for t in THRESHOLDS}
             for t, r in rows.items():
                 print(f"| {level} | {name} | {model.n} | {t:g} | {r['factor_s']:.2f} | {r['refactor_s']:.2f} | "
-                      f"{r['fill']:,} | {r['off_diagonal_pivots']} | {r['pivoting_fallbacks']} | {r['backward_error']:.1e} |", flush=True)
+                      f"{r['fill']:,} | {r['off_diagonal_pivots']} | {r['pivoting_fallbacks']} | "
+                      f"{r['backward_error']:.1e} |", flush=True)
             new, old = rows[THRESHOLDS[1]], rows[THRESHOLDS[0]]
             ratios.append((level, name, model.n, new["refactor_s"] / old["refactor_s"], new["fill"] / old["fill"]))
     print("\n| level | formulation | dofs | refactor 0 / 0.1 | fill 0 / 0.1 |\n|---|---|---|---|---|")

@@ -14,7 +14,7 @@ assembled from element blocks and solved on the host (SuperLU / MINRES) from ins
   it hung the traced Newton loop when the process had one CPU): the solve returns NaN, which makes
   Newton fail with the step named, and the solver counts and keeps the failure.
 - On an indefinite saddle point (Taylor-Hood at kappa = inf: a zero pressure block) the default
-  threshold pivoting and refinement reach the solver's normwise backward error ``rtol`` on the
+  diagonal pivots and refinement reach the solver's normwise backward error ``rtol`` on the
   bordered system, so the solution agrees with a dense solve to the forward-error bound
   ``2 cond_inf(A) rtol`` (relative, inf-norm).
 - Tiny diagonal pivots (kept by the default ``pivot_thresh = 0``) leave the refinement short of
