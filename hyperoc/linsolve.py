@@ -260,7 +260,8 @@ class SparseSolver:
         """Factor K and solve with refinement: ``(lu, x)``. Diagonal pivots first; when they leave
         the refinement short of ``rtol``, threshold partial pivoting (``fallback_thresh``)."""
         lu = self._direct(K, self.pivot_thresh)
-        x = self._solve_refined(K, rhs, lu, max_iter=2, rate=self.reuse_rate)
+        can_fall_back = self.fallback_thresh > self.pivot_thresh  # else a second factorization repeats the first
+        x = self._solve_refined(K, rhs, lu, max_iter=2, rate=self.reuse_rate if can_fall_back else None)
         if x is None:
             self.stats["pivoting_fallbacks"] += 1
             lu = None  # freed before the second factorization is built (GBs at 80k dofs)
@@ -279,8 +280,9 @@ class SparseSolver:
     def _solve_refined(self, K, rhs, lu, *, max_iter, rate=None):
         """Iterative refinement with ``lu`` (of K or of an earlier K) to backward error ``rtol``.
 
-        Returns None when ``rate`` is given (a kept factorization) and the refinement does not
-        contract by at least that factor per iteration or does not converge in ``max_iter``.
+        Returns None when ``rate`` is given (a kept factorization, or diagonal pivots that can fall
+        back, `_fresh_solve`) and the refinement does not contract by at least that factor per
+        iteration or does not converge in ``max_iter``.
         """
         t0 = time.perf_counter()
         x = lu.solve(rhs)
