@@ -19,6 +19,7 @@ The adjoint solves the transpose, which is the same call with ``col`` and ``row`
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import jax
 import jax.numpy as jnp
@@ -151,6 +152,12 @@ class SparseSolver:
     zeros inside supernodes included) and ``off_diagonal_pivots`` the pivots it took off the
     diagonal (``perm_r != perm_c``); ``failed`` counts traced solves that returned NaN (singular K,
     MINRES failure; ``last_failure`` holds the message).
+
+    Threads: ``jax.pure_callback`` may run each call on a different XLA thread, and scipy's SuperLU
+    tracks a factorization's memory per thread: one freed on another thread than the one that built it
+    is never released (scipy issue #15921). ``"lu_reuse"`` keeps factorizations across calls, and leaked
+    one per refresh (LV Taylor-Hood at 11,569 unknowns: +70 MB per factorization, 4.5 GB after 43). So
+    every call runs on the solver's own single worker thread, where each factorization is built and freed.
     """
 
     traced = False
@@ -171,8 +178,19 @@ class SparseSolver:
         self.reuse_rate, self.reuse_max_iter = reuse_rate, reuse_max_iter
         self._order = None  # (q, position, indices, indptr) of the permuted CSC, after the first call
         self._lu = None  # kept factorization ("lu_reuse")
+        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hyperoc-superlu")
         self.last_failure = None
         self.reset_stats()
+
+    def __del__(self):
+        worker = getattr(self, "_worker", None)
+        if worker is None:
+            return
+        try:  # free a kept factorization on the thread that built it, then stop that thread
+            worker.submit(setattr, self, "_lu", None)
+        except RuntimeError:  # interpreter exit: the executors are already shut down
+            pass
+        worker.shutdown(wait=False)  # the submitted release still runs; never joins from the worker itself
 
     def reset_stats(self):
         self.stats = {"calls": 0, "factorizations": 0, "iterations": 0, "refactor_after_stall": 0, "failed": 0,
@@ -220,6 +238,10 @@ class SparseSolver:
 
     # --- solves -------------------------------------------------------------------------------
     def host_solve(self, blocks, col, row, r_u, r_c):
+        """The bordered solve ``(x, q)`` as one array (n + 1,), on the solver's worker thread (class docstring)."""
+        return self._worker.submit(self._host_solve, blocks, col, row, r_u, r_c).result()
+
+    def _host_solve(self, blocks, col, row, r_u, r_c):
         t_start = time.perf_counter()
         self.stats["calls"] += 1
         if self._order is None and self.ordering == "nd" and self.method != "minres":

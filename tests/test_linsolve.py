@@ -131,3 +131,39 @@ def test_tiny_diagonal_pivots_fall_back_to_partial_pivoting(model):
     blocks[:, np.arange(k), np.arange(k)] = 1e-12  # indefinite, nonsingular, with pivots 1e-12 of the column
     solver = solve_within_forward_error_bound(model, SparseSolver(model, "lu"), blocks)
     assert solver.stats["pivoting_fallbacks"] == 1 and solver.stats["off_diagonal_pivots"] > 0
+
+
+def test_factorizations_live_and_die_on_the_solver_thread(model, monkeypatch):
+    """scipy's SuperLU never releases a factorization freed on another thread than its own (scipy
+    #15921), and ``jax.pure_callback`` may call from any thread: every factorization must be built,
+    used and freed on the solver's worker, whichever thread calls (here: two other threads, with a
+    kept ``lu_reuse`` factorization refreshed in between)."""
+    import threading
+    import weakref
+
+    import hyperoc.linsolve as linsolve
+
+    built, freed = [], []
+
+    class TracedLU:  # SuperLU has no weak references: wrap it to see where it is freed
+        def __init__(self, lu):
+            self._lu = lu
+            built.append(threading.get_ident())
+            weakref.finalize(self, lambda: freed.append(threading.get_ident()))
+
+        def __getattr__(self, name):
+            return getattr(self._lu, name)
+
+    real = linsolve.spla.splu
+    monkeypatch.setattr(linsolve.spla, "splu", lambda *a, **k: TracedLU(real(*a, **k)))
+    solver = SparseSolver(model, "lu_reuse", reuse_max_iter=0)  # no refinement: each call refreshes
+    col, row, r_u, r_c = bordered_rhs(model)
+    for seed in (0, 1, 2):
+        caller = threading.Thread(target=solver.host_solve, args=(spd_blocks(model, seed), col, row, r_u, r_c))
+        caller.start()
+        caller.join()
+    worker = solver._worker
+    del solver  # __del__ submits the release of the kept factorization to the worker
+    worker.shutdown(wait=True)
+    assert len(built) == 3 and len(freed) == 3
+    assert len(set(built) | set(freed)) == 1 and built[0] != threading.get_ident()
