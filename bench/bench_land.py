@@ -1,10 +1,12 @@
-"""Land et al. (2015) problems 1 and 2 under mesh refinement and penalty variation (hyperoc.benchmarks).
+"""Land et al. (2015) problems 1 to 3 under mesh refinement and penalty variation (hyperoc.benchmarks).
 
 Problem 1: beam 10 x 1 x 1 mm, ``10 n x n x n`` cubes of six P2 tetrahedra; reported: z of the deformed
 point (10, 0.5, 1). Problem 2: idealized LV (Gmsh, target edge h mm), P2, isoparametric on the exact
 ellipsoids (``--faceted``: straight-sided cells, as before), base clamped (``--base sliding``: u_z = 0,
 rigid in-plane motions pinned); reported: z of the deformed endocardial and epicardial apex and the
-deformed cavity volume. ``--lv-refinements 0,1,2``: each size is the coarsest mesh of a nested
+deformed cavity volume. Problem 3: the same ventricle, Guccione as in problem 1 with the analytic
+fibres of the benchmark (helix +90 to -90 degrees), endocardial pressure 15 kPa and active fibre tension
+60 kPa ramped together; the same values reported. ``--lv-refinements 0,1,2``: each size is the coarsest mesh of a nested
 sequence of uniform refinements (`hyperoc.mesh.refine`, h halved per level, new boundary vertices on
 the exact ellipsoids), the setting in which the observed order and the Richardson limit mean
 something (computed with h = h0 / 2^k; the "h" column stays the largest edge); Gmsh meshes of
@@ -27,6 +29,7 @@ largest kappa at the finest level.
     python bench/bench_land.py --beam-levels 1,2 --lv-sizes 4 --kappas 1000   # quick look
     nice python bench/bench_land.py --problems 1 --kappas 1000,100000 --volumetric cell-mean --json results/land-beam-p0.json
     nice python bench/bench_land.py --problems 2 --kappas 10000,100000 --lv-sizes 6 --lv-refinements 0,1 --lv-steps 80 --cutbacks 80 --volumetric cell-mean --isochoric
+    nice python bench/bench_land.py --problems 3 --kappas inf --lv-sizes 6 --lv-refinements 0,1,2 --volumetric taylor-hood --isochoric
     python bench/bench_land.py --render results/land-*.json                 # tables of saved runs
 
 Seconds are wall time per solve, JIT compilation included.
@@ -115,7 +118,7 @@ def _formulation(params: dict) -> str:
 
 
 def _variant(params: dict) -> str:
-    """The problem 2 geometry, base and mesh sequence of a result row (rows from before those options:
+    """The problem 2 or 3 geometry, base and mesh sequence of a result row (rows from before those options:
     faceted, clamped, Gmsh sizes)."""
     geometry = "curved" if params.get("curved", False) else "faceted"
     nested = f", nested: h0 = {params['mesh_size']:g} refined" if params.get("nested") else ""
@@ -124,7 +127,7 @@ def _variant(params: dict) -> str:
 
 
 def _level_key(params: dict) -> str:
-    """The column that tells the levels of a problem 2 sequence apart."""
+    """The column that tells the levels of a problem 2 or 3 sequence apart."""
     return "refinements" if params.get("nested") else "mesh_size"
 
 
@@ -140,7 +143,8 @@ def render(paths: list[str]):
         except json.JSONDecodeError:  # a stdout log: one JSON row a line, then the tables
             rows += [json.loads(line) for line in text.splitlines() if line.startswith('{"values"')]
     for problem, name, level_key, keys in ((1, "Problem 1 (beam)", "n", ["z_tip"]),
-                                           (2, "Problem 2 (ventricle)", "mesh_size", LV_KEYS)):
+                                           (2, "Problem 2 (ventricle)", "mesh_size", LV_KEYS),
+                                           (3, "Problem 3 (contraction)", "mesh_size", LV_KEYS)):
         mine = [r for r in rows if r["params"]["problem"] == problem]
         label = (lambda r: _formulation(r["params"])) if problem == 1 else (lambda r: ", " + _variant(r["params"]))
         for kappa, variant in sorted({(r["params"]["kappa"], label(r)) for r in mine}):
@@ -172,8 +176,8 @@ def main():
     ap.add_argument("--lv-steps", type=int, default=20)
     ap.add_argument("--cutbacks", type=int, default=8,
                     help="failed load increments that may be halved and retried, in total per solve")
-    ap.add_argument("--faceted", action="store_true", help="problem 2 on straight-sided P2 cells (default: curved)")
-    ap.add_argument("--base", default="clamped", choices=["clamped", "sliding"], help="problem 2 base condition")
+    ap.add_argument("--faceted", action="store_true", help="problems 2, 3 on straight-sided P2 cells (default: curved)")
+    ap.add_argument("--base", default="clamped", choices=["clamped", "sliding"], help="problems 2, 3 base condition")
     ap.add_argument("--volumetric", default="pointwise", choices=FORMULATIONS,
                     help="the penalty at every quadrature point, on each cell's mean J (mixed P2-P0, "
                          "hyperoc.model.StateModel), or a continuous P1 pressure (Taylor-Hood, "
@@ -181,7 +185,7 @@ def main():
     ap.add_argument("--isochoric", action="store_true",
                     help="Guccione's Q on the isochoric strain (J^(-2/3) C - I) / 2 (hyperoc.materials.Guccione)")
     ap.add_argument("--solver", default="auto", choices=["auto", "lu", "lu_reuse"],
-                    help="problem 2 linear solver (hyperoc.linsolve; auto = sparse LU at these sizes)")
+                    help="problems 2, 3 linear solver (hyperoc.linsolve; auto = sparse LU at these sizes)")
     ap.add_argument("--predictor", default="previous", choices=["previous", "secant"],
                     help="Newton start at each load increment (hyperoc.statics.solve_static)")
     ap.add_argument("--json", default=None, help="write all results here")
@@ -208,18 +212,19 @@ def main():
     problems = {int(v) for v in _floats(args.problems)}
     lv_sequences = [[(h, 0)] for h in _floats(args.lv_sizes)] if args.lv_refinements is None else \
         [[(h, int(k)) for k in _floats(args.lv_refinements)] for h in _floats(args.lv_sizes)]
-    lv_run = lambda level, kappa: record(ventricle_apex(level[0], kappa=kappa, steps=args.lv_steps, cutbacks=args.cutbacks, curved=not args.faceted,
-                                                        base=args.base, refinements=level[1], solver=args.solver,
-                                                        volumetric=args.volumetric, isochoric=args.isochoric,
-                                                        predictor=args.predictor),
-                                         nested=args.lv_refinements is not None, solver=args.solver)
+    lv_run = lambda problem: lambda level, kappa: record(
+        ventricle_apex(level[0], kappa=kappa, steps=args.lv_steps, cutbacks=args.cutbacks, curved=not args.faceted,
+                       base=args.base, refinements=level[1], solver=args.solver, volumetric=args.volumetric,
+                       isochoric=args.isochoric, predictor=args.predictor, problem=problem),
+        nested=args.lv_refinements is not None, solver=args.solver)
+    lv_levels = lv_sequences if args.lv_refinements is not None else [sum(lv_sequences, [])]
     for number, name, sequences, run, level_key, keys in (
         (1, "Problem 1 (beam)", [[int(v) for v in _floats(args.beam_levels)]],
          lambda lv, k: record(beam_deflection(lv, kappa=k, steps=args.beam_steps, cutbacks=args.cutbacks,
                                               volumetric=args.volumetric, isochoric=args.isochoric,
                                               predictor=args.predictor)), "n", ["z_tip"]),
-        (2, "Problem 2 (ventricle)", lv_sequences if args.lv_refinements is not None else [sum(lv_sequences, [])],
-         lv_run, None, LV_KEYS),
+        (2, "Problem 2 (ventricle)", lv_levels, lv_run(2), None, LV_KEYS),
+        (3, "Problem 3 (contraction)", lv_levels, lv_run(3), None, LV_KEYS),
     ):
         if number not in problems:
             continue
@@ -229,7 +234,7 @@ def main():
                 rows = [row for row in (solved_or_reported(run, lv, kappa, failures) for lv in levels) if row]
                 if not rows:
                     continue
-                variant = f", {_variant(rows[0]['params'])}" if number == 2 else _formulation(rows[0]["params"])
+                variant = f", {_variant(rows[0]['params'])}" if number > 1 else _formulation(rows[0]["params"])
                 key = level_key or _level_key(rows[0]["params"])
                 tables.append(_table(f"{name}, P2{variant}, kappa = {kappa:g} kPa", rows, key, keys))
                 finest[kappa] = rows[-1]["values"]

@@ -4,10 +4,11 @@ The curated API (see the README for a tour)::
 
     mesh        interval, rectangle, box, refine, Mesh; geometry: annulus, thick_shell, ventricle, from_file
     materials   SaintVenantKirchhoff, Fung, Ogden, NeoHookean; Guccione, HolzapfelOgden (fibre frames)
-    fibres      transmural_coordinate, rule_based_fibres (helix angle rule)
+    fibres      transmural_coordinate, rule_based_fibres (helix angle rule), prolate_fibres (analytic, Land)
     controls    BodyForce, ActiveStress, Region
     model       StateModel; mixed: TaylorHoodModel (P2-P1, quasi-static, incompressible allowed)
-    dynamics    Scheme, TimeStepper, solve_state, StateSolution; statics: solve_static
+    dynamics    Scheme, TimeStepper, solve_state, StateSolution; statics: solve_static with state-dependent
+                loads FollowerPressure (pressure on the deformed boundary), FibreTension (active stress)
     time        uniform_grid, TimeGrid, TimeTransform
     objectives  Objective, ControlCost, PressureAt, PressureRise
     gradients   ReducedFunctional, ControlPoint, taylor_test
@@ -19,13 +20,14 @@ before JAX is imported, passes closed-over arrays to XLA as arguments (`hyperoc.
 """
 
 from . import _jax  # noqa: F401  (first: it sets JAX's environment before anything imports jax)
+from .active import FibreTension
 from .controls import ActiveStress, BodyForce, Region
 from .config import load_config
 from .dynamics import Scheme, StateSolution, TimeStepper, solve_state
 from .errors import HyperocError, InputError, SolverError
 from .geometry import annulus, from_file, thick_shell, ventricle
-from .fibres import rule_based_fibres, transmural_coordinate
-from .follower import FollowerPressure  # noqa: F401  (quasi-static follower load; see hyperoc.statics)
+from .fibres import prolate_fibres, rule_based_fibres, transmural_coordinate
+from .follower import FollowerPressure
 from .materials import Fung, Guccione, HolzapfelOgden, NeoHookean, Ogden, SaintVenantKirchhoff
 from .mesh import Mesh, box, interval, rectangle, refine
 from .mixed import TaylorHoodModel
@@ -42,8 +44,8 @@ __version__ = "0.1.0"
 __all__ = [
     "ActiveStress", "BodyForce", "Region", "load_config", "Scheme", "StateSolution", "TimeStepper", "solve_state",
     "HyperocError", "InputError", "SolverError", "annulus", "from_file", "thick_shell", "ventricle", "Fung",
-    "NeoHookean", "Ogden", "SaintVenantKirchhoff", "Guccione", "HolzapfelOgden", "rule_based_fibres",
+    "NeoHookean", "Ogden", "SaintVenantKirchhoff", "Guccione", "HolzapfelOgden", "rule_based_fibres", "prolate_fibres",
     "transmural_coordinate", "Mesh", "box", "interval", "rectangle", "refine", "StateModel", "TaylorHoodModel",
     "ControlCost", "Objective", "PressureAt", "PressureRise", "barzilai_borwein", "lbfgsb", "ControlPoint",
-    "ReducedFunctional", "solve_static", "TimeGrid", "TimeTransform", "uniform_grid", "taylor_test",
+    "ReducedFunctional", "solve_static", "FollowerPressure", "FibreTension", "TimeGrid", "TimeTransform", "uniform_grid", "taylor_test",
 ]

@@ -1,4 +1,4 @@
-"""Land et al. (2015) cardiac mechanics benchmarks, problems 1 and 2, as quasi-static solves.
+"""Land et al. (2015) cardiac mechanics benchmarks, problems 1 to 3, as quasi-static solves.
 
 S. Land et al., "Verification of cardiac mechanics software: benchmark problems and solutions for
 testing active and passive material behaviour", Proc. R. Soc. A 471: 20150641 (2015),
@@ -15,6 +15,13 @@ two ellipsoids, i.e. isoparametric P2 cells), base fixed (or sliding in its plan
 ``C = 10`` kPa, ``bf = bt = bfs = 1`` (``Q = tr(E^2)``), endocardial pressure 10 kPa (follower).
 Reported: the z-coordinates of the deformed endocardial apex (0, 0, -17) and epicardial apex
 (0, 0, -20).
+
+Problem 3 (contraction). The same ventricle and base conditions, the transversely isotropic Guccione
+law of problem 1 (``C = 2`` kPa, ``bf = 8``, ``bt = 2``, ``bfs = 4``) with the analytic fibre field
+`hyperoc.fibres.prolate_fibres` (helix angle +90 degrees at the endocardium to -90 at the
+epicardium), endocardial pressure 15 kPa and an active tension ``T = 60`` kPa along the fibres
+(second Piola-Kirchhoff ``T f0 (x) f0``, `hyperoc.active.FibreTension`), both ramped together.
+Reported: the same apex positions.
 
 What is solved and what it converges to. The benchmark material is incompressible; here it is
 the compressible Guccione law of `hyperoc.materials.Guccione` with the volumetric penalty
@@ -38,7 +45,9 @@ from dataclasses import dataclass, field
 import jax.numpy as jnp
 import numpy as np
 
+from .active import FibreTension
 from .errors import InputError
+from .fibres import prolate_fibres
 from .follower import FollowerPressure
 from .geometry import ventricle
 from .materials import Guccione, det
@@ -47,14 +56,17 @@ from .mixed import TaylorHoodModel
 from .model import VOLUMETRIC, StateModel
 from .statics import solve_static
 
-__all__ = ["BEAM", "VENTRICLE", "BASE_CONDITIONS", "FORMULATIONS", "BenchmarkResult", "beam_mesh", "beam_problem", "ventricle_problem",
-           "node_position", "beam_deflection", "ventricle_apex"]
+__all__ = ["BEAM", "VENTRICLE", "CONTRACTION", "BASE_CONDITIONS", "FORMULATIONS", "BenchmarkResult", "beam_mesh",
+           "beam_problem", "ventricle_problem", "contraction_problem", "node_position", "beam_deflection", "ventricle_apex"]
 
 #: Problem 1 parameters (Land et al. 2015): Guccione moduli (kPa, dimensionless) and pressure (kPa).
 BEAM = {"C": 2.0, "bf": 8.0, "bt": 2.0, "bfs": 4.0, "pressure": 0.004, "point": (10.0, 0.5, 1.0)}
 #: Problem 2 parameters: Guccione moduli, endocardial pressure (kPa), apex points (mm).
 VENTRICLE = {"C": 10.0, "bf": 1.0, "bt": 1.0, "bfs": 1.0, "pressure": 10.0,
              "endo_apex": (0.0, 0.0, -17.0), "epi_apex": (0.0, 0.0, -20.0)}
+#: Problem 3 parameters: Guccione moduli, endocardial pressure and active fibre tension (kPa), helix angles
+#: at the endocardium and epicardium (degrees).
+CONTRACTION = {"C": 2.0, "bf": 8.0, "bt": 2.0, "bfs": 4.0, "pressure": 15.0, "tension": 60.0, "helix": (90.0, -90.0)}
 
 
 @dataclass
@@ -88,9 +100,10 @@ FORMULATIONS = VOLUMETRIC + ("taylor-hood",)
 
 
 def _model(mesh: Mesh, params: dict, kappa: float, isochoric: bool, volumetric: str, degree: int,
-           **kwargs) -> StateModel:
+           frames=None, **kwargs) -> StateModel:
     """The Guccione model of a benchmark: ``params`` the moduli, ``kappa`` the bulk modulus (kPa; with
-    ``"taylor-hood"`` also ``math.inf``: incompressible), ``volumetric`` one of `FORMULATIONS`."""
+    ``"taylor-hood"`` also ``math.inf``: incompressible), ``volumetric`` one of `FORMULATIONS`,
+    ``frames`` the fibre field (default: fibres along x)."""
     if volumetric not in FORMULATIONS:
         raise InputError(f"volumetric must be one of {list(FORMULATIONS)}, got {volumetric!r}")
     mixed = volumetric == "taylor-hood"
@@ -98,9 +111,10 @@ def _model(mesh: Mesh, params: dict, kappa: float, isochoric: bool, volumetric: 
         raise InputError(f"the Taylor-Hood formulation is P2-P1: degree must be 2, got {degree}")
     material = Guccione(C=params["C"], bf=params["bf"], bt=params["bt"], bfs=params["bfs"],
                         kappa=0.0 if mixed and math.isinf(kappa) else kappa, isochoric=isochoric)
+    frames = _fibres_along_x if frames is None else frames
     if mixed:
-        return TaylorHoodModel(mesh, material, bulk_modulus=kappa, frames=_fibres_along_x, **kwargs)
-    return StateModel(mesh, material, degree=degree, frames=_fibres_along_x, volumetric=volumetric, **kwargs)
+        return TaylorHoodModel(mesh, material, bulk_modulus=kappa, frames=frames, **kwargs)
+    return StateModel(mesh, material, degree=degree, frames=frames, volumetric=volumetric, **kwargs)
 
 
 def _fibres_along_x(x):
@@ -148,11 +162,28 @@ def ventricle_problem(h: float, *, kappa: float, degree: int = 2, curved: bool =
     pressure on the cavity has no net in-plane force or moment about z). With ``bf = bt = bfs = 1``
     the Guccione law is isotropic (``Q = tr(E^2)``): the constant frame it is given does not matter.
     ``volumetric``, ``isochoric``: as in `beam_problem`."""
+    model = _ventricle_model(h, VENTRICLE, None, kappa, degree, curved, base, refinements, volumetric, isochoric)
+    return model, FollowerPressure(model, "endocardium", VENTRICLE["pressure"])
+
+
+def contraction_problem(h: float, *, kappa: float, degree: int = 2, curved: bool = True,
+                        base: str = "clamped", refinements: int = 0, volumetric: str = "pointwise",
+                        isochoric: bool = False) -> tuple[StateModel, tuple[FollowerPressure, FibreTension]]:
+    """Problem 3 on the mesh of `ventricle_problem` (same arguments): the model (`CONTRACTION` moduli,
+    `hyperoc.fibres.prolate_fibres` with its helix angles) and its two loads, the endocardial pressure
+    and the active fibre tension, for ``solve_static(..., follower=loads)``."""
+    fibres = prolate_fibres(helix_endo=CONTRACTION["helix"][0], helix_epi=CONTRACTION["helix"][1])
+    model = _ventricle_model(h, CONTRACTION, fibres, kappa, degree, curved, base, refinements, volumetric, isochoric)
+    return model, (FollowerPressure(model, "endocardium", CONTRACTION["pressure"]),
+                   FibreTension(model, CONTRACTION["tension"]))
+
+
+def _ventricle_model(h, params, frames, kappa, degree, curved, base, refinements, volumetric, isochoric):
+    """The Guccione model (`_model`) on `hyperoc.geometry.ventricle` with the base condition ``base``."""
     if base not in BASE_CONDITIONS:
         raise InputError(f"ventricle base must be one of {sorted(BASE_CONDITIONS)}, got {base!r}")
-    model = _model(ventricle(h, curved=curved, refinements=refinements), VENTRICLE, kappa, isochoric, volumetric,
-                   degree, **BASE_CONDITIONS[base])
-    return model, FollowerPressure(model, "endocardium", VENTRICLE["pressure"])
+    return _model(ventricle(h, curved=curved, refinements=refinements), params, kappa, isochoric, volumetric,
+                  degree, frames, **BASE_CONDITIONS[base])
 
 
 def node_position(model: StateModel, u, point, tol: float = 1e-9) -> np.ndarray:
@@ -193,17 +224,22 @@ def beam_deflection(n: int, *, kappa: float = 1000.0, degree: int = 2, steps: in
 
 def ventricle_apex(h: float, *, kappa: float = 1000.0, degree: int = 2, steps: int = 10, cutbacks: int = 8,
                    solver="auto", curved: bool = True, base: str = "clamped", refinements: int = 0,
-                   volumetric: str = "pointwise", isochoric: bool = False, predictor: str = "previous") -> BenchmarkResult:
-    """Problem 2 (`ventricle_problem`): ``values["z_endo"]``, ``values["z_epi"]`` = z of the deformed
-    endocardial and epicardial apex (mm; -17 and -20 at rest), ``values["V_cavity"]`` the deformed
-    cavity volume (mm^3, `hyperoc.report.cavity_volume`: the endocardium closed by the base plane)."""
+                   volumetric: str = "pointwise", isochoric: bool = False, predictor: str = "previous",
+                   problem: int = 2) -> BenchmarkResult:
+    """Problem 2 (`ventricle_problem`) or 3 (``problem=3``, `contraction_problem`): ``values["z_endo"]``,
+    ``values["z_epi"]`` = z of the deformed endocardial and epicardial apex (mm; -17 and -20 at rest),
+    ``values["V_cavity"]`` the deformed cavity volume (mm^3, `hyperoc.report.cavity_volume`: the
+    endocardium closed by the base plane)."""
     from .report import cavity_volume
 
-    model, load = ventricle_problem(h, kappa=kappa, degree=degree, curved=curved, base=base, refinements=refinements,
-                                    volumetric=volumetric, isochoric=isochoric)
+    if problem not in (2, 3):
+        raise InputError(f"ventricle_apex: the ventricle problems are 2 and 3, got {problem!r}")
+    setup = ventricle_problem if problem == 2 else contraction_problem
+    model, load = setup(h, kappa=kappa, degree=degree, curved=curved, base=base, refinements=refinements,
+                        volumetric=volumetric, isochoric=isochoric)
     cavity = lambda model, u: {"V_cavity": float(cavity_volume(model.space, model.expand(u)[None])[0])}
     return _solve(model, load, steps, cutbacks, solver,
                   {"z_endo": VENTRICLE["endo_apex"], "z_epi": VENTRICLE["epi_apex"]},
-                  {"problem": 2, "mesh_size": h, "kappa": kappa, "degree": degree, "steps": steps,
+                  {"problem": problem, "mesh_size": h, "kappa": kappa, "degree": degree, "steps": steps,
                    "cutbacks": cutbacks, "curved": curved, "base": base, "refinements": refinements,
                    "volumetric": volumetric, "isochoric": isochoric, "predictor": predictor}, cavity)

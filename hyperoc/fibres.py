@@ -35,7 +35,7 @@ from .io import atomic_write_bytes
 from .mesh import Mesh
 from .spaces import VectorSpace
 
-__all__ = ["FibreFrames", "transmural_coordinate", "rule_based_fibres", "write_fibres"]
+__all__ = ["FibreFrames", "ProlateFibres", "transmural_coordinate", "rule_based_fibres", "prolate_fibres", "write_fibres"]
 
 
 def _p1_stiffness_blocks(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
@@ -187,6 +187,84 @@ def rule_based_fibres(mesh: Mesh, *, helix_endo: float = 60.0, helix_epi: float 
     return FibreFrames(transmural=d, sheet=n_t, circumferential=c, longitudinal=np.cross(n_t, c),
                        grad_d=np.einsum("caj,ca->cj", dN, d_cell), x0=mesh.points[mesh.cells[:, 0]], d0=d_cell[:, 0],
                        centroids=mesh.cell_centroids(), helix=(float(np.deg2rad(helix_endo)), float(np.deg2rad(helix_epi))))
+
+
+@dataclass(frozen=True)
+class ProlateFibres:
+    """Analytic fibres of the truncated prolate wall (Land et al. 2015, problem 3).
+
+    The wall is the family of ellipsoids ``x = rs(t) sin u cos v, y = rs(t) sin u sin v,
+    z = rl(t) cos u`` with ``rs(t) = rs_endo + (rs_epi - rs_endo) t``, ``rl`` likewise, ``t`` in [0, 1]
+    (endocardium to epicardium), ``u`` in ``[-pi, -arccos(base_z / rl)]`` (so sin u <= 0) and ``v`` in
+    ``[-pi, pi]``. With the unit tangents ``e_u = x_u / |x_u|`` (along the meridian, apex to base) and
+    ``e_v = x_v / |x_v|`` (circumferential, counterclockwise seen from the base) and the helix angle
+    ``alpha(t) = alpha_endo + (alpha_epi - alpha_endo) t``:
+
+        f = sin(alpha) e_u + cos(alpha) e_v,   s = nu (outward normal of the ellipsoid t),   n = f x s.
+
+    ``e_u``, ``e_v``, ``nu`` are orthonormal, so the frame is. On the long axis (the apex), where
+    ``e_v`` is undefined, ``e_v = e_y`` and ``e_u = e_x`` stand in. Points off the wall get the ``t`` of
+    the ellipsoid through them (bisection for ``t`` in ``[-1/2, 3/2]``; points beyond get the end value).
+
+    Attributes: ``endo``, ``epi`` the ``(rs, rl)`` semi-axes (mm); ``helix`` (alpha_endo, alpha_epi) radians.
+    """
+
+    endo: tuple
+    epi: tuple
+    helix: tuple
+
+    def transmural(self, x) -> np.ndarray:
+        """``t`` (...,) of the ellipsoid of the family through each point x (..., 3)."""
+        x = np.asarray(x, dtype=np.float64)
+        rho2, z2 = x[..., 0] ** 2 + x[..., 1] ** 2, x[..., 2] ** 2
+        lo, hi = np.full(rho2.shape, -0.5), np.full(rho2.shape, 1.5)
+        for _ in range(64):  # bisection: (rho / rs(t))^2 + (z / rl(t))^2 decreases in t; 2^-64 of the bracket
+            mid = 0.5 * (lo + hi)
+            rs, rl = self._axes(mid)
+            outside = rho2 / rs**2 + z2 / rl**2 > 1.0
+            lo, hi = np.where(outside, mid, lo), np.where(outside, hi, mid)
+        return 0.5 * (lo + hi)
+
+    def _axes(self, t):
+        (rs0, rl0), (rs1, rl1) = self.endo, self.epi
+        return rs0 + (rs1 - rs0) * t, rl0 + (rl1 - rl0) * t
+
+    def __call__(self, x) -> np.ndarray:
+        """Frames (..., 3, 3) with rows ``(f, s, n)`` at points x (..., 3) (any leading shape, e.g.
+        `StateModel`'s quadrature points (nc, nq, 3))."""
+        x = np.asarray(x, dtype=np.float64)
+        t = self.transmural(x)
+        rs, rl = self._axes(t)
+        rho = np.hypot(x[..., 0], x[..., 1])
+        on_axis = rho < 1e-12 * rl
+        safe = np.where(on_axis, 1.0, rho)
+        cos_v, sin_v = np.where(on_axis, 1.0, -x[..., 0] / safe), np.where(on_axis, 0.0, -x[..., 1] / safe)
+        cos_u, sin_u = x[..., 2] / rl, -rho / rs  # sin u <= 0 on the benchmark's branch of u
+        e_u = np.stack([rs * cos_u * cos_v, rs * cos_u * sin_v, -rl * sin_u], axis=-1)
+        e_v = np.stack([sin_v, -cos_v, np.zeros_like(rho)], axis=-1)  # x_v / |x_v| = sign(sin u) (-sin v, cos v, 0)
+        e_u = np.where(on_axis[..., None], [1.0, 0.0, 0.0], e_u / np.linalg.norm(e_u, axis=-1, keepdims=True))
+        e_v = np.where(on_axis[..., None], [0.0, 1.0, 0.0], e_v)
+        nu = np.stack([x[..., 0] / rs**2, x[..., 1] / rs**2, x[..., 2] / rl**2], axis=-1)
+        nu /= np.linalg.norm(nu, axis=-1, keepdims=True)
+        a_endo, a_epi = self.helix
+        alpha = (a_endo + (a_epi - a_endo) * t)[..., None]
+        f = np.sin(alpha) * e_u + np.cos(alpha) * e_v
+        return np.stack([f, nu, np.cross(f, nu)], axis=-2)
+
+
+def prolate_fibres(*, endo=(7.0, 17.0), epi=(10.0, 20.0), helix_endo: float = 90.0,
+                   helix_epi: float = -90.0) -> ProlateFibres:
+    """`ProlateFibres` for the wall between the ellipsoids of semi-axes ``endo`` and ``epi`` (mm,
+    ``(short, long)``, as `hyperoc.geometry.ventricle`), helix angles in degrees (defaults: Land et al.
+    2015 problem 3)."""
+    endo, epi = tuple(map(float, endo)), tuple(map(float, epi))
+    if len(endo) != 2 or len(epi) != 2 or not (0 < endo[0] < epi[0] and 0 < endo[1] < epi[1]):
+        raise InputError(f"prolate_fibres: need 0 < endo < epi semi-axes (short, long), got {endo}, {epi}")
+    if any(r1 - r0 > r0 for r0, r1 in zip(endo, epi)):  # keeps rs(t), rl(t) > 0 on the bisection bracket
+        raise InputError(f"prolate_fibres: the wall may be at most as thick as the cavity's semi-axes, got {endo}, {epi}")
+    if not (np.isfinite(helix_endo) and np.isfinite(helix_epi)):
+        raise InputError(f"prolate_fibres: helix angles must be finite, got {helix_endo}, {helix_epi}")
+    return ProlateFibres(endo, epi, (float(np.deg2rad(helix_endo)), float(np.deg2rad(helix_epi))))
 
 
 def write_fibres(path, mesh: Mesh, frames: FibreFrames) -> Path:

@@ -5,8 +5,9 @@ Constrained (default): find ``(u, p)`` with
     R(u) + p G(u) = B xi + f + sum_j f_j(u),      vol(u) = V,
 
 the same residual and Newton as a time step with ``M = 0`` and ``kappa = 0``; ``V`` defaults to
-the reference volume. ``f_j(u)`` are follower pressures (`hyperoc.follower.FollowerPressure`), loads
-that act on the deformed boundary; their load stiffness ``-df_j/du`` enters the Newton tangent.
+the reference volume. ``f_j(u)`` are loads that depend on the state: follower pressures
+(`hyperoc.follower.FollowerPressure`), which act on the deformed boundary, and active fibre tension
+(`hyperoc.active.FibreTension`); their stiffness ``-df_j/du`` enters the Newton tangent.
 
 Unconstrained (``constrained=False``, e.g. the Land et al. 2015 benchmarks, where only the material's
 volumetric penalty controls the volume): find u with ``R(u) = B xi + f + sum_j f_j(u)``. The bordered
@@ -20,7 +21,7 @@ whose Schur complement ``e^T K^-1 K e = 1`` never vanishes, and ``du = dw + dt e
 Newton step ``K du = -r``. (Newton's stopping test looks at ``dw`` only; ``dt`` is the mean of
 ``du`` times sqrt(n).)
 
-All loads (``load``, ``xi``, the follower pressures) are ramped linearly over ``steps`` load steps,
+All loads (``load``, ``xi``, the state-dependent loads) are ramped linearly over ``steps`` load steps,
 as is the target volume; each step starts from the previous equilibrium. With ``cutbacks > 0`` a
 failed increment is halved and retried (adaptive load stepping).
 
@@ -133,8 +134,9 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
 
     Parameters
     ----------
-    follower : a `hyperoc.follower.FollowerPressure` or a sequence of them (pressures on the deformed
-        boundary, each ramped as ``s * pressure`` at load step ``s = k / steps``).
+    follower : a state-dependent load or a sequence of them: `hyperoc.follower.FollowerPressure`
+        (pressure on the deformed boundary), `hyperoc.active.FibreTension` (active stress along the
+        fibres); each is ramped as ``s * pressure`` (``s * tension``) at load step ``s = k / steps``.
     constrained : True (default): global volume constraint ``vol(u) = volume`` with multiplier p;
         False: no constraint, no multiplier (``volume`` must then be None).
     line_search : backtracking Newton (`hyperoc.newton.newton`, default) or full Newton steps (see the

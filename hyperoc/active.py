@@ -1,0 +1,74 @@
+"""Active fibre tension as a state-dependent load of the quasi-static solver.
+
+An active tension ``T`` (stress units, e.g. kPa) along the reference fibre ``f0`` adds the second
+Piola-Kirchhoff stress ``S_a = T f0 (x) f0`` to the passive one (Land et al. 2015, problem 3; the
+first Piola-Kirchhoff stress is ``P_a = F S_a = T (F f0) (x) f0``: it turns with the fibre). For a given
+T it derives from the energy
+
+    A(u) = T int_Omega E_ff dX,   E_ff = f0 . E f0 = (|F f0|^2 - 1) / 2,
+
+which is quadratic in u. The load on the body is ``f_a(u) = -dA/du`` and the stiffness it adds to the
+Newton tangent, ``-df_a/du = T int (grad N_a . f0) (grad N_b . f0) delta_ik dX`` per element, does
+not depend on u.
+
+This is the active-stress law of the cardiac mechanics benchmarks. The control of the optimal control
+problem, `hyperoc.controls.ActiveStress`, is different: a prescribed first Piola-Kirchhoff stress
+``xi f0 (x) f0``, linear in xi and independent of u (the paper's setting, where the control enters
+the state equation as a load).
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .errors import InputError
+
+__all__ = ["FibreTension"]
+
+
+class FibreTension:
+    """Active tension ``tension`` along the fibres of ``model`` (row 0 of its ``frames``).
+
+    Used like `hyperoc.follower.FollowerPressure` in `hyperoc.statics.solve_static` (``follower=``):
+    methods take the model's unknowns u (n,) (for `hyperoc.mixed.TaylorHoodModel` the displacement and
+    the pressures) and a load ``factor``; the tension applied is ``factor * tension``.
+    """
+
+    def __init__(self, model, tension: float):
+        if not math.isfinite(tension):
+            raise InputError(f"fibre tension must be finite, got {tension}")
+        if model._frames is None:
+            raise InputError("FibreTension needs a model with fibre frames (StateModel(..., frames=...))")
+        self.model, self.tension, self.n = model, float(tension), model.n
+        q = model.quad
+        f0 = np.asarray(model._frames)[..., 0, :]  # (nc, nq, d)
+        self._f0 = jnp.asarray(f0)
+        g = np.einsum("cqaj,cqj->cqa", q.dN, f0)  # grad N_a . f0
+        self._G = jnp.asarray(np.einsum("cq,cqa,cqb->cab", q.wdx, g, g))  # (nc, nloc, nloc)
+
+    def energy(self, u, factor=1.0):
+        """``factor T int E_ff dX`` (energy units)."""
+        Ff = jnp.einsum("cqij,cqj->cqi", self.model.deformation_gradient(u), self._f0)
+        return factor * self.tension * 0.5 * jnp.sum(self.model._w * (jnp.sum(Ff * Ff, axis=-1) - 1.0))
+
+    def force(self, u, factor=1.0):
+        """``f_a(u) = -dA/du`` (n,): the nodal force of the active stress on the body."""
+        return -jax.grad(self.energy)(u, factor)
+
+    def element_stiffness(self, factor=1.0):
+        """``-df_a/du`` per cell, (nc, k, k), k = nloc d, node-major (the displacement block of the
+        model's element matrices)."""
+        nc, nloc, _ = self._G.shape
+        d = self.model.dim
+        K = jnp.einsum("cab,ik->caibk", self._G, jnp.eye(d)).reshape(nc, nloc * d, nloc * d)
+        return factor * self.tension * K
+
+    def add_stiffness(self, cell_blocks, u, factor=1.0):
+        """``cell_blocks`` (nc, k', k') plus the stiffness in their leading (displacement) k x k block."""
+        K = self.element_stiffness(factor)
+        k = K.shape[1]
+        return cell_blocks.at[:, :k, :k].add(K)
