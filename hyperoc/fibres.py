@@ -267,15 +267,19 @@ def prolate_fibres(*, endo=(7.0, 17.0), epi=(10.0, 20.0), helix_endo: float = 90
     return ProlateFibres(endo, epi, (float(np.deg2rad(helix_endo)), float(np.deg2rad(helix_epi))))
 
 
-def write_fibres(path, mesh: Mesh, frames: FibreFrames) -> Path:
+def write_fibres(path, mesh: Mesh, frames) -> Path:
     """Write a VTU file (atomically) with cell vectors ``fibre``, ``sheet``, ``normal`` evaluated at
-    the cell centroids and the point field ``transmural`` (ParaView: Glyph filter on the cell data)."""
+    the cell centroids and the point field ``transmural`` (ParaView: Glyph filter on the cell data).
+
+    ``frames``: `FibreFrames` of ``mesh`` (``transmural`` = its Laplace coordinate) or `ProlateFibres`
+    (``transmural`` = the prolate t at the vertices)."""
     if mesh.dim != 3:
         raise InputError(f"write_fibres needs a 3D mesh, got dimension {mesh.dim}")
     path = Path(path)
-    F = frames.cell_frames()
+    F = frames(mesh.cell_centroids()[:, None, :])[:, 0]
+    transmural = frames.transmural if isinstance(frames, FibreFrames) else frames.transmural(mesh.points)
     cell_data = {name: [F[:, k]] for k, name in enumerate(("fibre", "sheet", "normal"))}
-    point_data = {"transmural": frames.transmural}
+    point_data = {"transmural": transmural}
     out = meshio.Mesh(mesh.points, [("tetra", mesh.cells)], point_data=point_data, cell_data=cell_data)
     with tempfile.TemporaryDirectory(dir=path.parent) as tmp:
         staged = Path(tmp) / path.name

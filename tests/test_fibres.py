@@ -12,7 +12,7 @@ import pytest
 
 import hyperoc as ho
 from hyperoc.errors import InputError
-from hyperoc.fibres import rule_based_fibres, transmural_coordinate, write_fibres
+from hyperoc.fibres import prolate_fibres, rule_based_fibres, transmural_coordinate, write_fibres
 from hyperoc.materials import Guccione, HolzapfelOgden
 
 Z = np.array([0.0, 0.0, 1.0])
@@ -181,6 +181,19 @@ def test_write_fibres_round_trip(tmp_path, ventricle, vent_fibres):
         assert np.allclose(back.cell_data[name][0], R[:, k], rtol=0, atol=1e-15)
     assert np.allclose(back.point_data["transmural"], vent_fibres.transmural)
     assert np.allclose(back.points, ventricle.points) and [p.name for p in tmp_path.iterdir()] == ["fibres.vtu"]
+
+
+def test_write_prolate_fibres(tmp_path, ventricle):
+    """The analytic benchmark fibres: frames at the centroids, the prolate t at the vertices (0 on the
+    endocardium, 1 on the epicardium, to Gmsh's vertex placement)."""
+    fibres = prolate_fibres()
+    back = meshio.read(write_fibres(tmp_path / "prolate.vtu", ventricle, fibres))
+    R = fibres(ventricle.cell_centroids())
+    for k, name in enumerate(("fibre", "sheet", "normal")):
+        assert np.allclose(back.cell_data[name][0], R[:, k], rtol=0, atol=1e-15)
+    t = back.point_data["transmural"]
+    walls = {name: np.unique(ventricle.boundary(name)) for name in ("endocardium", "epicardium")}
+    assert np.abs(t[walls["endocardium"]]).max() <= 1e-6 and np.abs(t[walls["epicardium"]] - 1).max() <= 1e-6
 
 
 @pytest.mark.parametrize("material", [Guccione(), HolzapfelOgden()], ids=["guccione", "holzapfel-ogden"])
