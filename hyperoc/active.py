@@ -68,7 +68,8 @@ class FibreTension:
         return factor * self.tension * K
 
     def add_stiffness(self, cell_blocks, u, factor=1.0):
-        """``cell_blocks`` (nc, k', k') plus the stiffness in their leading (displacement) k x k block."""
+        """``cell_blocks`` (nc, k', k') plus the stiffness in their leading (displacement) k x k block
+        (``u`` is not used: the stiffness is constant; it is there for the load interface of `solve_static`)."""
         K = self.element_stiffness(factor)
         k = K.shape[1]
         return cell_blocks.at[:, :k, :k].add(K)
