@@ -50,10 +50,14 @@ class FibreTension:
         g = np.einsum("cqaj,cqj->cqa", q.dN, f0)  # grad N_a . f0
         self._G = jnp.asarray(np.einsum("cq,cqa,cqb->cab", q.wdx, g, g))  # (nc, nloc, nloc)
 
+    def fibre_strain(self, u):
+        """``E_ff = (|F f0|^2 - 1) / 2`` at every quadrature point, (nc, nq)."""
+        Ff = jnp.einsum("cqij,cqj->cqi", self.model.deformation_gradient(u), self._f0)
+        return 0.5 * (jnp.sum(Ff * Ff, axis=-1) - 1.0)
+
     def energy(self, u, factor=1.0):
         """``factor T int E_ff dX`` (energy units)."""
-        Ff = jnp.einsum("cqij,cqj->cqi", self.model.deformation_gradient(u), self._f0)
-        return factor * self.tension * 0.5 * jnp.sum(self.model._w * (jnp.sum(Ff * Ff, axis=-1) - 1.0))
+        return factor * self.tension * jnp.sum(self.model._w * self.fibre_strain(u))
 
     def force(self, u, factor=1.0):
         """``f_a(u) = -dA/du`` (n,): the nodal force of the active stress on the body."""

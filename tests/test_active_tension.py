@@ -42,15 +42,21 @@ from hyperoc.statics import solve_static
 EPS = np.finfo(float).eps
 
 
-def prolate_points(n=500, seed=0):
-    """Random (t, u, v) in the benchmark wall and the points x (n, 3) they give."""
-    rng = np.random.default_rng(seed)
-    t = rng.uniform(0.0, 1.0, n)
-    u = rng.uniform(-np.pi + 0.05, -np.arccos(5.0 / 17.0), n)
-    v = rng.uniform(-np.pi, np.pi, n)
+def prolate_wall(t, u, v):
+    """Points x and unit tangents e_u, e_v (n, 3) of the benchmark wall at prolate coordinates (t, u, v),
+    straight from the parameterization."""
     rs, rl = 7.0 + 3.0 * t, 17.0 + 3.0 * t
     x = np.stack([rs * np.sin(u) * np.cos(v), rs * np.sin(u) * np.sin(v), rl * np.cos(u)], axis=-1)
-    return t, u, v, x
+    e_u = unit(np.stack([rs * np.cos(u) * np.cos(v), rs * np.cos(u) * np.sin(v), -rl * np.sin(u)], axis=-1))
+    e_v = unit(np.stack([-rs * np.sin(u) * np.sin(v), rs * np.sin(u) * np.cos(v), np.zeros_like(u)], axis=-1))
+    return x, e_u, e_v
+
+
+def prolate_coordinates(n=500, seed=0):
+    """Random (t, u, v) in the benchmark wall, u away from the axis."""
+    rng = np.random.default_rng(seed)
+    return (rng.uniform(0.0, 1.0, n), rng.uniform(-np.pi + 0.05, -np.arccos(5.0 / 17.0), n),
+            rng.uniform(-np.pi, np.pi, n))
 
 
 def unit(a):
@@ -58,28 +64,21 @@ def unit(a):
 
 
 def test_prolate_fibres_follow_the_benchmark_rule():
-    t, u, v, x = prolate_points()
+    t, u, v = prolate_coordinates()
+    x, e_u, e_v = prolate_wall(t, u, v)
     fibres = prolate_fibres()
     np.testing.assert_allclose(fibres.transmural(x), t, rtol=0, atol=40 * 10 * EPS)
     frames = fibres(x)
     np.testing.assert_allclose(np.einsum("nij,nkj->nik", frames, frames), np.broadcast_to(np.eye(3), frames.shape),
                                rtol=0, atol=10 * EPS)
     np.testing.assert_allclose(np.linalg.det(frames), 1.0, rtol=0, atol=10 * EPS)
-    rs, rl = 7.0 + 3.0 * t, 17.0 + 3.0 * t
-    e_u = unit(np.stack([rs * np.cos(u) * np.cos(v), rs * np.cos(u) * np.sin(v), -rl * np.sin(u)], axis=-1))
-    e_v = unit(np.stack([-rs * np.sin(u) * np.sin(v), rs * np.sin(u) * np.cos(v), np.zeros_like(u)], axis=-1))
     alpha = np.deg2rad(90.0 - 180.0 * t)[:, None]
     np.testing.assert_allclose(frames[:, 0], np.sin(alpha) * e_u + np.cos(alpha) * e_v, rtol=0, atol=1e3 * EPS)
-    ends = prolate_points(3, seed=1)[1:]
+    _, u, v = prolate_coordinates(3, seed=1)
     for t_wall, expected in ((0.0, 1), (0.5, 0), (1.0, -1)):  # f = e_u, e_v, -e_u
-        u_, v_ = ends[0], ends[1]
-        rs, rl = 7.0 + 3.0 * t_wall, 17.0 + 3.0 * t_wall
-        xw = np.stack([rs * np.sin(u_) * np.cos(v_), rs * np.sin(u_) * np.sin(v_), rl * np.cos(u_)], axis=-1)
-        f = fibres(xw)[:, 0]
-        e_u = unit(np.stack([rs * np.cos(u_) * np.cos(v_), rs * np.cos(u_) * np.sin(v_), -rl * np.sin(u_)], axis=-1))
-        e_v = unit(np.stack([-np.sin(v_), np.cos(v_), np.zeros_like(u_)], axis=-1)) * np.sign(np.sin(u_))[:, None]
+        x, e_u, e_v = prolate_wall(np.full(3, t_wall), u, v)
         target = e_v if expected == 0 else expected * e_u
-        np.testing.assert_allclose(f, target, rtol=0, atol=1e3 * EPS)
+        np.testing.assert_allclose(fibres(x)[:, 0], target, rtol=0, atol=1e3 * EPS)
 
 
 def test_prolate_fibres_reject_bad_axes():
