@@ -30,6 +30,7 @@ largest kappa at the finest level.
     nice python bench/bench_land.py --problems 1 --kappas 1000,100000 --volumetric cell-mean --json results/land-beam-p0.json
     nice python bench/bench_land.py --problems 2 --kappas 10000,100000 --lv-sizes 6 --lv-refinements 0,1 --lv-steps 80 --cutbacks 80 --volumetric cell-mean --isochoric
     nice python bench/bench_land.py --problems 3 --kappas inf --lv-sizes 6 --lv-refinements 0,1,2 --volumetric taylor-hood --isochoric
+    nice python bench/bench_land.py --problems 3 --kappas inf --lv-sizes 6 --lv-refinements 0,1,2 --volumetric taylor-hood --isochoric --taper 4
     python bench/bench_land.py --render results/land-*.json                 # tables of saved runs
 
 Seconds are wall time per solve, JIT compilation included.
@@ -123,7 +124,8 @@ def _variant(params: dict) -> str:
     geometry = "curved" if params.get("curved", False) else "faceted"
     nested = f", nested: h0 = {params['mesh_size']:g} refined" if params.get("nested") else ""
     solver = ", solver lu_reuse" if params.get("solver") == "lu_reuse" else ""
-    return f"{geometry}, base {params.get('base', 'clamped')}{nested}{solver}{_formulation(params)}"
+    taper = f", tension tapered within {params['taper']:g} mm of the axis" if params.get("taper") else ""
+    return f"{geometry}, base {params.get('base', 'clamped')}{nested}{solver}{_formulation(params)}{taper}"
 
 
 def _level_key(params: dict) -> str:
@@ -188,6 +190,9 @@ def main():
                     help="problems 2, 3 linear solver (hyperoc.linsolve; auto = sparse LU at these sizes)")
     ap.add_argument("--predictor", default="previous", choices=["previous", "secant"],
                     help="Newton start at each load increment (hyperoc.statics.solve_static)")
+    ap.add_argument("--taper", type=float, default=0.0, metavar="MM",
+                    help="problem 3 variant: the active tension tapered to zero on the long axis within this "
+                         "radius (hyperoc.active.axis_taper; default 0: the benchmark)")
     ap.add_argument("--json", default=None, help="write all results here")
     ap.add_argument("--render", nargs="+", default=None, metavar="JSON",
                     help="only print the tables of earlier runs (their --json files or stdout logs)")
@@ -215,7 +220,8 @@ def main():
     lv_run = lambda problem: lambda level, kappa: record(
         ventricle_apex(level[0], kappa=kappa, steps=args.lv_steps, cutbacks=args.cutbacks, curved=not args.faceted,
                        base=args.base, refinements=level[1], solver=args.solver, volumetric=args.volumetric,
-                       isochoric=args.isochoric, predictor=args.predictor, problem=problem),
+                       isochoric=args.isochoric, predictor=args.predictor, problem=problem,
+                       taper=args.taper if problem == 3 else 0.0),
         nested=args.lv_refinements is not None, solver=args.solver)
     lv_levels = lv_sequences if args.lv_refinements is not None else [sum(lv_sequences, [])]
     for number, name, sequences, run, level_key, keys in (

@@ -38,6 +38,7 @@ itself; problem 2 then needs ``isochoric=True`` (on the full strain the law fold
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass, field
@@ -45,7 +46,7 @@ from dataclasses import dataclass, field
 import jax.numpy as jnp
 import numpy as np
 
-from .active import FibreTension
+from .active import FibreTension, axis_taper
 from .errors import InputError
 from .fibres import prolate_fibres
 from .follower import FollowerPressure
@@ -168,14 +169,17 @@ def ventricle_problem(h: float, *, kappa: float, degree: int = 2, curved: bool =
 
 def contraction_problem(h: float, *, kappa: float, degree: int = 2, curved: bool = True,
                         base: str = "clamped", refinements: int = 0, volumetric: str = "pointwise",
-                        isochoric: bool = False) -> tuple[StateModel, tuple[FollowerPressure, FibreTension]]:
+                        isochoric: bool = False, taper: float = 0.0) -> tuple[StateModel, tuple[FollowerPressure, FibreTension]]:
     """Problem 3 on the mesh of `ventricle_problem` (same arguments): the model (`CONTRACTION` moduli,
     `hyperoc.fibres.prolate_fibres` with its helix angles) and its two loads, the endocardial pressure
-    and the active fibre tension, for ``solve_static(..., follower=loads)``."""
+    and the active fibre tension, for ``solve_static(..., follower=loads)``. ``taper > 0`` (mm): not the
+    benchmark but a variant, the tension tapered to zero on the long axis (`hyperoc.active.axis_taper`),
+    where the fibres are singular."""
     fibres = prolate_fibres(helix_endo=CONTRACTION["helix"][0], helix_epi=CONTRACTION["helix"][1])
     model = _ventricle_model(h, CONTRACTION, fibres, kappa, degree, curved, base, refinements, volumetric, isochoric)
+    profile = axis_taper(taper) if taper else None
     return model, (FollowerPressure(model, "endocardium", CONTRACTION["pressure"]),
-                   FibreTension(model, CONTRACTION["tension"]))
+                   FibreTension(model, CONTRACTION["tension"], profile))
 
 
 def _ventricle_model(h, params, frames, kappa, degree, curved, base, refinements, volumetric, isochoric):
@@ -225,16 +229,18 @@ def beam_deflection(n: int, *, kappa: float = 1000.0, degree: int = 2, steps: in
 def ventricle_apex(h: float, *, kappa: float = 1000.0, degree: int = 2, steps: int = 10, cutbacks: int = 8,
                    solver="auto", curved: bool = True, base: str = "clamped", refinements: int = 0,
                    volumetric: str = "pointwise", isochoric: bool = False, predictor: str = "previous",
-                   problem: int = 2) -> BenchmarkResult:
+                   problem: int = 2, taper: float = 0.0) -> BenchmarkResult:
     """Problem 2 (`ventricle_problem`) or 3 (``problem=3``, `contraction_problem`): ``values["z_endo"]``,
     ``values["z_epi"]`` = z of the deformed endocardial and epicardial apex (mm; -17 and -20 at rest),
     ``values["V_cavity"]`` the deformed cavity volume (mm^3, `hyperoc.report.cavity_volume`: the
-    endocardium closed by the base plane)."""
+    endocardium closed by the base plane). ``taper``: problem 3 only, `contraction_problem`."""
     from .report import cavity_volume
 
     if problem not in (2, 3):
         raise InputError(f"ventricle_apex: the ventricle problems are 2 and 3, got {problem!r}")
-    setup = ventricle_problem if problem == 2 else contraction_problem
+    if taper and problem != 3:
+        raise InputError("ventricle_apex: taper (of the active tension) applies to problem 3 only")
+    setup = ventricle_problem if problem == 2 else functools.partial(contraction_problem, taper=taper)
     model, load = setup(h, kappa=kappa, degree=degree, curved=curved, base=base, refinements=refinements,
                         volumetric=volumetric, isochoric=isochoric)
     cavity = lambda model, u: {"V_cavity": float(cavity_volume(model.space, model.expand(u)[None])[0])}
@@ -242,4 +248,5 @@ def ventricle_apex(h: float, *, kappa: float = 1000.0, degree: int = 2, steps: i
                   {"z_endo": VENTRICLE["endo_apex"], "z_epi": VENTRICLE["epi_apex"]},
                   {"problem": problem, "mesh_size": h, "kappa": kappa, "degree": degree, "steps": steps,
                    "cutbacks": cutbacks, "curved": curved, "base": base, "refinements": refinements,
-                   "volumetric": volumetric, "isochoric": isochoric, "predictor": predictor}, cavity)
+                   "volumetric": volumetric, "isochoric": isochoric, "predictor": predictor,
+                   **({"taper": taper} if taper else {})}, cavity)

@@ -28,8 +28,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hyperoc.active import FibreTension
-from hyperoc.benchmarks import CONTRACTION, contraction_problem
+from hyperoc.active import FibreTension, axis_taper
+from hyperoc.benchmarks import CONTRACTION, contraction_problem, ventricle_apex
 from hyperoc.dynamics import Scheme
 from hyperoc.errors import InputError
 from hyperoc.fibres import prolate_fibres
@@ -119,11 +119,12 @@ def dense_stiffness(model, tension):
 
 
 @pytest.mark.parametrize("mixed", [False, True])
-def test_stiffness_is_the_jacobian_of_the_affine_force(mixed):
+@pytest.mark.parametrize("profile", [None, axis_taper(0.5, axis=(1.0, 0.0, 0.0))], ids=["uniform", "tapered"])
+def test_stiffness_is_the_jacobian_of_the_affine_force(mixed, profile):
     mesh = box(2, 1, 1, size=(1.0, 0.7, 0.5))
     model = TaylorHoodModel(mesh, NeoHookean(1.0, 1.0), bulk_modulus=math.inf, frames=turning) if mixed else \
         StateModel(mesh, NeoHookean(1.0, 1.0), degree=2, frames=turning)
-    tension = FibreTension(model, 2.5)
+    tension = FibreTension(model, 2.5, profile)
     K = dense_stiffness(model, tension)
     rng = np.random.default_rng(0)
     u, v = jnp.asarray(0.1 * rng.standard_normal(model.n)), jnp.asarray(rng.standard_normal(model.n))
@@ -134,6 +135,46 @@ def test_stiffness_is_the_jacobian_of_the_affine_force(mixed):
     np.testing.assert_allclose(step, -K @ np.asarray(v), rtol=0, atol=1e-13 * scale * np.abs(np.asarray(v)).max())
     if mixed:  # no stiffness on the pressures
         assert not np.any(K[model.n_u:]) and not np.any(K[:, model.n_u:])
+
+
+def test_axis_taper_is_the_squared_distance_ratio_capped_at_one():
+    axis = np.array([1.0, 2.0, 2.0]) / 3.0
+    normal = np.array([2.0, -1.0, 0.0]) / math.sqrt(5.0)  # orthogonal to the axis
+    rho = np.array([0.0, 0.5, 1.0, 1.5, 2.0, 3.0])
+    x = 7.0 * axis + rho[:, None] * normal  # distance rho from the axis, anywhere along it
+    w = axis_taper(2.0, axis=3.0 * axis)(x)
+    np.testing.assert_allclose(w, np.minimum(1.0, rho**2 / 4.0), rtol=0, atol=100 * EPS)
+    assert w[0] == 0.0 and w[-2] == w[-1] == 1.0
+    with pytest.raises(InputError, match="radius"):
+        axis_taper(0.0)
+
+
+def test_profile_weights_the_energy():
+    """A constant profile c scales the energy, force and stiffness by c; a profile that vanishes on the
+    cells of x < 1/2 (the box has two columns of cubes along x) removes their contribution."""
+    model = StateModel(box(2, 1, 1, size=(1.0, 0.7, 0.5)), NeoHookean(1.0, 1.0), degree=2, frames=turning)
+    u = jnp.asarray(0.1 * np.random.default_rng(1).standard_normal(model.n))
+    plain = FibreTension(model, 2.5)
+    scaled = FibreTension(model, 2.5, lambda x: np.full(x.shape[:-1], 0.3))
+    E = np.asarray(plain.fibre_strain(u))
+    terms = 2.5 * model.quad.wdx * E  # the energy's summands
+    # sums of N terms (the energy: all points; an element matrix entry: its nq points) round within N eps sum |terms|
+    sum_tol = lambda n, size: n * EPS * size
+    np.testing.assert_allclose(scaled.energy(u), 0.3 * plain.energy(u), rtol=0, atol=sum_tol(terms.size, np.abs(terms).sum()))
+    K = np.asarray(plain.element_stiffness())
+    np.testing.assert_allclose(scaled.element_stiffness(), 0.3 * K, rtol=0, atol=sum_tol(terms.shape[1], np.abs(K).max()))
+    right = FibreTension(model, 2.5, lambda x: (x[..., 0] > 0.5).astype(float))
+    in_right = np.asarray(model.quad.x[..., 0] > 0.5)  # whole cells: the cells do not straddle x = 1/2
+    assert np.all(in_right.all(axis=1) | ~in_right.any(axis=1))
+    np.testing.assert_allclose(right.energy(u), np.sum(np.where(in_right, terms, 0.0)), rtol=0,
+                               atol=sum_tol(terms.size, np.abs(terms).sum()))
+    with pytest.raises(InputError, match="profile"):
+        FibreTension(model, 2.5, lambda x: np.full(x.shape[:-1], np.nan))
+
+
+def test_taper_is_a_problem_3_variant_only():
+    with pytest.raises(InputError, match="problem 3"):
+        ventricle_apex(6.0, problem=2, taper=4.0)
 
 
 def test_fibre_tension_needs_fibres_and_a_finite_value():
