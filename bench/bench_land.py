@@ -123,7 +123,7 @@ def _variant(params: dict) -> str:
     faceted, clamped, Gmsh sizes)."""
     geometry = "curved" if params.get("curved", False) else "faceted"
     nested = f", nested: h0 = {params['mesh_size']:g} refined" if params.get("nested") else ""
-    solver = ", solver lu_reuse" if params.get("solver") == "lu_reuse" else ""
+    solver = f", solver {params['solver']}" if params.get("solver", "auto") not in ("auto", "lu") else ""
     taper = f", tension tapered within {params['taper']:g} mm of the axis" if params.get("taper") else ""
     return f"{geometry}, base {params.get('base', 'clamped')}{nested}{solver}{_formulation(params)}{taper}"
 
@@ -186,7 +186,7 @@ def main():
                          "hyperoc.mixed.TaylorHoodModel; there kappa may be inf: incompressible)")
     ap.add_argument("--isochoric", action="store_true",
                     help="Guccione's Q on the isochoric strain (J^(-2/3) C - I) / 2 (hyperoc.materials.Guccione)")
-    ap.add_argument("--solver", default="auto", choices=["auto", "lu", "lu_reuse"],
+    ap.add_argument("--solver", default="auto", choices=["auto", "lu", "lu_reuse", "pardiso", "pardiso_reuse"],
                     help="problems 2, 3 linear solver (hyperoc.linsolve; auto = sparse LU at these sizes)")
     ap.add_argument("--predictor", default="previous", choices=["previous", "secant"],
                     help="Newton start at each load increment (hyperoc.statics.solve_static)")

@@ -31,12 +31,12 @@ def step_blocks(model, follower):
     return np.asarray(follower.add_stiffness(model.tangent_blocks(u, 1.0, 0.0), u, 1.0), dtype=np.float64)
 
 
-def measure(model, blocks, ordering: str = "nd", **solver_options) -> dict:
+def measure(model, blocks, ordering: str = "nd", method: str = "lu", **solver_options) -> dict:
     """Three solves with fresh factorizations (the later two reuse the ordering); times in seconds.
-    ``solver_options``: further `SparseSolver` keywords (``pivot_thresh``)."""
+    ``method``, ``solver_options``: the `SparseSolver` method and further keywords (``pivot_thresh``)."""
     rng = np.random.default_rng(0)
     r_u, col = rng.standard_normal(model.n), rng.standard_normal(model.n)
-    solver = SparseSolver(model, "lu", ordering=ordering, **solver_options)
+    solver = SparseSolver(model, method, ordering=ordering, **solver_options)
     solver.host_solve(blocks, col, col, r_u, 0.0)
     factor_first = solver.stats["factor_s"]
     solver.host_solve(blocks, col, col, r_u, 0.0)

@@ -1,16 +1,20 @@
-"""Memory and time of the sparse LU with and without a kept factorization (`SparseSolver` ``"lu"``
-against ``"lu_reuse"``) over a whole quasi-static solve: Land problem 2, Taylor-Hood P2-P1 at kappa =
-inf, isochoric Guccione, clamped base, nested level ``--level`` of h0 = 6 mm.
+"""Memory and time of the sparse direct solvers over a whole quasi-static solve (`SparseSolver`
+methods, default ``"lu"`` against ``"lu_reuse"``: SuperLU with and without a kept factorization;
+``--methods lu_reuse,pardiso_reuse``: SuperLU's LU against MKL PARDISO's symmetric LDL^T): Land problem
+2, Taylor-Hood P2-P1 at kappa = inf, isochoric Guccione, clamped base, nested level ``--level`` of h0 = 6 mm.
 
 Each method runs in a fresh subprocess (memory is not returned between runs); the child wraps the
 solver's ``host_solve`` to record the resident set size (``VmRSS``) after every call. Printed per
-method: Newton iterations, factorizations, solve seconds, RSS after the first call and at the end,
-and the RSS growth per factorization after the first (least-squares slope); then the ratios
-lu_reuse / lu. A factorization that is not released shows up as a growth of about its size
-(``fill`` entries x 8 bytes plus indices) per factorization.
+method: Newton iterations, factorizations, seconds of the whole solve and of the factorizations,
+stored factor entries (SuperLU: L and U; PARDISO: L), RSS after the first call, at the end and the
+process's peak (``ru_maxrss``), the RSS growth per factorization after the first (least-squares slope),
+and the apex z values (equal across methods up to Newton's tolerance); then the ratios to the first
+method. A factorization that is not released shows up as a growth of about its size per factorization.
+The children inherit the CPU affinity (PARDISO runs one thread per allowed core; SuperLU one).
 
     nice taskset -c 1 python bench/bench_reuse_memory.py              # level 1 (11,569 unknowns), ~4 min
     nice taskset -c 1 python bench/bench_reuse_memory.py --level 2    # 84,078 unknowns, ~1.5 h
+    nice python bench/bench_reuse_memory.py --methods lu_reuse,pardiso_reuse --level 2
 """
 
 from __future__ import annotations
@@ -18,6 +22,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
+import resource
 import subprocess
 import sys
 import time
@@ -31,7 +37,7 @@ def rss_gb() -> float:
 
 
 def child(method: str, level: int, steps: int) -> dict:
-    from hyperoc.benchmarks import ventricle_problem
+    from hyperoc.benchmarks import VENTRICLE, node_position, ventricle_problem
     from hyperoc.linsolve import SparseSolver
     from hyperoc.statics import solve_static
 
@@ -50,36 +56,44 @@ def child(method: str, level: int, steps: int) -> dict:
     seconds = time.perf_counter() - t0
     f, r = np.array(trace).T
     growth = np.polyfit(f[f > 1], r[f > 1], 1)[0] if np.ptp(f[f > 1]) > 0 else 0.0
+    z = {key: float(node_position(model, sol.u, VENTRICLE[key + "_apex"])[2]) for key in ("endo", "epi")}
     return {"method": method, "dofs": model.n, "newton": int(sol.newton_iterations.sum()),
             "factorizations": lin.stats["factorizations"], "fill": lin.stats["fill"], "seconds": seconds,
-            "rss_first": float(r[0]), "rss_end": float(r[-1]), "rss_max": float(r.max()), "growth_per_factor": growth}
+            "factor_s": lin.stats["factor_s"], "cores": len(os.sched_getaffinity(0)),
+            "rss_first": float(r[0]), "rss_end": float(r[-1]), "rss_max": float(r.max()),
+            "peak_rss": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6, "growth_per_factor": growth,
+            "z_endo": z["endo"], "z_epi": z["epi"]}
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--level", type=int, default=1, help="uniform refinements of the h0 = 6 mm ventricle")
     ap.add_argument("--steps", type=int, default=20, help="load increments to 10 kPa")
+    ap.add_argument("--methods", default="lu,lu_reuse", help="SparseSolver methods; ratios are to the first")
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
         print(json.dumps(child(args.child, args.level, args.steps)))
         return
     rows = {}
-    for method in ("lu", "lu_reuse"):
+    for method in args.methods.split(","):
         out = subprocess.run([sys.executable, __file__, "--child", method, "--level", str(args.level),
                               "--steps", str(args.steps)], capture_output=True, text=True, check=True).stdout
         rows[method] = json.loads(out.strip().splitlines()[-1])
-    print(f"level {args.level}, {rows['lu']['dofs']} unknowns, {args.steps} load increments\n")
-    print("| method | Newton its | factorizations | solve (s) | RSS after 1st call (GB) | RSS at end (GB) | "
-          "growth per factorization (MB) |")
-    print("|---|---|---|---|---|---|---|")
+        print(json.dumps(rows[method]), flush=True)
+    first = next(iter(rows.values()))
+    print(f"\nlevel {args.level}, {first['dofs']} unknowns, {args.steps} load increments, {first['cores']} core(s)\n")
+    print("| method | Newton its | factorizations | solve (s) | factorizations (s) | factor entries (M) | "
+          "RSS after 1st call (GB) | RSS at end (GB) | peak RSS (GB) | growth per factorization (MB) | z_endo | z_epi |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows.values():
-        print(f"| {r['method']} | {r['newton']} | {r['factorizations']} | {r['seconds']:.1f} | {r['rss_first']:.2f} | "
-              f"{r['rss_end']:.2f} | {1e3 * r['growth_per_factor']:.1f} |")
-    a, b = rows["lu_reuse"], rows["lu"]
-    print(f"| ratio lu_reuse / lu | | {a['factorizations'] / b['factorizations']:.2f} | {a['seconds'] / b['seconds']:.2f} | "
-          f"| {a['rss_max'] / b['rss_max']:.2f} (peak) | |")
-
+        print(f"| {r['method']} | {r['newton']} | {r['factorizations']} | {r['seconds']:.1f} | {r['factor_s']:.1f} | "
+              f"{r['fill'] / 1e6:.1f} | {r['rss_first']:.2f} | {r['rss_end']:.2f} | {r['peak_rss']:.2f} | "
+              f"{1e3 * r['growth_per_factor']:.1f} | {r['z_endo']:.6f} | {r['z_epi']:.6f} |")
+    for r in list(rows.values())[1:]:
+        ratio = lambda key: r[key] / first[key]
+        print(f"| ratio {r['method']} / {first['method']} | | {ratio('factorizations'):.2f} | {ratio('seconds'):.2f} | "
+              f"{ratio('factor_s'):.2f} | {ratio('fill'):.2f} | | | {ratio('peak_rss'):.2f} | | | |")
 
 if __name__ == "__main__":
     main()

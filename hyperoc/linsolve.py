@@ -11,9 +11,9 @@ The adjoint solves the transpose, which is the same call with ``col`` and ``row`
 
 - `DenseSolver`: LU in JAX (small problems; the whole time loop can be compiled).
 - `TridiagonalSolver`: 1D P1 meshes numbered along the line (the paper's case), in JAX.
-- `SparseSolver`: assembly into a fixed sparsity pattern and scipy (SuperLU, MINRES) on the host, called from
-  traced code through ``jax.pure_callback``; the LU runs on K permuted once by METIS nested
-  dissection (`nested_dissection`).
+- `SparseSolver`: assembly into a fixed sparsity pattern and a host solver (SuperLU, MINRES from scipy;
+  MKL PARDISO's symmetric indefinite LDL^T, `hyperoc.pardiso`), called from traced code through
+  ``jax.pure_callback``; SuperLU runs on K permuted once by METIS nested dissection (`nested_dissection`).
 """
 
 from __future__ import annotations
@@ -126,6 +126,14 @@ class SparseSolver:
         K until the normwise backward error ``|r| / (|K| |x| + |b|)`` is ``<= rtol``; K is
         re-factored when that does not contract fast enough (``reuse_rate``) or within
         ``reuse_max_iter`` iterations. Same accuracy as ``"lu"``, far fewer factorizations.
+        ``"pardiso"``, ``"pardiso_reuse"``: the same two strategies with MKL PARDISO's symmetric
+        indefinite ``L D L^T`` (`hyperoc.pardiso.PardisoLDL`) of the symmetric part ``(K + K^T) / 2``
+        in place of SuperLU, refined against K itself to the same ``rtol`` (so a K that is not
+        symmetric is still solved exactly, or the solve fails, never silently). For symmetric K
+        (conservative loads: the benchmarks' tangents are symmetric to round-off) it stores one
+        triangle instead of L and U and runs threaded: bench/bench_pardiso.py. Needs the ``mkl``
+        package; ``pivot_thresh``, ``fallback_thresh`` and ``ordering`` do not apply (PARDISO
+        orders with METIS and pivots in 1x1 and 2x2 blocks, perturbing the pivots it cannot take).
         ``"minres"``: MINRES preconditioned by the absolute diagonal (K is mass dominated in
         dynamics), restarted until the true backward error is ``<= rtol``. (Smoothed-aggregation
         AMG of ``|K|``, set up at every call, was 10x slower here: see bench/README.md.)
@@ -149,8 +157,8 @@ class SparseSolver:
     and the host seconds ``order_s`` (nested dissection), ``assembly_s`` (blocks -> matrix),
     ``factor_s``, ``solve_s`` and ``host_s`` (whole ``host_solve``); ``fill`` is the number of
     entries SuperLU stores for L and U in the last factorization (``SuperLU.nnz``: supernodal, the
-    zeros inside supernodes included) and ``off_diagonal_pivots`` the pivots it took off the
-    diagonal (``perm_r != perm_c``); ``failed`` counts traced solves that returned NaN (singular K,
+    zeros inside supernodes included; PARDISO: the entries of L) and ``off_diagonal_pivots`` the pivots
+    it took off the diagonal (``perm_r != perm_c``; PARDISO: the perturbed pivots); ``failed`` counts traced solves that returned NaN (singular K,
     MINRES failure; ``last_failure`` holds the message).
 
     Threads: ``jax.pure_callback`` may run each call on a different XLA thread, and scipy's SuperLU
@@ -161,7 +169,7 @@ class SparseSolver:
     """
 
     traced = False
-    methods = ("lu", "lu_reuse", "minres")
+    methods = ("lu", "lu_reuse", "pardiso", "pardiso_reuse", "minres")
     orderings = ("nd", "mmd")
 
     def __init__(self, model, method: str = "lu", rtol: float = 1e-13, *, pivot_thresh: float = 0.0,
@@ -173,7 +181,14 @@ class SparseSolver:
             raise InputError(f"unknown ordering {ordering!r} ({', '.join(self.orderings)})")
         if not 0 < rtol <= 1e-12:
             raise InputError(f"the iterative tolerance must lie in (0, 1e-12], got {rtol}")
+        if method.startswith("pardiso"):
+            from .pardiso import available
+
+            if not available():
+                raise InputError(f"the {method!r} solver needs MKL: python -m pip install mkl")
         self.pattern, self.n, self.method, self.rtol = model.pattern, model.n, method, rtol
+        self._pardiso, self._reuse = method.startswith("pardiso"), method.endswith("_reuse")
+        self._upper = None  # (slot, weight, indices, indptr): CSR data -> the upper triangle of (K + K^T) / 2
         self.pivot_thresh, self.fallback_thresh, self.ordering = pivot_thresh, fallback_thresh, ordering
         self.reuse_rate, self.reuse_max_iter = reuse_rate, reuse_max_iter
         self._order = None  # (q, position, indices, indptr) of the permuted CSC, after the first call
@@ -208,6 +223,21 @@ class SparseSolver:
         self.stats["off_diagonal_pivots"] = int(np.count_nonzero(lu.perm_r != lu.perm_c))
         return lu
 
+    def _factor_ldl(self, K):
+        """PARDISO's ``L D L^T`` of ``(K + K^T) / 2``, from the CSR K by one bincount into its upper triangle."""
+        from .pardiso import PardisoLDL
+
+        t0 = time.perf_counter()
+        if self._upper is None:
+            self._upper = _upper_triangle_map(self.pattern)
+        slot, weight, indices, indptr = self._upper
+        data = np.bincount(slot, weights=K.data * weight, minlength=indices.size)
+        lu = PardisoLDL(sp.csr_matrix((data, indices, indptr), shape=K.shape))
+        self.stats["factor_s"] += time.perf_counter() - t0
+        self.stats["factorizations"] += 1
+        self.stats["fill"], self.stats["off_diagonal_pivots"] = lu.nnz, lu.perturbed_pivots
+        return lu
+
     def _set_order(self, q):
         """Permuted CSC structure and the map element entry -> CSC data slot, for ``K[q][:, q]``
         (``q``: new index -> old index)."""
@@ -225,7 +255,7 @@ class SparseSolver:
         """K (CSC) in the solver's ordering, and the permutation q (None before an ordering is fixed)."""
         t0 = time.perf_counter()
         vals = np.asarray(blocks, dtype=np.float64).reshape(-1)
-        if self.method == "minres":
+        if self.method == "minres" or self._pardiso:  # in the original numbering (PARDISO orders itself)
             K, q = self.pattern.matrix(vals.reshape(self.pattern.element_shape)), None
         elif self._order is None:
             K, q = self.pattern.matrix(vals.reshape(self.pattern.element_shape)).tocsc(), None
@@ -244,7 +274,7 @@ class SparseSolver:
     def _host_solve(self, blocks, col, row, r_u, r_c):
         t_start = time.perf_counter()
         self.stats["calls"] += 1
-        if self._order is None and self.ordering == "nd" and self.method != "minres":
+        if self._order is None and self.ordering == "nd" and self.method in ("lu", "lu_reuse"):
             self._set_order(nested_dissection(self.pattern))
             self.stats["order_s"] += time.perf_counter() - t_start
         K, q = self._matrix(blocks)
@@ -256,9 +286,9 @@ class SparseSolver:
         else:
             if q is not None:
                 rhs = rhs[q]
-            if self.method == "lu" or self._lu is None:
+            if not self._reuse or self._lu is None:
                 self._lu, ab = self._fresh_solve(K, rhs)
-                if q is None:  # first "mmd" call: K in the original numbering; later ones are permuted
+                if q is None and not self._pardiso:  # first "mmd" call: K in the original numbering; later ones are permuted
                     self._lu = None
             else:
                 ab = self._solve_refined(K, rhs, self._lu, max_iter=self.reuse_max_iter, rate=self.reuse_rate)
@@ -266,7 +296,7 @@ class SparseSolver:
                     self.stats["refactor_after_stall"] += 1
                     self._lu = None  # freed before the new factorization is built
                     self._lu, ab = self._fresh_solve(K, rhs)
-            if self.method == "lu":
+            if not self._reuse:
                 self._lu = None
             if q is not None:
                 out = np.empty_like(ab)
@@ -280,7 +310,11 @@ class SparseSolver:
 
     def _fresh_solve(self, K, rhs):
         """Factor K and solve with refinement: ``(lu, x)``. Diagonal pivots first; when they leave
-        the refinement short of ``rtol``, threshold partial pivoting (``fallback_thresh``)."""
+        the refinement short of ``rtol``, threshold partial pivoting (``fallback_thresh``). PARDISO:
+        refinement of its perturbed ``L D L^T`` of ``(K + K^T) / 2``, up to ``reuse_max_iter`` steps."""
+        if self._pardiso:
+            lu = self._factor_ldl(K)
+            return lu, self._solve_refined(K, rhs, lu, max_iter=self.reuse_max_iter, strict=True)
         lu = self._direct(K, self.pivot_thresh)
         can_fall_back = self.fallback_thresh > self.pivot_thresh  # else a second factorization repeats the first
         x = self._solve_refined(K, rhs, lu, max_iter=2, rate=self.reuse_rate if can_fall_back else None)
@@ -299,12 +333,13 @@ class SparseSolver:
         self._set_order(np.argsort(lu.perm_c))
         return lu
 
-    def _solve_refined(self, K, rhs, lu, *, max_iter, rate=None):
+    def _solve_refined(self, K, rhs, lu, *, max_iter, rate=None, strict=False):
         """Iterative refinement with ``lu`` (of K or of an earlier K) to backward error ``rtol``.
 
         Returns None when ``rate`` is given (a kept factorization, or diagonal pivots that can fall
         back, `_fresh_solve`) and the refinement does not contract by at least that factor per
-        iteration or does not converge in ``max_iter``.
+        iteration or does not converge in ``max_iter``; with ``strict`` (a factorization of a
+        modified K: PARDISO's perturbed LDL^T of the symmetric part) that raises ``LinAlgError``.
         """
         t0 = time.perf_counter()
         x = lu.solve(rhs)
@@ -324,6 +359,9 @@ class SparseSolver:
             x = x + lu.solve(r)
             self.stats["iterations"] += 1
         self.stats["solve_s"] += time.perf_counter() - t0
+        if strict:
+            raise np.linalg.LinAlgError(f"iterative refinement stalled at backward error {err:.2e} > {self.rtol:.0e} "
+                                        f"after {it} steps (K far from symmetric, or singular)")
         # With a fresh factorization the refinement floor is round-off: keep the refined x (a
         # numerically singular K shows up as a Newton failure, reported with the step).
         return None if rate is not None else x
@@ -362,6 +400,19 @@ class SparseSolver:
         return out[:-1], out[-1]
 
 
+def _upper_triangle_map(pattern) -> tuple:
+    """For the structurally symmetric CSR ``pattern``: ``(slot, weight, indices, indptr)`` with the
+    upper triangle's CSR structure and, per entry (i, j) of the pattern, the slot of (min, max) in it
+    and the weight (1 on the diagonal, 1/2 off it): ``bincount(slot, data * weight)`` is ``(K + K^T) / 2``."""
+    n = pattern.size
+    rows = np.repeat(np.arange(n, dtype=np.int64), np.diff(pattern.indptr))
+    cols = pattern.indices.astype(np.int64)
+    lo, hi = np.minimum(rows, cols), np.maximum(rows, cols)
+    key, slot = np.unique(lo * n + hi, return_inverse=True)
+    indptr = np.searchsorted(key // n, np.arange(n + 1)).astype(np.int32)
+    return slot, np.where(rows == cols, 1.0, 0.5), (key % n).astype(np.int32), indptr
+
+
 def make_solver(model, kind: str = "auto"):
     """``"auto"``: tridiagonal for 1D P1, dense up to 600 dofs, sparse LU beyond."""
     if kind == "auto":
@@ -375,4 +426,4 @@ def make_solver(model, kind: str = "auto"):
         return DenseSolver(model)
     if kind in SparseSolver.methods:
         return SparseSolver(model, kind)
-    raise InputError(f"unknown linear solver {kind!r} (auto, tridiagonal, dense, lu, lu_reuse, minres)")
+    raise InputError(f"unknown linear solver {kind!r} (auto, tridiagonal, dense, {', '.join(SparseSolver.methods)})")

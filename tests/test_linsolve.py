@@ -114,12 +114,18 @@ def test_unknown_ordering_is_an_input_error(model):
         SparseSolver(model, "lu", ordering="amd")
 
 
-def test_saddle_point_solve_meets_the_forward_error_bound():
+def taylor_hood_saddle_point():
+    """A Taylor-Hood model at kappa = inf and its tangent blocks at a perturbed state (indefinite, with a
+    zero pressure block)."""
     model = TaylorHoodModel(box(2, dirichlet="left"), Guccione(kappa=0.0), bulk_modulus=np.inf,
                             frames=lambda x: np.broadcast_to(np.eye(3), x.shape[:-1] + (3, 3)))
     rng = np.random.default_rng(2)
     x0 = jnp.asarray(model.unknowns(0.02 * rng.standard_normal(model.n_u), rng.standard_normal(model.n_p)))
-    blocks = np.asarray(model.tangent_blocks(x0, 1.0, 0.0))
+    return model, np.asarray(model.tangent_blocks(x0, 1.0, 0.0))
+
+
+def test_saddle_point_solve_meets_the_forward_error_bound():
+    model, blocks = taylor_hood_saddle_point()
     solver = solve_within_forward_error_bound(model, SparseSolver(model, "lu"), blocks)
     assert solver.stats["fill"] > 0 and solver.stats["pivoting_fallbacks"] == 0
 
