@@ -12,7 +12,7 @@ children inherit the CPU affinity: PARDISO runs one thread per allowed core, Sup
 levels 0-2, does not fit a 23 GB machine).
 
     nice taskset -c 1 python bench/bench_pardiso.py --levels 0,1,2            # one core
-    nice python bench/bench_pardiso.py --levels 0,1,2,3 --lu-levels 0,1,2     # two cores, level 3 ~670k unknowns
+    nice python bench/bench_pardiso.py --levels 3 --lu-levels ""               # two cores, ~670k unknowns, PARDISO only
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ def main():
         print(json.dumps(child(int(args.child[0]), args.child[1])))
         return
     levels = [int(v) for v in args.levels.split(",")]
-    lu_levels = levels if args.lu_levels is None else [int(v) for v in args.lu_levels.split(",")]
+    lu_levels = levels if args.lu_levels is None else [int(v) for v in args.lu_levels.split(",") if v]
     rows = []
     for level in levels:
         for method in (("lu",) if level in lu_levels else ()) + ("pardiso",):
