@@ -7,7 +7,8 @@ T it derives from the energy
 
     A(u) = T int_Omega w(X) E_ff dX,   E_ff = f0 . E f0 = (|F f0|^2 - 1) / 2,
 
-which is quadratic in u; ``w`` is an optional activation profile (1 by default, the benchmark). The load on the body is ``f_a(u) = -dA/du`` and the stiffness it adds to the
+which is quadratic in u; ``w`` is an optional activation profile (1 by default, the benchmark). The
+load on the body is ``f_a(u) = -dA/du`` and the stiffness it adds to the
 Newton tangent, ``-df_a/du = T int w (grad N_a . f0) (grad N_b . f0) delta_ik dX`` per element, does
 not depend on u.
 

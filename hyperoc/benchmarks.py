@@ -169,7 +169,8 @@ def ventricle_problem(h: float, *, kappa: float, degree: int = 2, curved: bool =
 
 def contraction_problem(h: float, *, kappa: float, degree: int = 2, curved: bool = True,
                         base: str = "clamped", refinements: int = 0, volumetric: str = "pointwise",
-                        isochoric: bool = False, taper: float = 0.0) -> tuple[StateModel, tuple[FollowerPressure, FibreTension]]:
+                        isochoric: bool = False,
+                        taper: float = 0.0) -> tuple[StateModel, tuple[FollowerPressure, FibreTension]]:
     """Problem 3 on the mesh of `ventricle_problem` (same arguments): the model (`CONTRACTION` moduli,
     `hyperoc.fibres.prolate_fibres` with its helix angles) and its two loads, the endocardial pressure
     and the active fibre tension, for ``solve_static(..., follower=loads)``. ``taper > 0`` (mm): not the

@@ -158,8 +158,9 @@ class SparseSolver:
     ``factor_s``, ``solve_s`` and ``host_s`` (whole ``host_solve``); ``fill`` is the number of
     entries SuperLU stores for L and U in the last factorization (``SuperLU.nnz``: supernodal, the
     zeros inside supernodes included; PARDISO: the entries of L) and ``off_diagonal_pivots`` the pivots
-    it took off the diagonal (``perm_r != perm_c``; PARDISO: the perturbed pivots); ``failed`` counts traced solves that returned NaN (singular K,
-    MINRES failure; ``last_failure`` holds the message).
+    it took off the diagonal (``perm_r != perm_c``; PARDISO: the perturbed pivots); ``failed`` counts
+    traced solves that returned NaN (singular K, MINRES failure, a stalled PARDISO refinement;
+    ``last_failure`` holds the message).
 
     Threads: ``jax.pure_callback`` may run each call on a different XLA thread, and scipy's SuperLU
     tracks a factorization's memory per thread: one freed on another thread than the one that built it
@@ -288,8 +289,8 @@ class SparseSolver:
                 rhs = rhs[q]
             if not self._reuse or self._lu is None:
                 self._lu, ab = self._fresh_solve(K, rhs)
-                if q is None and not self._pardiso:  # first "mmd" call: K in the original numbering; later ones are permuted
-                    self._lu = None
+                if q is None and not self._pardiso:
+                    self._lu = None  # first "mmd" call: K in the original numbering; later ones are permuted
             else:
                 ab = self._solve_refined(K, rhs, self._lu, max_iter=self.reuse_max_iter, rate=self.reuse_rate)
                 if ab is None:  # the kept factorization is too far from K: refresh it

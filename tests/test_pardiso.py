@@ -23,7 +23,8 @@ import scipy.sparse as sp
 from hyperoc.linsolve import SparseSolver
 from hyperoc.pardiso import PardisoLDL, available
 
-from test_linsolve import bordered_rhs, model, solve_within_forward_error_bound, spd_blocks, taylor_hood_saddle_point  # noqa: F401
+from test_linsolve import model  # noqa: F401  (the fixture)
+from test_linsolve import bordered_rhs, solve_within_forward_error_bound, spd_blocks, taylor_hood_saddle_point
 
 pytestmark = pytest.mark.skipif(not available(), reason="MKL (pip install mkl) is not installed")
 EPS = np.finfo(float).eps
