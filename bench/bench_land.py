@@ -30,7 +30,7 @@ largest kappa at the finest level.
     nice python bench/bench_land.py --problems 1 --kappas 1000,100000 --volumetric cell-mean --json results/land-beam-p0.json
     nice python bench/bench_land.py --problems 2 --kappas 10000,100000 --lv-sizes 6 --lv-refinements 0,1 --lv-steps 80 --cutbacks 80 --volumetric cell-mean --isochoric
     nice python bench/bench_land.py --problems 3 --kappas inf --lv-sizes 6 --lv-refinements 0,1,2 --volumetric taylor-hood --isochoric
-    nice python bench/bench_land.py --problems 3 --kappas inf --lv-sizes 6 --lv-refinements 0,1,2 --volumetric taylor-hood --isochoric --taper 4
+    nice python bench/bench_land.py --problems 3 --kappas inf --lv-sizes 6 --lv-refinements 0,1,2 --volumetric taylor-hood --isochoric --solver lu_reuse --taper 5
     python bench/bench_land.py --render results/land-*.json                 # tables of saved runs
 
 Seconds are wall time per solve, JIT compilation included.
