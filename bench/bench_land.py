@@ -31,6 +31,7 @@ largest kappa at the finest level.
     nice python bench/bench_land.py --problems 2 --kappas 10000,100000 --lv-sizes 6 --lv-refinements 0,1 --lv-steps 80 --cutbacks 80 --volumetric cell-mean --isochoric
     nice python bench/bench_land.py --problems 3 --kappas inf --lv-sizes 6 --lv-refinements 0,1,2 --volumetric taylor-hood --isochoric
     nice python bench/bench_land.py --problems 3 --kappas inf --lv-sizes 6 --lv-refinements 0,1,2 --volumetric taylor-hood --isochoric --solver lu_reuse --taper 5
+    nice taskset -c 0 python bench/bench_land.py --problems 2 --kappas inf --lv-sizes 6 --lv-refinements 0,1,2,3 --volumetric taylor-hood --isochoric --solver pardiso --nested-start --json results/land-p2-L3.json
     python bench/bench_land.py --render results/land-*.json                 # tables of saved runs
 
 Seconds are wall time per solve, JIT compilation included.
@@ -39,6 +40,7 @@ Seconds are wall time per solve, JIT compilation included.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import os
@@ -193,6 +195,10 @@ def main():
     ap.add_argument("--taper", type=float, default=0.0, metavar="MM",
                     help="problem 3 variant: the active tension tapered to zero on the long axis within this "
                          "radius (hyperoc.active.axis_taper; default 0: the benchmark)")
+    ap.add_argument("--nested-start", action="store_true",
+                    help="with --lv-refinements: each level after the first starts at the full load from the "
+                         "previous level's prolonged solution (nested iteration, hyperoc.statics.solve_static's "
+                         "guess), stepping the load only if Newton fails from there")
     ap.add_argument("--json", default=None, help="write all results here")
     ap.add_argument("--render", nargs="+", default=None, metavar="JSON",
                     help="only print the tables of earlier runs (their --json files or stdout logs)")
@@ -217,12 +223,20 @@ def main():
     problems = {int(v) for v in _floats(args.problems)}
     lv_sequences = [[(h, 0)] for h in _floats(args.lv_sizes)] if args.lv_refinements is None else \
         [[(h, int(k)) for k in _floats(args.lv_refinements)] for h in _floats(args.lv_sizes)]
-    lv_run = lambda problem: lambda level, kappa: record(
-        ventricle_apex(level[0], kappa=kappa, steps=args.lv_steps, cutbacks=args.cutbacks, curved=not args.faceted,
-                       base=args.base, refinements=level[1], solver=args.solver, volumetric=args.volumetric,
-                       isochoric=args.isochoric, predictor=args.predictor, problem=problem,
-                       taper=args.taper if problem == 3 else 0.0),
-        nested=args.lv_refinements is not None, solver=args.solver)
+    solved = {}  # (problem, h, kappa, refinements) -> the last level's BenchmarkResult, for --nested-start
+
+    def lv_solve(problem, level, kappa):
+        h, k = level
+        coarse = solved.pop((problem, h, kappa, k - 1), None)
+        res = ventricle_apex(h, kappa=kappa, steps=args.lv_steps, cutbacks=args.cutbacks, curved=not args.faceted,
+                             base=args.base, refinements=k, solver=args.solver, volumetric=args.volumetric,
+                             isochoric=args.isochoric, predictor=args.predictor, problem=problem,
+                             taper=args.taper if problem == 3 else 0.0, coarse=coarse)
+        if args.nested_start:
+            solved[(problem, h, kappa, k)] = res
+        return record(res, nested=args.lv_refinements is not None, solver=args.solver)
+
+    lv_run = lambda problem: functools.partial(lv_solve, problem)
     lv_levels = lv_sequences if args.lv_refinements is not None else [sum(lv_sequences, [])]
     for number, name, sequences, run, level_key, keys in (
         (1, "Problem 1 (beam)", [[int(v) for v in _floats(args.beam_levels)]],

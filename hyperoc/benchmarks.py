@@ -82,6 +82,7 @@ class BenchmarkResult:
     min_det_F, max_volume_change : ``min det F`` and ``max |det F - 1|`` over quadrature points.
     mean_volume_change : ``int |det F - 1| dX / |Omega|`` (how far the penalty is from incompressible).
     volume_change : ``vol(u) / |Omega| - 1``, the change of the body's total volume.
+    model, u : the model and its solution (reduced), e.g. for the next level's ``coarse`` start.
     """
 
     values: dict
@@ -94,6 +95,8 @@ class BenchmarkResult:
     mean_volume_change: float
     volume_change: float
     params: dict = field(default_factory=dict)
+    model: StateModel | None = field(default=None, repr=False)
+    u: np.ndarray | None = field(default=None, repr=False)
 
 
 #: how the bulk term enters: `StateModel` ``volumetric`` or ``"taylor-hood"`` (`TaylorHoodModel`, P2-P1).
@@ -202,19 +205,26 @@ def node_position(model: StateModel, u, point, tol: float = 1e-9) -> np.ndarray:
     return X + model.expand(u)[a]
 
 
-def _solve(model, follower, steps, cutbacks, solver, points: dict, params: dict, extra=None) -> BenchmarkResult:
-    """Solve; ``values`` are the z of the deformed ``points`` (name -> X) and ``extra(model, u)`` (a dict)."""
+def _solve(model, follower, steps, cutbacks, solver, points: dict, params: dict, extra=None,
+           coarse: BenchmarkResult | None = None) -> BenchmarkResult:
+    """Solve; ``values`` are the z of the deformed ``points`` (name -> X) and ``extra(model, u)`` (a dict).
+    ``coarse``: the same problem solved on the mesh this one refines, whose prolonged solution is
+    Newton's first try at the full load (`solve_static`'s ``guess``)."""
     t0 = time.perf_counter()
+    guess = None if coarse is None else model.prolong(coarse.model, coarse.u)
     sol = solve_static(model, follower=follower, constrained=False, steps=steps, solver=solver,
-                       line_search=False, cutbacks=cutbacks, predictor=params["predictor"])
+                       line_search=False, cutbacks=cutbacks, predictor=params["predictor"], guess=guess)
     seconds = time.perf_counter() - t0
+    if coarse is not None:
+        params["start"] = "prolonged" if sol.from_guess else "prolonged, failed: load stepping"
     J = np.asarray(det(model.deformation_gradient(jnp.asarray(sol.u))))  # (nc, nq)
     volume = float(np.sum(model.quad.wdx))  # |Omega|
     values = {name: float(node_position(model, sol.u, X)[2]) for name, X in points.items()}
     values.update(extra(model, sol.u) if extra is not None else {})
     return BenchmarkResult(values, model.mesh.h(), model.n, sol.newton_iterations, seconds,
                            float(J.min()), float(np.abs(J - 1).max()),
-                           float(np.sum(model.quad.wdx * np.abs(J - 1))) / volume, sol.volume / volume - 1.0, params)
+                           float(np.sum(model.quad.wdx * np.abs(J - 1))) / volume, sol.volume / volume - 1.0, params,
+                           model, sol.u)
 
 
 def beam_deflection(n: int, *, kappa: float = 1000.0, degree: int = 2, steps: int = 10, cutbacks: int = 8,
@@ -230,11 +240,14 @@ def beam_deflection(n: int, *, kappa: float = 1000.0, degree: int = 2, steps: in
 def ventricle_apex(h: float, *, kappa: float = 1000.0, degree: int = 2, steps: int = 10, cutbacks: int = 8,
                    solver="auto", curved: bool = True, base: str = "clamped", refinements: int = 0,
                    volumetric: str = "pointwise", isochoric: bool = False, predictor: str = "previous",
-                   problem: int = 2, taper: float = 0.0) -> BenchmarkResult:
+                   problem: int = 2, taper: float = 0.0, coarse: BenchmarkResult | None = None) -> BenchmarkResult:
     """Problem 2 (`ventricle_problem`) or 3 (``problem=3``, `contraction_problem`): ``values["z_endo"]``,
     ``values["z_epi"]`` = z of the deformed endocardial and epicardial apex (mm; -17 and -20 at rest),
     ``values["V_cavity"]`` the deformed cavity volume (mm^3, `hyperoc.report.cavity_volume`: the
-    endocardium closed by the base plane). ``taper``: problem 3 only, `contraction_problem`."""
+    endocardium closed by the base plane). ``taper``: problem 3 only, `contraction_problem`.
+    ``coarse``: this problem's result on the mesh of ``refinements - 1`` (nested iteration: Newton
+    starts at the full load from its prolonged solution, and steps the load only if that fails;
+    ``params["start"]`` says which). Raises `InputError` if this mesh does not refine its mesh."""
     from .report import cavity_volume
 
     if problem not in (2, 3):
@@ -250,4 +263,4 @@ def ventricle_apex(h: float, *, kappa: float = 1000.0, degree: int = 2, steps: i
                   {"problem": problem, "mesh_size": h, "kappa": kappa, "degree": degree, "steps": steps,
                    "cutbacks": cutbacks, "curved": curved, "base": base, "refinements": refinements,
                    "volumetric": volumetric, "isochoric": isochoric, "predictor": predictor,
-                   **({"taper": taper} if taper else {})}, cavity)
+                   **({"taper": taper} if taper else {})}, cavity, coarse)

@@ -39,7 +39,7 @@ from .errors import InputError
 from .materials import Material, det
 from .mesh import Mesh
 from .model import StateModel
-from .spaces import reference_shape
+from .spaces import VectorSpace, prolong, reference_shape
 
 __all__ = ["TaylorHoodModel"]
 
@@ -110,6 +110,13 @@ class TaylorHoodModel(StateModel):
 
     def load_vector(self, **kwargs) -> np.ndarray:
         return self.unknowns(super().load_vector(**kwargs))
+
+    def prolong(self, coarse: "TaylorHoodModel", x) -> np.ndarray:
+        """`StateModel.prolong` of the displacement, and the vertex pressures interpolated (P1 on
+        the coarse cells) at this mesh's vertices."""
+        p1 = lambda mesh: VectorSpace(mesh, 1, components=1)
+        return self.unknowns(super().prolong(coarse, x)[: self.n_u],
+                             prolong(p1(coarse.mesh), p1(self.mesh), coarse.pressure(np.asarray(x))))
 
     @property
     def mass_blocks(self):

@@ -29,7 +29,7 @@ from .assembly import SparsePattern, reduced_numbering
 from .errors import InputError
 from .materials import Material, det
 from .mesh import Mesh
-from .spaces import VectorSpace
+from .spaces import VectorSpace, prolong
 
 __all__ = ["StateModel", "det", "VOLUMETRIC"]
 
@@ -311,6 +311,13 @@ class StateModel:
     def restrict(self, full) -> np.ndarray:
         """Full nodal field (num_nodes, dim) or flat (num_dofs,) -> reduced vector (n,)."""
         return np.asarray(full, dtype=np.float64).reshape(-1)[self.free]
+
+    def prolong(self, coarse: "StateModel", u) -> np.ndarray:
+        """This model's reduced vector (n,) of the state ``u`` (coarse.n,) of ``coarse``, the same
+        problem on a mesh this one uniformly refines (`hyperoc.spaces.prolong`: the displacement
+        at each node is the coarse one at that material point; Dirichlet values are dropped). A
+        starting point for Newton on this mesh (`solve_static`'s ``guess``)."""
+        return self.restrict(prolong(coarse.space, self.space, coarse.expand(u).reshape(-1)))
 
     def interpolate(self, fn) -> np.ndarray:
         """Reduced nodal interpolant of ``fn(x: (n, dim)) -> (n, dim)``; Dirichlet values are dropped."""

@@ -55,13 +55,15 @@ __all__ = ["StaticSolution", "solve_static"]
 @dataclass(eq=False)
 class StaticSolution:
     """Equilibrium ``u`` (n,) reduced, multiplier ``p`` (0 when unconstrained), volume ``int det F``,
-    Newton iterations per load step."""
+    Newton iterations per load step; ``from_guess``: reached by one Newton solve at the full load
+    from ``solve_static``'s ``guess`` (then ``newton_iterations`` has that one entry)."""
 
     model: StateModel
     u: np.ndarray
     p: float
     volume: float
     newton_iterations: np.ndarray
+    from_guess: bool = False
 
     def displacement(self) -> np.ndarray:
         return self.model.expand(self.u)
@@ -129,7 +131,8 @@ def initial_unknown(model: StateModel, u: np.ndarray, constrained: bool) -> jnp.
 
 def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None = None, steps: int = 1,
                  scheme: Scheme = Scheme(), solver="auto", u0=None, follower=(), constrained: bool = True,
-                 line_search: bool = True, cutbacks: int = 0, predictor: str = "previous") -> StaticSolution:
+                 line_search: bool = True, cutbacks: int = 0, predictor: str = "previous",
+                 guess=None) -> StaticSolution:
     """Equilibrium under the load vector ``load`` (n,), control ``xi`` and follower pressures, ramped in ``steps``.
 
     Parameters
@@ -149,6 +152,15 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
         the new load factor, first-order accurate in the increment where the previous one is
         zeroth-order: fewer Newton iterations on a smooth path, but on a response that stiffens
         along the path it overshoots (Land problem 2: more halved increments, bench/README.md).
+    guess : a starting point (n,) for Newton directly at the full load, e.g. the solution on the
+        next coarser mesh carried over by `StateModel.prolong` (nested iteration: the guess is off
+        by the coarse discretization error only, so Newton converges in a few iterations and the
+        load path is not walked again). This Newton always backtracks (``line_search`` concerns
+        the load steps): without a small increment to bound it, the first full step from a
+        prolonged field overshoots the error it corrects, which sits in the fine modes (Land
+        problem 2, Taylor-Hood, level 1 -> 2: full steps diverge, backtracking converges in 9
+        iterations, bench/README.md). If Newton fails from it, the load stepping from ``u0``
+        runs as without a guess (``StaticSolution.from_guess`` tells which happened).
     solver : a linear solver or its name (`hyperoc.linsolve.make_solver`); with follower pressures the
         tangent is not symmetric, so ``"minres"`` is refused.
 
@@ -170,19 +182,21 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
     V_start = float(model.jitted["volume"](jnp.asarray(u)))
     V = V_start if volume is None else float(volume)
 
+    if guess is not None:
+        solve_backtracking = _compiled_solve(model, lin, scheme, followers, constrained, True)
+        solution = _solve_from_guess(model, lin, solve_backtracking, guess, f, V, constrained)
+        if solution is not None:
+            return solution
     solve = _compiled_solve(model, lin, scheme, followers, constrained, line_search)
     x = initial_unknown(model, u, constrained)
     iters, s_done, ds, cuts, k = [], 0.0, 1.0 / steps, 0, 0
     last = None  # (x, s) of the equilibrium before the current one, for the secant predictor
     while s_done < 1.0:
         s = s_done + ds if s_done + ds < 1.0 - 1e-12 else 1.0
-        failed = getattr(lin, "stats", {}).get("failed", 0)
+        failed = _failed_solves(lin)
         x0 = x if last is None or predictor == "previous" else x + (x - last[0]) * ((s - s_done) / (s_done - last[1]))
         x_new, it, status, mindet = solve(x0, s * f, V_start + s * (V - V_start), s)
-        status, detail = int(status), f"min det F = {float(mindet):.3g}"
-        cause = None if status == 0 and float(mindet) > 0 else {1: "newton", 2: "nonfinite"}.get(status, "detF")
-        if getattr(lin, "stats", {}).get("failed", 0) > failed:  # the host solve returned NaN
-            cause, detail = "newton", f"linear solve failed: {lin.last_failure}"
+        cause, detail = _failure(lin, failed, status, mindet)
         if cause is None:
             last, x, s_done, k = (x, s_done), x_new, s, k + 1
             iters.append(int(it))
@@ -192,7 +206,40 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
         else:
             raise SolverError(k, s, cause, f"load step {k + 1} (load factor {s:.6g} of 1, {steps} nominal steps"
                               f"{f', after {cuts} cutbacks' if cuts else ''}), {detail}")
+    return _solution(model, x, constrained, iters)
+
+
+def _failed_solves(lin) -> int:
+    """How many host linear solves of ``lin`` have failed so far (0 for solvers that never fail)."""
+    return getattr(lin, "stats", {}).get("failed", 0)
+
+
+def _failure(lin, failed_before: int, status, mindet) -> tuple:
+    """``(cause, detail)`` of a compiled Newton solve: cause None on success, else "newton" (no
+    convergence or a failed linear solve, which returns NaN), "nonfinite" or "detF"."""
+    status, detail = int(status), f"min det F = {float(mindet):.3g}"
+    cause = None if status == 0 and float(mindet) > 0 else {1: "newton", 2: "nonfinite"}.get(status, "detF")
+    if _failed_solves(lin) > failed_before:
+        cause, detail = "newton", f"linear solve failed: {lin.last_failure}"
+    return cause, detail
+
+
+def _solution(model: StateModel, x, constrained: bool, iters, from_guess: bool = False) -> StaticSolution:
+    """The `StaticSolution` of the compiled solve's unknown x (`initial_unknown`'s layout)."""
     x = np.asarray(x)
     u = x[:-1] if constrained else x[:-1] + x[-1] * model.n ** -0.5
     p = float(x[-1]) if constrained else 0.0
-    return StaticSolution(model, u, p, float(model.jitted["volume"](jnp.asarray(u))), np.array(iters))
+    return StaticSolution(model, u, p, float(model.jitted["volume"](jnp.asarray(u))), np.array(iters), from_guess)
+
+
+def _solve_from_guess(model: StateModel, lin, solve, guess, f, V: float, constrained: bool):
+    """Newton at the full load (s = 1) from ``guess`` (n,); the `StaticSolution`, or None if Newton
+    fails, a linear solve fails or an element inverts (the caller then steps the load)."""
+    guess = np.asarray(guess, dtype=np.float64)
+    if guess.shape != (model.n,):
+        raise InputError(f"solve_static: guess must have shape ({model.n},), got {guess.shape}")
+    failed = _failed_solves(lin)
+    x, it, status, mindet = solve(initial_unknown(model, guess, constrained), f, V, 1.0)
+    if _failure(lin, failed, status, mindet)[0] is not None:
+        return None
+    return _solution(model, x, constrained, [int(it)], from_guess=True)

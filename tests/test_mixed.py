@@ -26,7 +26,7 @@ import hyperoc as ho
 from hyperoc.benchmarks import BEAM, VENTRICLE, beam_deflection, ventricle_apex
 from hyperoc.errors import InputError, SolverError
 from hyperoc.linsolve import DenseSolver
-from hyperoc.mesh import box, rectangle
+from hyperoc.mesh import box, rectangle, refine
 from hyperoc.mixed import TaylorHoodModel
 from hyperoc.statics import solve_static
 
@@ -87,17 +87,37 @@ def test_incompressible_beam_keeps_its_volume_and_does_not_lock():
     assert abs(res[1e3].volume_change) > ROUNDOFF  # the compressible body does change its volume
 
 
-def test_incompressible_ventricle_needs_the_isochoric_law():
+@pytest.fixture(scope="module")
+def incompressible_ventricle():
+    """Land problem 2, h = 6 mm (1706 unknowns), kappa = inf, Guccione on the isochoric strain."""
+    return ventricle_apex(6.0, kappa=math.inf, volumetric="taylor-hood", isochoric=True, steps=20)
+
+
+def test_incompressible_ventricle_needs_the_isochoric_law(incompressible_ventricle):
     """Land problem 2, h = 6 mm (1706 unknowns), kappa = inf: with Q on the full strain J folds to 0
     between the vertices although every hat-weighted mean of J - 1 vanishes; on the isochoric strain the
     10 kPa are reached with det F > 0 and the apex pushed down (z = -17 mm at rest; ~9 mm in the benchmark)."""
     with pytest.raises(SolverError) as failure:
         ventricle_apex(6.0, kappa=math.inf, volumetric="taylor-hood", steps=20, cutbacks=8)
     assert failure.value.time < 0.5
-    res = ventricle_apex(6.0, kappa=math.inf, volumetric="taylor-hood", isochoric=True, steps=20)
+    res = incompressible_ventricle
     print(f"\nTaylor-Hood, isochoric, kappa = inf: z_endo {res.values['z_endo']:.5f}, min det F {res.min_det_F:.3f}")
     assert res.min_det_F > 0
     assert res.values["z_endo"] < VENTRICLE["endo_apex"][2] - 5.0
+
+
+def test_ventricle_restarted_from_its_own_solution_needs_no_load_stepping(incompressible_ventricle):
+    """``coarse=`` wiring: a mesh is its own 0-fold refinement, so the prolongation of a solution to
+    the same mesh is that solution (displacement and pressure), and Newton at the full load stops at
+    once (one iteration: the step it computes is below the stopping test) with the same values (1e-9,
+    `tests/test_static.py`); a coarse result on an unrelated mesh is an InputError."""
+    res = incompressible_ventricle
+    again = ventricle_apex(6.0, kappa=math.inf, volumetric="taylor-hood", isochoric=True, steps=20, coarse=res)
+    assert again.params["start"] == "prolonged" and again.newton_iterations.tolist() == [1]
+    for key, value in res.values.items():
+        assert again.values[key] == pytest.approx(value, rel=1e-9)
+    with pytest.raises(InputError):
+        ventricle_apex(9.0, kappa=math.inf, volumetric="taylor-hood", isochoric=True, coarse=res)
 
 
 def test_bad_arguments_are_input_errors():
@@ -111,3 +131,19 @@ def test_bad_arguments_are_input_errors():
         beam_deflection(1, volumetric="taylor-hood", degree=1)
     with pytest.raises(InputError, match="no mass on p"):
         TaylorHoodModel(box(1), ho.NeoHookean()).mass
+
+
+def test_prolong_carries_displacement_and_pressure_to_the_refined_mesh():
+    """P2 displacement and P1 pressure on straight cells are nested spaces: a quadratic displacement
+    (zero on the clamped side x = 0, as reduced vectors are) and an affine pressure come back as
+    their interpolants on the refined mesh, to round-off."""
+    def model(mesh):
+        return TaylorHoodModel(mesh, ho.NeoHookean(1.0, 2.0), bulk_modulus=math.inf)
+
+    coarse, fine = model(rectangle(3)), model(refine(rectangle(3)))
+    disp = lambda x: np.stack([x[:, 0] * x[:, 1], x[:, 0] ** 2 - 0.5 * x[:, 0] * x[:, 1]], axis=1)
+    pressure = lambda x: 1.0 + 2.0 * x[:, 0] - 3.0 * x[:, 1]
+    x = coarse.unknowns(coarse.interpolate(disp)[: coarse.n_u], pressure(coarse.mesh.points))
+    out = fine.prolong(coarse, x)
+    exact = fine.unknowns(fine.interpolate(disp)[: fine.n_u], pressure(fine.mesh.points))
+    assert np.max(np.abs(out - exact)) <= ROUNDOFF * np.max(np.abs(exact))

@@ -14,7 +14,7 @@ import pytest
 from hyperoc.controls import BodyForce, Region
 from hyperoc.errors import InputError
 from hyperoc.materials import NeoHookean, Ogden, SaintVenantKirchhoff
-from hyperoc.mesh import rectangle
+from hyperoc.mesh import rectangle, refine
 from hyperoc.model import StateModel
 from hyperoc.statics import solve_static
 
@@ -91,3 +91,56 @@ def test_unknown_predictor_is_an_input_error(loaded_problem):
     model, load, xi, V = loaded_problem
     with pytest.raises(InputError, match="predictor"):
         solve_static(model, load=load, steps=2, predictor="quadratic")
+
+
+def test_warm_start_from_a_nearby_equilibrium_converges_at_full_load(loaded_problem):
+    """``guess`` = the equilibrium at 0.9 of the loads (and of the volume change) is O(0.1) from the
+    full-load one, nearer than the undeformed state: Newton at the full load from it reaches the
+    same equilibrium (1e-9, module docstring) in fewer iterations than from zero, without stepping."""
+    model, load, xi, V = loaded_problem
+    V0 = model.mesh.volume()
+    near = solve_static(model, load=0.9 * load, xi=0.9 * xi, volume=V0 + 0.9 * (V - V0))
+    cold = solve_static(model, load=load, xi=xi, volume=V)
+    warm = solve_static(model, load=load, xi=xi, volume=V, steps=4, guess=near.u)
+    print(f"\nNewton its: from zero {cold.newton_iterations}, from the 0.9-load equilibrium {warm.newton_iterations}")
+    assert warm.from_guess and not cold.from_guess
+    assert len(warm.newton_iterations) == 1 and warm.newton_iterations[0] < cold.newton_iterations[0]
+    assert np.max(np.abs(warm.u - cold.u)) <= 1e-9 * np.max(np.abs(cold.u))
+    assert abs(warm.p - cold.p) <= 1e-9 * max(abs(cold.p), 1.0)
+
+
+def test_a_guess_newton_cannot_start_from_falls_back_to_load_stepping(loaded_problem):
+    """An inverted guess (u = (-2 x, 0): F = diag(-1, 1), det F = -1 everywhere) fails; the load
+    stepping then runs as without it and gives the same equilibrium."""
+    model, load, xi, V = loaded_problem
+    inverted = model.interpolate(lambda x: np.stack([-2 * x[:, 0], 0 * x[:, 1]], axis=1))
+    plain = solve_static(model, load=load, xi=xi, volume=V, steps=2)
+    fallback = solve_static(model, load=load, xi=xi, volume=V, steps=2, guess=inverted)
+    assert not fallback.from_guess and len(fallback.newton_iterations) == 2
+    assert np.max(np.abs(fallback.u - plain.u)) <= 1e-9 * np.max(np.abs(plain.u))
+
+
+def test_guess_of_the_wrong_size_is_an_input_error(loaded_problem):
+    model, load, xi, V = loaded_problem
+    with pytest.raises(InputError, match="guess"):
+        solve_static(model, load=load, guess=np.zeros(model.n + 1))
+
+
+def test_nested_iteration_from_the_prolonged_coarse_equilibrium():
+    """Nested iteration on a smooth problem: the coarse equilibrium carried to the refined mesh
+    (`StateModel.prolong`) is within the coarse discretization error of the fine one, so Newton at
+    the full load converges from it in fewer iterations than from the undeformed state, to the
+    same fine equilibrium (1e-9)."""
+    def problem(mesh):
+        model = StateModel(mesh, NeoHookean(1.0, 2.0), degree=2)
+        return model, model.load_vector(traction=(0.2, -0.1), neumann="right")
+
+    coarse, coarse_load = problem(rectangle(3))
+    fine, load = problem(refine(rectangle(3)))
+    V = 1.02 * fine.mesh.volume()
+    coarse_sol = solve_static(coarse, load=coarse_load, volume=V)
+    cold = solve_static(fine, load=load, volume=V)
+    warm = solve_static(fine, load=load, volume=V, guess=fine.prolong(coarse, coarse_sol.u))
+    print(f"\nNewton its on the fine mesh: from zero {cold.newton_iterations}, nested {warm.newton_iterations}")
+    assert warm.from_guess and warm.newton_iterations[0] < cold.newton_iterations[0]
+    assert np.max(np.abs(warm.u - cold.u)) <= 1e-9 * np.max(np.abs(cold.u))
