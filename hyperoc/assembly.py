@@ -46,7 +46,8 @@ class SparsePattern:
         # Taylor-Hood cells (167M entries, 1.3 GB per int64 array) the older build peaked at 14.5 GB.
         key = (ed[:, :, None] * size + ed[:, None, :]).reshape(-1)
         valid = ((ed[:, :, None] >= 0) & (ed[:, None, :] >= 0)).reshape(-1)
-        uniq = np.unique(key[valid])
+        uniq = np.sort(key[valid])  # sort and mask, not np.unique: NumPy >= 2.3 hashes there, minutes at 1e8 keys
+        uniq = uniq[np.concatenate(([True], uniq[1:] != uniq[:-1]))] if uniq.size else uniq
         self.size, self.nnz = size, uniq.size
         self.indices = (uniq % size).astype(np.int32)
         self.indptr = np.searchsorted(uniq // size, np.arange(size + 1)).astype(np.int32)
