@@ -156,10 +156,9 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
         next coarser mesh carried over by `StateModel.prolong` (nested iteration: the guess is off
         by the coarse discretization error only, so Newton converges in a few iterations and the
         load path is not walked again). This Newton always backtracks (``line_search`` concerns
-        the load steps): without a small increment to bound it, the first full step from a
-        prolonged field overshoots the error it corrects, which sits in the fine modes (Land
-        problem 2, Taylor-Hood, level 1 -> 2: full steps diverge, backtracking converges in 9
-        iterations, bench/README.md). If Newton fails from it, the load stepping from ``u0``
+        the load steps): with no small load increment to bound it, a full Newton step from such a
+        guess can overshoot (Land problem 2, Taylor-Hood, level 1 -> 2: full steps diverge,
+        backtracking converges in 9 iterations, bench/README.md). The multiplier starts at 0. If Newton fails from it, the load stepping from ``u0``
         runs as without a guess (``StaticSolution.from_guess`` tells which happened).
     solver : a linear solver or its name (`hyperoc.linsolve.make_solver`); with follower pressures the
         tangent is not symmetric, so ``"minres"`` is refused.
