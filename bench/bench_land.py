@@ -31,7 +31,7 @@ largest kappa at the finest level.
     nice python bench/bench_land.py --problems 2 --kappas 10000,100000 --lv-sizes 6 --lv-refinements 0,1 --lv-steps 80 --cutbacks 80 --volumetric cell-mean --isochoric
     nice python bench/bench_land.py --problems 3 --kappas inf --lv-sizes 6 --lv-refinements 0,1,2 --volumetric taylor-hood --isochoric
     nice python bench/bench_land.py --problems 3 --kappas inf --lv-sizes 6 --lv-refinements 0,1,2 --volumetric taylor-hood --isochoric --solver lu_reuse --taper 5
-    nice taskset -c 0 python bench/bench_land.py --problems 2 --kappas inf --lv-sizes 6 --lv-refinements 0,1,2,3 --volumetric taylor-hood --isochoric --solver pardiso --nested-start --json results/land-p2-L3.json
+    nice taskset -c 0,1 python bench/bench_land.py --problems 2 --kappas inf --lv-sizes 6 --lv-refinements 0,1,2,3 --lv-steps 20 --cutbacks 40 --volumetric taylor-hood --isochoric --solver pardiso --nested-start --json results/land-p2-L3.json  # level 3: out of memory here
     python bench/bench_land.py --render results/land-*.json                 # tables of saved runs
 
 Seconds are wall time per solve, JIT compilation included.
