@@ -34,7 +34,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _jax  # noqa: F401
-from .assembly import SparsePattern
 from .errors import InputError
 from .materials import Material, det
 from .mesh import Mesh
@@ -82,8 +81,7 @@ class TaylorHoodModel(StateModel):
         self._point_material, self.bulk_modulus = _bulk_modulus(self.material, bulk_modulus)
         self.n_u = self.n
         self.n = self.n_u + self.n_p
-        self.cell_dofs = np.concatenate([self.cell_dofs, mesh.cells + self.n_u], axis=1)
-        self.pattern = SparsePattern(self.cell_dofs, self.n)
+        self.cell_dofs = np.concatenate([self.cell_dofs, mesh.cells + self.n_u], axis=1)  # `pattern` is built from these
         self._Np = jnp.asarray(reference_shape(self.dim, 1, self.quad.xi)[0])  # (nq, d + 1) P1 hats at the points
         self._cells = jnp.asarray(mesh.cells)
 

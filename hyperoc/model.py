@@ -189,7 +189,6 @@ class StateModel:
         if self.n == 0:
             raise InputError("every dof is on the Dirichlet boundary: nothing to solve")
         self.cell_dofs = self.to_reduced[self.space.cell_dofs]  # (nc, k), -1 = constrained
-        self.pattern = SparsePattern(self.cell_dofs, self.n)
         self.quad = self.space.quadrature(0 if degree == 1 else 4)
         self.control = control.build(self.space, self.to_reduced) if control is not None else None
         self.neumann = neumann
@@ -301,6 +300,13 @@ class StateModel:
         return np.broadcast_to(np.asarray(fn, dtype=np.float64).reshape(self.dim), x.shape[:-1] + (self.dim,))
 
     # --- fields ---------------------------------------------------------------------------------
+    @cached_property
+    def pattern(self) -> SparsePattern:
+        """CSR pattern of the matrices assembled from element blocks on ``cell_dofs`` (n, n); built on
+        first use, after a subclass has extended ``cell_dofs`` (`hyperoc.mixed.TaylorHoodModel`), so
+        only the pattern in use is built (at 145k Taylor-Hood cells one build sorts 1.7e8 keys)."""
+        return SparsePattern(self.cell_dofs, self.n)
+
     def expand(self, u) -> np.ndarray:
         """Reduced vector(s) (..., n) -> full nodal displacement (..., num_nodes, dim)."""
         u = np.asarray(u)
