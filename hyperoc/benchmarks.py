@@ -221,6 +221,7 @@ def _solve(model, follower, steps, cutbacks, solver, points: dict, params: dict,
     volume = float(np.sum(model.quad.wdx))  # |Omega|
     values = {name: float(node_position(model, sol.u, X)[2]) for name, X in points.items()}
     values.update(extra(model, sol.u) if extra is not None else {})
+    model.release_kernels()  # the result keeps the model for prolongation only
     return BenchmarkResult(values, model.mesh.h(), model.n, sol.newton_iterations, seconds,
                            float(J.min()), float(np.abs(J - 1).max()),
                            float(np.sum(model.quad.wdx * np.abs(J - 1))) / volume, sol.volume / volume - 1.0, params,

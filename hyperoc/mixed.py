@@ -81,9 +81,8 @@ class TaylorHoodModel(StateModel):
         self._point_material, self.bulk_modulus = _bulk_modulus(self.material, bulk_modulus)
         self.n_u = self.n
         self.n = self.n_u + self.n_p
-        self.cell_dofs = np.concatenate([self.cell_dofs, mesh.cells + self.n_u], axis=1)  # `pattern` is built from these
+        self._set_cell_dofs(np.concatenate([self.cell_dofs, mesh.cells + self.n_u], axis=1))  # `pattern` is built from these
         self._Np = jnp.asarray(reference_shape(self.dim, 1, self.quad.xi)[0])  # (nq, d + 1) P1 hats at the points
-        self._cells = jnp.asarray(mesh.cells)
 
     # --- unknowns ---------------------------------------------------------------------------------
     def displacement_part(self, x):
@@ -124,16 +123,16 @@ class TaylorHoodModel(StateModel):
     def deformation_gradient(self, x):
         return super().deformation_gradient(self.displacement_part(x))
 
-    def pressure_at_points(self, x):
-        """p at every quadrature point, (nc, nq)."""
-        return self.pressure(x)[self._cells] @ self._Np.T
-
-    def strain_energy(self, x):
-        """The Lagrangian ``L(u, p)`` (scalar); its gradient in x is the residual (force, constraint)."""
-        F = self.deformation_gradient(x)
-        p = self.pressure_at_points(x)
-        density = self._pointwise(self._point_material.energy_of_F, F) + p * (det(F) - 1.0) - self._compliance(p)
-        return jnp.sum(self._w * density)
+    def _element_energy(self, xe, dN, w, frames):
+        """One cell's share of the Lagrangian ``L(u, p)``, ``sum_q w_q (W(F_q) + p_q (det F_q - 1) -
+        p_q^2 / (2 kappa))``, xe (k,) = (u_e node-major, vertex pressures); its gradient in x, summed
+        over the cells, is the residual (force, constraint) (`StateModel.internal_force`)."""
+        ue, pe = self._split_element(xe)
+        F = self._element_F(ue, dN)
+        p = self._Np @ pe
+        density = self._at_points(self._point_material.energy_of_F, F, frames) + p * (det(F) - 1.0) \
+            - self._compliance(p)
+        return jnp.sum(w * density)
 
     def _compliance(self, p):
         """``p^2 / (2 kappa)``, exactly 0 for an incompressible body."""
@@ -148,14 +147,17 @@ class TaylorHoodModel(StateModel):
         the det F Hessian weighted by ``b + a p`` at each point; ``G_(ai),c = a sum_q w_q (cof F_q)_iJ
         dN_aJ N^p_c`` couples the pressures to dJ; ``M_p = sum_q w_q N^p N^p^T`` (0 when kappa = inf).
         """
-        return self._map_cells(lambda xs: self._element_block(*xs, a, b),
-                               (self._cell_values(self.displacement_part(x)), self.pressure(x)[self._cells],
-                                self._dN, self._w, self._frames))
+        return self._map_cells(lambda xs: self._element_block(*self._split_element(xs[0]), *xs[1:], a, b),
+                               self._element_args(x))
+
+    def _split_element(self, xe):
+        """One cell's unknowns xe (k,) -> ``(u_e (nloc, d), vertex pressures (d + 1,))``."""
+        return xe[: -self.dim - 1].reshape(-1, self.dim), xe[-self.dim - 1:]
 
     def _element_block(self, ue, pe, dN, w, frames, a, b):
         """The (k, k) saddle-point block of one cell (`tangent_blocks`); ue (nloc, d), pe (d + 1,)."""
         Kuu = self._element_tangent(ue, dN, w, frames, a, b + a * (self._Np @ pe))
-        F = jnp.eye(self.dim) + jnp.einsum("qaj,ai->qij", dN, ue)
+        F = self._element_F(ue, dN)
         dJ = jnp.einsum("qiJ,qaJ->qai", jax.vmap(jax.grad(det))(F), dN).reshape(len(w), -1)  # (nq, k_u)
         G = a * jnp.einsum("q,qk,qc->kc", w, dJ, self._Np)
         Mp = jnp.zeros((pe.size, pe.size)) if math.isinf(self.bulk_modulus) else \

@@ -188,7 +188,6 @@ class StateModel:
         self.n = self.free.size
         if self.n == 0:
             raise InputError("every dof is on the Dirichlet boundary: nothing to solve")
-        self.cell_dofs = self.to_reduced[self.space.cell_dofs]  # (nc, k), -1 = constrained
         self.quad = self.space.quadrature(0 if degree == 1 else 4)
         self.control = control.build(self.space, self.to_reduced) if control is not None else None
         self.neumann = neumann
@@ -197,7 +196,15 @@ class StateModel:
         self._dN = jnp.asarray(self.quad.dN)
         self._w = jnp.asarray(self.quad.wdx)
         self._cell_volume = jnp.sum(self._w, axis=1)  # (nc,)
-        self._gather = jnp.asarray(np.where(self.cell_dofs < 0, self.n, self.cell_dofs))
+        self._gather = self._set_cell_dofs(self.to_reduced[self.space.cell_dofs])
+
+    def _set_cell_dofs(self, cell_dofs: np.ndarray):
+        """Set ``cell_dofs`` (nc, k) (-1 = constrained) and ``_element_gather``, the same with constrained
+        entries pointing at a dump slot n (read as 0, `_element_args`); returns the latter. Set
+        eagerly (an array created while a kernel is traced would become that trace's constant)."""
+        self.cell_dofs = cell_dofs
+        self._element_gather = jnp.asarray(np.where(cell_dofs < 0, self.n, cell_dofs))
+        return self._element_gather
 
     def _dirichlet_dofs(self, dirichlet, components: dict) -> tuple[np.ndarray, np.ndarray]:
         """Constrained global dofs (sorted) and the other dofs of the nodes on the sliding boundaries."""
@@ -350,19 +357,46 @@ class StateModel:
         return jnp.eye(self.dim) + jnp.einsum("cqaj,cai->cqij", self._dN, self._cell_values(u))
 
     def _pointwise(self, fn, F):
-        frames = self._frames
-        if frames is None:
-            return jax.vmap(jax.vmap(lambda G: fn(G, None)))(F)
-        return jax.vmap(jax.vmap(fn))(F, frames)
+        """``fn(F, frame)`` at every quadrature point, F (nc, nq, d, d)."""
+        return jax.vmap(lambda G, frames: self._at_points(fn, G, frames))(F, self._frames)
 
     def strain_energy(self, u):
         """Pi(u) = int W(E) dx, or with ``volumetric="cell-mean"`` int W_rest(E) dx + sum_e |e| U(theta_e),
-        theta_e = |e|^-1 int_e det F dx (scalar)."""
-        F = self.deformation_gradient(u)
-        energy = jnp.sum(self._w * self._pointwise(self._point_material.energy_of_F, F))
+        theta_e = |e|^-1 int_e det F dx (scalar): the sum of `_element_energy` over the cells."""
+        return jnp.sum(self._map_cells(lambda xs: self._element_energy(*xs), self._element_args(u)))
+
+    def internal_force(self, u):
+        """R(u) = (P(F), grad phi) = dPi/du, (n,): each cell's gradient of `_element_energy` in its own
+        unknowns, summed into the dofs. Cells go `_map_cells` chunks at a time, so the intermediates
+        reverse mode keeps are one chunk's, not the mesh's (3.6 GB at 145k Taylor-Hood cells)."""
+        forces = self._map_cells(lambda xs: jax.grad(self._element_energy)(*xs), self._element_args(u))
+        return jnp.zeros(self.n + 1, forces.dtype).at[self._element_gather].add(forces)[: self.n]
+
+    def _element_args(self, x):
+        """``(x_e (nc, k), dN, w, frames)``: each cell's unknowns (0 on constrained dofs) and quadrature
+        data, the per-cell arguments of `_element_energy`."""
+        xe = jnp.concatenate([x, jnp.zeros(1, x.dtype)])[self._element_gather]
+        return xe, self._dN, self._w, self._frames
+
+    def _element_energy(self, ue, dN, w, frames):
+        """``sum_q w_q W(F_q)`` of one cell (plus ``|e| U(theta_e)`` with ``volumetric="cell-mean"``),
+        ue (k,) node-major, dN (nq, nloc, d), w (nq,), frames (nq, kf, d) or None (scalar)."""
+        F = self._element_F(ue.reshape(-1, self.dim), dN)
+        energy = jnp.sum(w * self._at_points(self._point_material.energy_of_F, F, frames))
         if self._bulk is None:
             return energy
-        return energy + jnp.sum(self._cell_volume * self._bulk(self._cell_mean(det(F))))
+        vol = jnp.sum(w)
+        return energy + vol * self._bulk(jnp.sum(w * det(F)) / vol)
+
+    @staticmethod
+    def _element_F(ue, dN):
+        """F = I + grad u at the points of one cell, (nq, d, d); ue (nloc, d), dN (nq, nloc, d)."""
+        return jnp.eye(ue.shape[1]) + jnp.einsum("qaj,ai->qij", dN, ue)
+
+    @staticmethod
+    def _at_points(fn, F, frames):
+        """``fn(F_q, frame_q)`` at the points of one cell, F (nq, d, d)."""
+        return jax.vmap(lambda G: fn(G, None))(F) if frames is None else jax.vmap(fn)(F, frames)
 
     def _cell_mean(self, values):
         """|e|^-1 int_e values dx per cell, (nc,), for values at the quadrature points (nc, nq)."""
@@ -375,10 +409,6 @@ class StateModel:
     def volume(self, u):
         """vol(u) = int det(I + grad u) dx (scalar)."""
         return jnp.sum(self._w * det(self.deformation_gradient(u)))
-
-    def internal_force(self, u):
-        """R(u) = (P(F), grad phi), (n,)."""
-        return jax.grad(self.strain_energy)(u)
 
     def volume_gradient(self, u):
         """G(u) = (cof F, grad phi), (n,)."""
@@ -394,8 +424,8 @@ class StateModel:
 
         Cells are processed ``tangent_chunk_points // nq`` at a time (`_element_tangent` on each).
         """
-        return self._map_cells(lambda xs: self._element_tangent(*xs, a, b),
-                               (self._cell_values(u), self._dN, self._w, self._frames))
+        return self._map_cells(lambda xs: self._element_tangent(xs[0].reshape(-1, self.dim), *xs[1:], a, b),
+                               self._element_args(u))
 
     def _map_cells(self, kernel, xs):
         """``kernel`` over the cells (the leading axis of every array in xs), ``tangent_chunk_points // nq``
@@ -433,7 +463,7 @@ class StateModel:
         """
         d, n = self.dim, ue.shape[0]
         I, J, sym, half = _VOIGT[d]
-        F = jnp.eye(d) + jnp.einsum("qaj,ai->qij", dN, ue)  # (nq, d, d)
+        F = self._element_F(ue, dN)  # (nq, d, d)
         if self._bulk is not None:
             b, bulk = self._cell_bulk_tangent(F, dN, w, a, b)
         e = (0.5 * (jnp.einsum("qkI,qkJ->qIJ", F, F) - jnp.eye(d)))[:, I, J]  # (nq, nv)
@@ -524,3 +554,12 @@ class StateModel:
             "min_det_F": jax.jit(self.min_det_F),
             "max_grad": jax.jit(self.max_grad),
         }
+
+    def release_kernels(self):
+        """Drop the compiled kernels cached on this model: `jitted`, the acoustic-tensor kernel and the
+        static Newton solves (`hyperoc.statics`) with their linear solver, which holds its last
+        factorization. They are rebuilt on next use. For a model kept only for its mesh and state,
+        e.g. the coarse level of a nested solve, whose factorization would otherwise sit beside the
+        fine level's."""
+        for name in ("jitted", "_ellipticity_fn", "_static_solves"):
+            self.__dict__.pop(name, None)

@@ -7,6 +7,9 @@ relative; a path-dependent result (e.g. a ramp that forgets part of the load or 
 change) differs at O(1/steps).
 """
 
+import gc
+import weakref
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -118,6 +121,20 @@ def test_a_guess_newton_cannot_start_from_falls_back_to_load_stepping(loaded_pro
     fallback = solve_static(model, load=load, xi=xi, volume=V, steps=2, guess=inverted)
     assert not fallback.from_guess and len(fallback.newton_iterations) == 2
     assert np.max(np.abs(fallback.u - plain.u)) <= 1e-9 * np.max(np.abs(plain.u))
+
+
+def test_release_kernels_frees_the_compiled_solves_and_a_new_solve_rebuilds_them(loaded_problem):
+    """`StateModel.release_kernels` drops the cached Newton solves (and with them their linear solver
+    and its factorization: nothing else refers to them); solving again recompiles the same program,
+    so the equilibrium is the same to round-off."""
+    model, load, xi, V = loaded_problem
+    before = solve_static(model, load=load, xi=xi, volume=V)
+    compiled = [weakref.ref(fn) for fn in model.__dict__["_static_solves"].values()]
+    model.release_kernels()
+    gc.collect()
+    assert compiled and all(ref() is None for ref in compiled)
+    after = solve_static(model, load=load, xi=xi, volume=V)
+    assert np.max(np.abs(after.u - before.u)) <= 1e-12 * np.max(np.abs(before.u))
 
 
 def test_guess_of_the_wrong_size_is_an_input_error(loaded_problem):
