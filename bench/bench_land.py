@@ -31,7 +31,10 @@ largest kappa at the finest level.
     nice python bench/bench_land.py --problems 2 --kappas 10000,100000 --lv-sizes 6 --lv-refinements 0,1 --lv-steps 80 --cutbacks 80 --volumetric cell-mean --isochoric
     nice python bench/bench_land.py --problems 3 --kappas inf --lv-sizes 6 --lv-refinements 0,1,2 --volumetric taylor-hood --isochoric
     nice python bench/bench_land.py --problems 3 --kappas inf --lv-sizes 6 --lv-refinements 0,1,2 --volumetric taylor-hood --isochoric --solver lu_reuse --taper 5
-    nice taskset -c 0,1 python bench/bench_land.py --problems 2 --kappas inf --lv-sizes 6 --lv-refinements 0,1,2,3 --lv-steps 20 --cutbacks 40 --volumetric taylor-hood --isochoric --solver pardiso --nested-start --json results/land-p2-L3.json  # level 3: out of memory here
+    nice taskset -c 0,1 python bench/bench_land.py --problems 2 --kappas inf --lv-sizes 6 --lv-refinements 0,1,2,3 --lv-steps 20 --cutbacks 40 --volumetric taylor-hood --isochoric --solver pardiso --nested-start --json results/land-p2-L3.json  # level 3: out of memory in one process
+    # the same in two processes: levels 0-2 save their states, level 3 starts from level 2's
+    nice taskset -c 0,1 python bench/bench_land.py --problems 2 --kappas inf --lv-sizes 6 --lv-refinements 0,1,2 --lv-steps 20 --cutbacks 40 --volumetric taylor-hood --isochoric --solver pardiso --nested-start --save-states results/states --json results/land-p2-L012.json
+    nice taskset -c 0,1 python bench/bench_land.py --problems 2 --kappas inf --lv-sizes 6 --lv-refinements 3 --lv-steps 20 --cutbacks 40 --volumetric taylor-hood --isochoric --solver pardiso --nested-start --coarse-state results/states/p2-h6-kappainf-clamped-L2.npz --json results/land-p2-L3.json
     python bench/bench_land.py --render results/land-*.json                 # tables of saved runs
 
 Seconds are wall time per solve, JIT compilation included.
@@ -44,9 +47,10 @@ import functools
 import json
 import math
 import os
+from pathlib import Path
 
 
-from hyperoc.benchmarks import FORMULATIONS, beam_deflection, ventricle_apex
+from hyperoc.benchmarks import FORMULATIONS, beam_deflection, load_state, save_state, ventricle_apex
 from hyperoc.errors import SolverError
 
 
@@ -199,6 +203,12 @@ def main():
                     help="with --lv-refinements: each level after the first starts at the full load from the "
                          "previous level's prolonged solution (nested iteration, hyperoc.statics.solve_static's "
                          "guess), stepping the load only if Newton fails from there")
+    ap.add_argument("--save-states", default=None, metavar="DIR",
+                    help="write each ventricle level's solution to DIR/p<problem>-h<h0>-kappa<kappa>-<base>-L<level>.npz "
+                         "(hyperoc.benchmarks.save_state)")
+    ap.add_argument("--coarse-state", default=None, metavar="NPZ",
+                    help="a --save-states file of the level below the first of --lv-refinements: that level starts "
+                         "from it (with --nested-start), so a fine level can run in a process of its own")
     ap.add_argument("--json", default=None, help="write all results here")
     ap.add_argument("--render", nargs="+", default=None, metavar="JSON",
                     help="only print the tables of earlier runs (their --json files or stdout logs)")
@@ -228,12 +238,16 @@ def main():
     def lv_solve(problem, level, kappa):
         h, k = level
         coarse = solved.pop((problem, h, kappa, k - 1), None)
+        if coarse is None and args.coarse_state and args.nested_start:
+            coarse = load_state(args.coarse_state)
         res = ventricle_apex(h, kappa=kappa, steps=args.lv_steps, cutbacks=args.cutbacks, curved=not args.faceted,
                              base=args.base, refinements=k, solver=args.solver, volumetric=args.volumetric,
                              isochoric=args.isochoric, predictor=args.predictor, problem=problem,
                              taper=args.taper if problem == 3 else 0.0, coarse=coarse)
         if args.nested_start:
             solved[(problem, h, kappa, k)] = res
+        if args.save_states:
+            save_state(res, Path(args.save_states) / f"p{problem}-h{h:g}-kappa{kappa:g}-{args.base}-L{k}.npz")
         return record(res, nested=args.lv_refinements is not None, solver=args.solver)
 
     lv_run = lambda problem: functools.partial(lv_solve, problem)

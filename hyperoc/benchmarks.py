@@ -38,10 +38,11 @@ itself; problem 2 then needs ``isochoric=True`` (on the full strain the law fold
 
 from __future__ import annotations
 
-import functools
+import json
 import math
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
@@ -51,6 +52,7 @@ from .errors import InputError
 from .fibres import prolate_fibres
 from .follower import FollowerPressure
 from .geometry import ventricle
+from .io import read_npz, write_npz
 from .materials import Guccione, det
 from .mesh import Mesh, box
 from .mixed import TaylorHoodModel
@@ -58,7 +60,8 @@ from .model import VOLUMETRIC, StateModel
 from .statics import solve_static
 
 __all__ = ["BEAM", "VENTRICLE", "CONTRACTION", "BASE_CONDITIONS", "FORMULATIONS", "BenchmarkResult", "beam_mesh",
-           "beam_problem", "ventricle_problem", "contraction_problem", "node_position", "beam_deflection", "ventricle_apex"]
+           "beam_problem", "ventricle_problem", "contraction_problem", "node_position", "beam_deflection", "ventricle_apex",
+           "save_state", "load_state"]
 
 #: Problem 1 parameters (Land et al. 2015): Guccione moduli (kPa, dimensionless) and pressure (kPa).
 BEAM = {"C": 2.0, "bf": 8.0, "bt": 2.0, "bfs": 4.0, "pressure": 0.004, "point": (10.0, 0.5, 1.0)}
@@ -255,9 +258,8 @@ def ventricle_apex(h: float, *, kappa: float = 1000.0, degree: int = 2, steps: i
         raise InputError(f"ventricle_apex: the ventricle problems are 2 and 3, got {problem!r}")
     if taper and problem != 3:
         raise InputError("ventricle_apex: taper (of the active tension) applies to problem 3 only")
-    setup = ventricle_problem if problem == 2 else functools.partial(contraction_problem, taper=taper)
-    model, load = setup(h, kappa=kappa, degree=degree, curved=curved, base=base, refinements=refinements,
-                        volumetric=volumetric, isochoric=isochoric)
+    model, load = _ventricle_setup(problem, h, kappa=kappa, degree=degree, curved=curved, base=base,
+                                   refinements=refinements, volumetric=volumetric, isochoric=isochoric, taper=taper)
     cavity = lambda model, u: {"V_cavity": float(cavity_volume(model.space, model.expand(u)[None])[0])}
     return _solve(model, load, steps, cutbacks, solver,
                   {"z_endo": VENTRICLE["endo_apex"], "z_epi": VENTRICLE["epi_apex"]},
@@ -265,3 +267,41 @@ def ventricle_apex(h: float, *, kappa: float = 1000.0, degree: int = 2, steps: i
                    "cutbacks": cutbacks, "curved": curved, "base": base, "refinements": refinements,
                    "volumetric": volumetric, "isochoric": isochoric, "predictor": predictor,
                    **({"taper": taper} if taper else {})}, cavity, coarse)
+
+
+def _ventricle_setup(problem: int, h: float, *, taper: float = 0.0, **kwargs):
+    """`ventricle_problem` (problem 2) or `contraction_problem` (3, with ``taper``)."""
+    if problem == 2:
+        return ventricle_problem(h, **kwargs)
+    return contraction_problem(h, taper=taper, **kwargs)
+
+
+def save_state(result: BenchmarkResult, path) -> Path:
+    """Write a `ventricle_apex` result's solution ``u`` (n,), its ``values`` and ``params`` to ``path``
+    (``.npz``, atomically), for `load_state`: the next level of a nested sequence can then start
+    from it in another process, which holds only its own level (level 3 of problem 2 does not fit
+    in 23 GB beside the coarser levels' leftovers)."""
+    if result.u is None or result.params.get("problem") not in (2, 3):
+        raise InputError("save_state: needs a ventricle_apex result (problem 2 or 3) with its solution")
+    return write_npz(path, u=np.asarray(result.u), values=np.array(json.dumps(result.values)),
+                     params=np.array(json.dumps(result.params)))
+
+
+def load_state(path) -> BenchmarkResult:
+    """The result `save_state` wrote, with its model rebuilt from the saved parameters (the same mesh:
+    gmsh and the refinement are deterministic), usable as `ventricle_apex`'s ``coarse``. Only
+    ``values``, ``params``, ``model``, ``u``, ``h`` and ``dofs`` are set (the diagnostics are NaN).
+    A missing or foreign file, or a rebuilt model of another size, is an `InputError`."""
+    try:
+        data = read_npz(path)
+        u, values, params = data["u"], json.loads(str(data["values"])), json.loads(str(data["params"]))
+    except (OSError, KeyError, ValueError) as err:
+        raise InputError(f"load_state: {path} is not a state written by save_state ({err})") from err
+    keys = ("kappa", "degree", "curved", "base", "refinements", "volumetric", "isochoric")
+    model, _ = _ventricle_setup(params["problem"], params["mesh_size"], taper=params.get("taper", 0.0),
+                                **{k: params[k] for k in keys})
+    if model.n != u.size:
+        raise InputError(f"load_state: {path} holds {u.size} unknowns, its rebuilt model has {model.n}")
+    nan = float("nan")
+    return BenchmarkResult(values, model.mesh.h(), model.n, np.zeros(0, int), nan, nan, nan, nan, nan, params,
+                           model, u)

@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 import hyperoc as ho
-from hyperoc.benchmarks import BEAM, VENTRICLE, beam_deflection, ventricle_apex
+from hyperoc.benchmarks import BEAM, VENTRICLE, beam_deflection, load_state, save_state, ventricle_apex
 from hyperoc.errors import InputError, SolverError
 from hyperoc.linsolve import DenseSolver
 from hyperoc.mesh import box, rectangle, refine
@@ -118,6 +118,19 @@ def test_ventricle_restarted_from_its_own_solution_needs_no_load_stepping(incomp
         assert again.values[key] == pytest.approx(value, rel=1e-9)
     with pytest.raises(InputError):
         ventricle_apex(9.0, kappa=math.inf, volumetric="taylor-hood", isochoric=True, coarse=res)
+
+
+def test_saved_state_reloads_with_the_same_mesh_and_solution(incompressible_ventricle, tmp_path):
+    """`save_state` / `load_state`: the model rebuilt from the saved parameters is the same mesh (gmsh
+    and refinement are deterministic: bitwise equal points), so the state prolongs as the original
+    does; a missing file is an InputError."""
+    res = incompressible_ventricle
+    loaded = load_state(save_state(res, tmp_path / "level.npz"))
+    assert np.array_equal(loaded.model.mesh.points, res.model.mesh.points)
+    assert np.array_equal(loaded.u, res.u) and loaded.values == res.values and loaded.params == res.params
+    assert np.array_equal(loaded.model.prolong(loaded.model, loaded.u), res.model.prolong(res.model, res.u))
+    with pytest.raises(InputError, match="save_state"):
+        load_state(tmp_path / "missing.npz")
 
 
 def test_bad_arguments_are_input_errors():
