@@ -217,6 +217,8 @@ def main():
         render(args.render)
         return
     kappas = _floats(args.kappas)
+    if args.save_states:
+        Path(args.save_states).mkdir(parents=True, exist_ok=True)
     results = []
 
     def record(res, **extra):
