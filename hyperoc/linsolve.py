@@ -131,7 +131,9 @@ class SparseSolver:
         in place of SuperLU, refined against K itself to the same ``rtol`` (so a K that is not
         symmetric is still solved exactly, or the solve fails, never silently). For symmetric K
         (conservative loads: the benchmarks' tangents are symmetric to round-off) it stores one
-        triangle instead of L and U and runs threaded: bench/bench_pardiso.py. Needs the ``mkl``
+        triangle instead of L and U and runs threaded: bench/bench_pardiso.py. ``"pardiso_single"``,
+        ``"pardiso_single_reuse"``: the factorization in single precision (half its memory), refined
+        against K in double precision to the same ``rtol``, or the solve fails. Needs the ``mkl``
         package; ``pivot_thresh``, ``fallback_thresh`` and ``ordering`` do not apply (PARDISO
         orders with METIS and pivots in 1x1 and 2x2 blocks, perturbing the pivots it cannot take).
         ``"minres"``: MINRES preconditioned by the absolute diagonal (K is mass dominated in
@@ -170,7 +172,7 @@ class SparseSolver:
     """
 
     traced = False
-    methods = ("lu", "lu_reuse", "pardiso", "pardiso_reuse", "minres")
+    methods = ("lu", "lu_reuse", "pardiso", "pardiso_reuse", "pardiso_single", "pardiso_single_reuse", "minres")
     orderings = ("nd", "mmd")
 
     def __init__(self, model, method: str = "lu", rtol: float = 1e-13, *, pivot_thresh: float = 0.0,
@@ -189,6 +191,7 @@ class SparseSolver:
                 raise InputError(f"the {method!r} solver needs MKL: python -m pip install mkl")
         self.pattern, self.n, self.method, self.rtol = model.pattern, model.n, method, rtol
         self._pardiso, self._reuse = method.startswith("pardiso"), method.endswith("_reuse")
+        self._single = method.startswith("pardiso_single")
         self._upper = None  # (slot, weight, indices, indptr): CSR data -> the upper triangle of (K + K^T) / 2
         self.pivot_thresh, self.fallback_thresh, self.ordering = pivot_thresh, fallback_thresh, ordering
         self.reuse_rate, self.reuse_max_iter = reuse_rate, reuse_max_iter
@@ -233,7 +236,7 @@ class SparseSolver:
             self._upper = _upper_triangle_map(self.pattern)
         slot, weight, indices, indptr = self._upper
         data = np.bincount(slot, weights=K.data * weight, minlength=indices.size)
-        lu = PardisoLDL(sp.csr_matrix((data, indices, indptr), shape=K.shape))
+        lu = PardisoLDL(sp.csr_matrix((data, indices, indptr), shape=K.shape), single=self._single)
         self.stats["factor_s"] += time.perf_counter() - t0
         self.stats["factorizations"] += 1
         self.stats["fill"], self.stats["off_diagonal_pivots"] = lu.nnz, lu.perturbed_pivots

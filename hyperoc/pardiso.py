@@ -65,6 +65,8 @@ def available() -> bool:
 
 class PardisoLDL:
     """``L D L^T`` of the symmetric matrix whose upper triangle (diagonal included) is ``upper`` (CSR, n x n).
+    ``single``: values, factor and solves in single precision (``iparm(28) = 1``; half the factor's
+    memory, and a solve only to about ``cond * 6e-8``: refine against the double-precision K).
 
     After construction: ``nnz`` (entries of L, PARDISO ``iparm(18)``), ``perturbed_pivots``
     (``iparm(14)``), ``inertia`` (positive and negative eigenvalues of K, ``iparm(22)``, ``iparm(23)``),
@@ -72,12 +74,13 @@ class PardisoLDL:
     the factor (also when the object is collected); calls must come from one thread at a time.
     """
 
-    def __init__(self, upper: sp.csr_matrix):
+    def __init__(self, upper: sp.csr_matrix, *, single: bool = False):
         upper = sp.csr_matrix(upper)
         upper.sort_indices()
         self.n = upper.shape[0]
         self._lib = _library()
-        self._data = np.ascontiguousarray(upper.data, dtype=np.float64)
+        self._dtype = np.float32 if single else np.float64
+        self._data = np.ascontiguousarray(upper.data, dtype=self._dtype)
         self._indptr = np.ascontiguousarray(upper.indptr, dtype=np.int32)
         self._indices = np.ascontiguousarray(upper.indices, dtype=np.int32)
         self._pt = np.zeros(64, dtype=np.int64)  # PARDISO's opaque handle; zero before the first call
@@ -89,6 +92,7 @@ class PardisoLDL:
                     13: 1,   # weighted matching: recommended for saddle points
                     18: -1,  # report the factor's entries
                     21: 1,   # 1x1 and 2x2 Bunch-Kaufman pivots
+                    28: int(single),  # factor (and values, right-hand sides) in single precision
                     35: 1}   # zero-based indices
         for k, v in settings.items():
             self._iparm[k - 1] = v
@@ -107,8 +111,8 @@ class PardisoLDL:
     def solve(self, b: np.ndarray) -> np.ndarray:
         """``K^-1 b`` for b (n,) or (n, k)."""
         b = np.asarray(b, dtype=np.float64)
-        cols = np.asfortranarray(b.reshape(self.n, -1))
-        return self._call(_SOLVE, cols).reshape(b.shape)
+        cols = np.asfortranarray(b.reshape(self.n, -1), dtype=self._dtype)
+        return self._call(_SOLVE, cols).astype(np.float64).reshape(b.shape)
 
     def free(self):
         """Release the factor (idempotent)."""

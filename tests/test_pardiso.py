@@ -1,5 +1,5 @@
 """MKL PARDISO's symmetric indefinite factorization (hyperoc.pardiso) and the solver methods on it
-(`SparseSolver` ``"pardiso"``, ``"pardiso_reuse"``).
+(`SparseSolver` ``"pardiso"``, ``"pardiso_reuse"`` and their single-precision factorizations).
 
 - A saddle point ``[[A, B^T], [B, 0]]`` with A (n x n) SPD and B (m x n) of full rank has inertia
   (n positive, m negative) (Sylvester: it is congruent to ``diag(A, -B A^-1 B^T)``); PARDISO reports it,
@@ -53,11 +53,26 @@ def test_inertia_and_solve_of_a_saddle_point():
     lu.free()  # idempotent
 
 
-@pytest.mark.parametrize("method", ["pardiso", "pardiso_reuse"])
+@pytest.mark.parametrize("method", ["pardiso", "pardiso_reuse", "pardiso_single", "pardiso_single_reuse"])
 def test_taylor_hood_saddle_point(method):
     th_model, blocks = taylor_hood_saddle_point()
     solver = solve_within_forward_error_bound(th_model, SparseSolver(th_model, method), blocks)
     assert solver.stats["fill"] > 0 and solver.stats["failed"] == 0
+
+
+def test_single_precision_factor_alone_solves_only_to_single_precision():
+    """The single-precision factor's solve is off by about ``cond * 6e-8`` (far above the double one's
+    ``100 eps cond``) but within ``100 * 6e-8 * cond`` of the exact solution; refinement against the
+    double-precision K is what brings it to ``rtol`` (`test_taylor_hood_saddle_point`)."""
+    K, rng = saddle_point()
+    lu = PardisoLDL(sp.triu(K).tocsr(), single=True)
+    assert lu.inertia == (300, 60)
+    Kd = K.toarray()
+    b = rng.standard_normal(K.shape[0])
+    expected, cond = np.linalg.solve(Kd, b), np.linalg.cond(Kd, np.inf)
+    error = np.abs(lu.solve(b) - expected).max() / np.abs(expected).max()
+    assert lu.solve(b).dtype == np.float64
+    assert 100 * EPS * cond < error <= 100 * np.finfo(np.float32).eps * cond
 
 
 def test_tiny_diagonal_pivots(model):  # noqa: F811
