@@ -52,6 +52,7 @@ from pathlib import Path
 
 from hyperoc.benchmarks import FORMULATIONS, beam_deflection, load_state, save_state, ventricle_apex
 from hyperoc.errors import SolverError
+from hyperoc.linsolve import SparseSolver
 
 
 #: Problem 2 values: apex z (mm) and deformed cavity volume (mm^3; missing in rows from before it).
@@ -192,7 +193,7 @@ def main():
                          "hyperoc.mixed.TaylorHoodModel; there kappa may be inf: incompressible)")
     ap.add_argument("--isochoric", action="store_true",
                     help="Guccione's Q on the isochoric strain (J^(-2/3) C - I) / 2 (hyperoc.materials.Guccione)")
-    ap.add_argument("--solver", default="auto", choices=["auto", "lu", "lu_reuse", "pardiso", "pardiso_reuse"],
+    ap.add_argument("--solver", default="auto", choices=["auto", *SparseSolver.methods],
                     help="problems 2, 3 linear solver (hyperoc.linsolve; auto = sparse LU at these sizes)")
     ap.add_argument("--predictor", default="previous", choices=["previous", "secant"],
                     help="Newton start at each load increment (hyperoc.statics.solve_static)")
