@@ -279,8 +279,7 @@ def _ventricle_setup(problem: int, h: float, *, taper: float = 0.0, **kwargs):
 def save_state(result: BenchmarkResult, path) -> Path:
     """Write a `ventricle_apex` result's solution ``u`` (n,), its ``values`` and ``params`` to ``path``
     (``.npz``, atomically), for `load_state`: the next level of a nested sequence can then start
-    from it in another process, which holds only its own level (level 3 of problem 2 does not fit
-    in 23 GB beside the coarser levels' leftovers)."""
+    from it in another process, which holds only its own level's memory."""
     if result.u is None or result.params.get("problem") not in (2, 3):
         raise InputError("save_state: needs a ventricle_apex result (problem 2 or 3) with its solution")
     return write_npz(path, u=np.asarray(result.u), values=np.array(json.dumps(result.values)),
