@@ -81,6 +81,7 @@ class BenchmarkResult:
     h : largest edge length of the mesh (mm).
     dofs : unknowns (free displacement dofs; with Taylor-Hood also the vertex pressures).
     newton_iterations : per accepted load increment (`solve_static` with ``cutbacks``).
+    rejected_iterations : Newton iterations of rejected attempts (a failed guess, halved increments).
     seconds : wall time of the solve (JIT compilation included).
     min_det_F, max_volume_change : ``min det F`` and ``max |det F - 1|`` over quadrature points.
     mean_volume_change : ``int |det F - 1| dX / |Omega|`` (how far the penalty is from incompressible).
@@ -98,6 +99,7 @@ class BenchmarkResult:
     mean_volume_change: float
     volume_change: float
     params: dict = field(default_factory=dict)
+    rejected_iterations: int = 0
     model: StateModel | None = field(default=None, repr=False)
     u: np.ndarray | None = field(default=None, repr=False)
 
@@ -228,7 +230,7 @@ def _solve(model, follower, steps, cutbacks, solver, points: dict, params: dict,
     return BenchmarkResult(values, model.mesh.h(), model.n, sol.newton_iterations, seconds,
                            float(J.min()), float(np.abs(J - 1).max()),
                            float(np.sum(model.quad.wdx * np.abs(J - 1))) / volume, sol.volume / volume - 1.0, params,
-                           model, sol.u)
+                           sol.rejected_iterations, model, sol.u)
 
 
 def beam_deflection(n: int, *, kappa: float = 1000.0, degree: int = 2, steps: int = 10, cutbacks: int = 8,
@@ -303,4 +305,4 @@ def load_state(path) -> BenchmarkResult:
         raise InputError(f"load_state: {path} holds {u.size} unknowns, its rebuilt model has {model.n}")
     nan = float("nan")
     return BenchmarkResult(values, model.mesh.h(), model.n, np.zeros(0, int), nan, nan, nan, nan, nan, params,
-                           model, u)
+                           model=model, u=u)

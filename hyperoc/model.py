@@ -561,5 +561,5 @@ class StateModel:
         factorization. They are rebuilt on next use. For a model kept only for its mesh and state,
         e.g. the coarse level of a nested solve, whose factorization would otherwise sit beside the
         fine level's."""
-        for name in ("jitted", "_ellipticity_fn", "_static_solves"):
+        for name in ("jitted", "_ellipticity_fn", "_static_solves", "_static_solvers"):
             self.__dict__.pop(name, None)

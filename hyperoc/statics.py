@@ -55,8 +55,10 @@ __all__ = ["StaticSolution", "solve_static"]
 @dataclass(eq=False)
 class StaticSolution:
     """Equilibrium ``u`` (n,) reduced, multiplier ``p`` (0 when unconstrained), volume ``int det F``,
-    Newton iterations per load step; ``from_guess``: reached by one Newton solve at the full load
-    from ``solve_static``'s ``guess`` (then ``newton_iterations`` has that one entry)."""
+    Newton iterations per accepted load step; ``from_guess``: reached by one Newton solve at the full
+    load from ``solve_static``'s ``guess`` (then ``newton_iterations`` has that one entry);
+    ``rejected_iterations``: Newton iterations of the attempts thrown away (a guess Newton failed
+    from, halved load increments), so the work done is ``newton_iterations.sum() + rejected_iterations``."""
 
     model: StateModel
     u: np.ndarray
@@ -64,6 +66,7 @@ class StaticSolution:
     volume: float
     newton_iterations: np.ndarray
     from_guess: bool = False
+    rejected_iterations: int = 0
 
     def displacement(self) -> np.ndarray:
         return self.model.expand(self.u)
@@ -71,15 +74,14 @@ class StaticSolution:
 
 def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, constrained: bool,
                     line_search: bool):
-    """The jitted Newton solve of one load step, cached on the model per (solver kind, scheme,
-    follower loads, constraint on/off, line search on/off).
+    """The jitted Newton solve of one load step, cached on the model per (linear solver instance,
+    scheme, follower loads, constraint on/off, line search on/off).
 
     ``solve(x0, fk, Vk, s)`` takes the unknown ``x`` ((u, p), or (w, t) unconstrained), the fixed
     load ``fk`` (n,), the volume ``Vk`` and the load factor ``s`` of the follower pressures.
     """
     cache = model.__dict__.setdefault("_static_solves", {})
-    key = (type(lin).__name__, getattr(lin, "method", None), scheme, tuple(map(id, followers)), constrained,
-           line_search)
+    key = (id(lin), scheme, tuple(map(id, followers)), constrained, line_search)  # lin lives in the cache
     if key in cache:
         return cache[key]
     e = jnp.full(model.n, model.n ** -0.5)
@@ -146,7 +148,8 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
         module docstring: needed for nearly incompressible penalties).
     cutbacks : how many times in total a failed load increment may be halved and retried from the
         last equilibrium (the increment then grows back, doubling after each success, up to
-        ``1 / steps``); 0 = fail at once. ``newton_iterations`` has one entry per accepted increment.
+        ``1 / steps``); 0 = fail at once. ``newton_iterations`` has one entry per accepted increment
+        (the iterations of the rejected ones: ``rejected_iterations``).
     predictor : Newton's starting point at each load increment: ``"previous"`` (default), the last
         equilibrium; ``"secant"``, the linear extrapolation of the last two equilibria (u and p) to
         the new load factor, first-order accurate in the increment where the previous one is
@@ -160,7 +163,8 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
         guess can overshoot (Land problem 2, Taylor-Hood, level 1 -> 2: full steps diverge,
         backtracking converges in 9 iterations, bench/README.md). The multiplier starts at 0. If Newton fails from it, the load stepping from ``u0``
         runs as without a guess (``StaticSolution.from_guess`` tells which happened).
-    solver : a linear solver or its name (`hyperoc.linsolve.make_solver`); with follower pressures the
+    solver : a linear solver or its name (`hyperoc.linsolve.make_solver`: made once per model and name,
+        and reused by later solves, with its compiled Newton solve); with follower pressures the
         tangent is not symmetric, so ``"minres"`` is refused.
 
     Raises `SolverError` naming the load step (index of the failed increment, and its load factor as
@@ -171,7 +175,7 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
         raise InputError(f"solve_static: predictor must be 'previous' or 'secant', got {predictor!r}")
     if not constrained and volume is not None:
         raise InputError("solve_static: a target volume needs the volume constraint (constrained=True)")
-    lin = make_solver(model, solver) if isinstance(solver, str) else solver
+    lin = _static_solver(model, solver)
     if followers and getattr(lin, "method", None) == "minres":
         raise InputError("solve_static: follower pressures make the tangent non-symmetric; MINRES does not apply")
     f = jnp.zeros(model.n) if load is None else jnp.asarray(load)
@@ -181,9 +185,10 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
     V_start = float(model.jitted["volume"](jnp.asarray(u)))
     V = V_start if volume is None else float(volume)
 
+    rejected = 0
     if guess is not None:
         solve_backtracking = _compiled_solve(model, lin, scheme, followers, constrained, True)
-        solution = _solve_from_guess(model, lin, solve_backtracking, guess, f, V, constrained)
+        solution, rejected = _solve_from_guess(model, lin, solve_backtracking, guess, f, V, constrained)
         if solution is not None:
             return solution
     solve = _compiled_solve(model, lin, scheme, followers, constrained, line_search)
@@ -201,11 +206,24 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
             iters.append(int(it))
             ds = min(2 * ds, 1.0 / steps)  # back towards the nominal increment after a success
         elif cuts < cutbacks:
-            ds, cuts = ds / 2, cuts + 1
+            ds, cuts, rejected = ds / 2, cuts + 1, rejected + int(it)
         else:
             raise SolverError(k, s, cause, f"load step {k + 1} (load factor {s:.6g} of 1, {steps} nominal steps"
                               f"{f', after {cuts} cutbacks' if cuts else ''}), {detail}")
-    return _solution(model, x, constrained, iters)
+    return _solution(model, x, constrained, iters, rejected=rejected)
+
+
+def _static_solver(model: StateModel, solver):
+    """The linear solver of the static solves: an instance as given; for a name, one instance per
+    model and name, kept on the model, so repeated solves reuse its compiled Newton solves (a new
+    instance would mean a new compilation) and its stats and failures are those of the solver the
+    compiled solve calls."""
+    if not isinstance(solver, str):
+        return solver
+    solvers = model.__dict__.setdefault("_static_solvers", {})
+    if solver not in solvers:
+        solvers[solver] = make_solver(model, solver)
+    return solvers[solver]
 
 
 def _failed_solves(lin) -> int:
@@ -223,22 +241,25 @@ def _failure(lin, failed_before: int, status, mindet) -> tuple:
     return cause, detail
 
 
-def _solution(model: StateModel, x, constrained: bool, iters, from_guess: bool = False) -> StaticSolution:
+def _solution(model: StateModel, x, constrained: bool, iters, from_guess: bool = False,
+              rejected: int = 0) -> StaticSolution:
     """The `StaticSolution` of the compiled solve's unknown x (`initial_unknown`'s layout)."""
     x = np.asarray(x)
     u = x[:-1] if constrained else x[:-1] + x[-1] * model.n ** -0.5
     p = float(x[-1]) if constrained else 0.0
-    return StaticSolution(model, u, p, float(model.jitted["volume"](jnp.asarray(u))), np.array(iters), from_guess)
+    return StaticSolution(model, u, p, float(model.jitted["volume"](jnp.asarray(u))), np.array(iters), from_guess,
+                          rejected)
 
 
 def _solve_from_guess(model: StateModel, lin, solve, guess, f, V: float, constrained: bool):
-    """Newton at the full load (s = 1) from ``guess`` (n,); the `StaticSolution`, or None if Newton
-    fails, a linear solve fails or an element inverts (the caller then steps the load)."""
+    """Newton at the full load (s = 1) from ``guess`` (n,): ``(the StaticSolution, 0)``, or ``(None, its
+    Newton iterations)`` if Newton fails, a linear solve fails or an element inverts (the caller then
+    steps the load)."""
     guess = np.asarray(guess, dtype=np.float64)
     if guess.shape != (model.n,):
         raise InputError(f"solve_static: guess must have shape ({model.n},), got {guess.shape}")
     failed = _failed_solves(lin)
     x, it, status, mindet = solve(initial_unknown(model, guess, constrained), f, V, 1.0)
     if _failure(lin, failed, status, mindet)[0] is not None:
-        return None
-    return _solution(model, x, constrained, [int(it)], from_guess=True)
+        return None, int(it)
+    return _solution(model, x, constrained, [int(it)], from_guess=True), 0

@@ -16,6 +16,7 @@ import pytest
 
 from hyperoc.controls import BodyForce, Region
 from hyperoc.errors import InputError
+from hyperoc.linsolve import SparseSolver
 from hyperoc.materials import NeoHookean, Ogden, SaintVenantKirchhoff
 from hyperoc.mesh import rectangle, refine
 from hyperoc.model import StateModel
@@ -114,13 +115,47 @@ def test_warm_start_from_a_nearby_equilibrium_converges_at_full_load(loaded_prob
 
 def test_a_guess_newton_cannot_start_from_falls_back_to_load_stepping(loaded_problem):
     """An inverted guess (u = (-2 x, 0): F = diag(-1, 1), det F = -1 everywhere) fails; the load
-    stepping then runs as without it and gives the same equilibrium."""
+    stepping then runs as without it and gives the same equilibrium. The failed attempt's Newton
+    iterations are counted as rejected: with one linear solve per Newton iteration, the solver's
+    calls are the accepted plus the rejected iterations."""
     model, load, xi, V = loaded_problem
     inverted = model.interpolate(lambda x: np.stack([-2 * x[:, 0], 0 * x[:, 1]], axis=1))
     plain = solve_static(model, load=load, xi=xi, volume=V, steps=2)
-    fallback = solve_static(model, load=load, xi=xi, volume=V, steps=2, guess=inverted)
+    lin = SparseSolver(model, "lu")
+    fallback = solve_static(model, load=load, xi=xi, volume=V, steps=2, guess=inverted, solver=lin)
     assert not fallback.from_guess and len(fallback.newton_iterations) == 2
     assert np.max(np.abs(fallback.u - plain.u)) <= 1e-9 * np.max(np.abs(plain.u))
+    assert plain.rejected_iterations == 0 and fallback.rejected_iterations > 0
+    assert lin.stats["calls"] == fallback.newton_iterations.sum() + fallback.rejected_iterations
+
+
+def test_halved_load_increments_count_their_newton_iterations_as_rejected(loaded_problem):
+    """12 times the loads in one increment, full Newton steps: the first attempt fails, the halved
+    increments reach the same equilibrium as a 4-step ramp; every linear solve (one per Newton
+    iteration) is an accepted or a rejected iteration."""
+    model, load, xi, V = loaded_problem
+    lin = SparseSolver(model, "lu")
+    opts = dict(load=12 * load, xi=12 * xi, volume=V, line_search=False)
+    cut = solve_static(model, steps=1, cutbacks=8, solver=lin, **opts)
+    ramp = solve_static(model, steps=4, **opts)
+    assert len(cut.newton_iterations) > 1 and cut.rejected_iterations > 0
+    assert lin.stats["calls"] == cut.newton_iterations.sum() + cut.rejected_iterations
+    assert np.max(np.abs(cut.u - ramp.u)) <= 1e-9 * np.max(np.abs(ramp.u))
+
+
+def test_a_named_solver_is_made_once_per_model_and_an_instance_is_the_one_called(loaded_problem):
+    """Solves naming the same solver reuse one instance (and so its compiled Newton solve); a solver
+    instance passed in is the one the compiled solve calls (its stats count the solves)."""
+    model, load, xi, V = loaded_problem
+    solve_static(model, load=load, xi=xi, volume=V, solver="lu")
+    named = model.__dict__["_static_solvers"]["lu"]
+    calls = named.stats["calls"]
+    again = solve_static(model, load=load, xi=xi, volume=V, solver="lu")
+    assert model.__dict__["_static_solvers"]["lu"] is named
+    assert named.stats["calls"] == calls + again.newton_iterations.sum()
+    mine = SparseSolver(model, "lu")
+    own = solve_static(model, load=load, xi=xi, volume=V, solver=mine)
+    assert mine.stats["calls"] == own.newton_iterations.sum() and named.stats["calls"] == calls + again.newton_iterations.sum()
 
 
 def test_release_kernels_frees_the_compiled_solves_and_a_new_solve_rebuilds_them(loaded_problem):
