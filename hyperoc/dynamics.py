@@ -168,8 +168,9 @@ class TimeStepper:
     ----------
     model : StateModel
     scheme : Scheme
-    solver : "auto" | "tridiagonal" | "dense" | a `hyperoc.linsolve.SparseSolver` method ("lu", "lu_reuse",
-        "pardiso", "pardiso_reuse", "minres"), or a solver object.
+    solver : "auto" | "tridiagonal" | "dense" | a `hyperoc.linsolve.SparseSolver` method (``SparseSolver.methods``:
+        "lu", "lu_reuse", "pardiso", "pardiso_reuse", "pardiso_single", "pardiso_single_reuse", "minres"),
+        or a solver object.
     """
 
     def __init__(self, model: StateModel, scheme: Scheme = Scheme(), solver="auto"):

@@ -196,15 +196,17 @@ class StateModel:
         self._dN = jnp.asarray(self.quad.dN)
         self._w = jnp.asarray(self.quad.wdx)
         self._cell_volume = jnp.sum(self._w, axis=1)  # (nc,)
-        self._gather = self._set_cell_dofs(self.to_reduced[self.space.cell_dofs])
+        self._set_cell_dofs(self.to_reduced[self.space.cell_dofs])
+        # the displacement's gather (`_cell_values`); a subclass appending unknowns to the element
+        # (Taylor-Hood's pressures) resets `_element_gather` only, so this one stays the displacement's
+        self._gather = self._element_gather
 
-    def _set_cell_dofs(self, cell_dofs: np.ndarray):
+    def _set_cell_dofs(self, cell_dofs: np.ndarray) -> None:
         """Set ``cell_dofs`` (nc, k) (-1 = constrained) and ``_element_gather``, the same with constrained
-        entries pointing at a dump slot n (read as 0, `_element_args`); returns the latter. Set
-        eagerly (an array created while a kernel is traced would become that trace's constant)."""
+        entries pointing at a dump slot n (read as 0, `_element_args`). Set eagerly (an array created
+        while a kernel is traced would become that trace's constant)."""
         self.cell_dofs = cell_dofs
         self._element_gather = jnp.asarray(np.where(cell_dofs < 0, self.n, cell_dofs))
-        return self._element_gather
 
     def _dirichlet_dofs(self, dirichlet, components: dict) -> tuple[np.ndarray, np.ndarray]:
         """Constrained global dofs (sorted) and the other dofs of the nodes on the sliding boundaries."""
