@@ -96,7 +96,8 @@ def _table(title: str, rows: list[dict], level_key: str, value_keys: list[str]) 
                 order, extrap = f"{p:.2f}", f"{lim:.4f}"
             cells += [f"{z[-1]:.5f}", f"{z[-1] - z[-2]:+.2e}" if i else "", order, extrap]
         its, rejected = r["newton_iterations"], r.get("rejected_iterations")  # absent in older runs' files
-        cells += [f"{sum(its)} / {max(its)}" + (f" (+{rejected} rejected)" if rejected else ""), str(len(its)), f"{r['seconds']:.1f}"]
+        work = f"{sum(its)} / {max(its)}" + (f" (+{rejected} rejected)" if rejected else "")
+        cells += [work, str(len(its)), f"{r['seconds']:.1f}"]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -225,9 +226,9 @@ def main():
     def record(res, **extra):
         res.params.update(extra)
         row = {"values": res.values, "h": res.h, "dofs": res.dofs, "newton_iterations": res.newton_iterations.tolist(),
-               "rejected_iterations": res.rejected_iterations, "seconds": res.seconds, "min_det_F": res.min_det_F, "max_volume_change": res.max_volume_change,
-               "mean_volume_change": res.mean_volume_change, "volume_change": res.volume_change,
-               "params": res.params}
+               "rejected_iterations": res.rejected_iterations, "seconds": res.seconds, "min_det_F": res.min_det_F,
+               "max_volume_change": res.max_volume_change, "mean_volume_change": res.mean_volume_change,
+               "volume_change": res.volume_change, "params": res.params}
         results.append(row)
         print(json.dumps(row), flush=True)
         return row
