@@ -330,9 +330,29 @@ class StateModel:
     def prolong(self, coarse: "StateModel", u) -> np.ndarray:
         """This model's reduced vector (n,) of the state ``u`` (coarse.n,) of ``coarse``, the same
         problem on a mesh this one uniformly refines (`hyperoc.spaces.prolong`: the displacement
-        at each node is the coarse one at that material point; Dirichlet values are dropped). A
-        starting point for Newton on this mesh (`solve_static`'s ``guess``)."""
-        return self.restrict(prolong(coarse.space, self.space, coarse.expand(u).reshape(-1)))
+        at each node is the coarse one at that material point; Dirichlet values are dropped), moved
+        by the rigid motion that puts it back on this model's pins (`repin`). A starting point for
+        Newton on this mesh (`solve_static`'s ``guess``)."""
+        return self.restrict(self.repin(prolong(coarse.space, self.space, coarse.expand(u).reshape(-1))))
+
+    def repin(self, full) -> np.ndarray:
+        """``full + r`` (num_dofs,) for a full displacement ``full`` (num_dofs,): r the rigid motion,
+        among those the other constraints leave free, that makes ``full + r`` vanish on the
+        `pinned_dofs` (unique, the support being isostatic); ``full`` itself without pins.
+
+        Why: the pins are picked on each mesh anew, so on a refined mesh they are other material
+        points, where a coarse solution is not 0 (Land problem 2, sliding base, level 0 -> 1: up to
+        4.6 mm, the base's radial expansion that the coarse pins turned into a translation).
+        Dropping those values would leave a spike at each pin, and Newton failed from such a guess.
+        The pinned solution is only defined up to this motion, so adding it loses nothing; r is the
+        linearized motion ``a + w x X``: exact for translations, for a rotation by w it adds a strain
+        of order w^2."""
+        full = np.asarray(full, dtype=np.float64).reshape(-1)
+        if not self.pinned_dofs.size:
+            return full
+        fixed = np.setdiff1d(np.setdiff1d(np.arange(self.space.num_dofs), self.free), self.pinned_dofs)
+        motions = _free_motions(_rigid_motions(self.space.nodes), fixed)  # (num_dofs, pins)
+        return full - motions @ np.linalg.solve(motions[self.pinned_dofs], full[self.pinned_dofs])
 
     def interpolate(self, fn) -> np.ndarray:
         """Reduced nodal interpolant of ``fn(x: (n, dim)) -> (n, dim)``; Dirichlet values are dropped."""

@@ -102,3 +102,29 @@ def test_sliding_a_clamped_boundary_is_an_input_error():
     """The ventricle's Gamma_D is its base: sliding it needs dirichlet=None, not a silent full clamp."""
     with pytest.raises(InputError, match="already clamped"):
         ho.StateModel(box(1, dirichlet="front"), ho.NeoHookean(), dirichlet_components={"front": (2,)})
+
+
+def test_prolonged_sliding_solution_is_moved_onto_the_refined_meshs_pins():
+    """The pins are picked on each mesh anew (here the coarse P1 box pins u_y at (0, 0.5, 0), its
+    refinement at (0, 0, 0) and (1, 0, 0)), and the homogeneous solution is exact on both meshes,
+    so the coarse one carried over (`StateModel.prolong`, which re-pins by a rigid motion) *is* the
+    fine one, to the Newton tolerance (1e-11 relative, checked to 1e-9), and Newton from it has
+    nothing left to do. Merely dropping the coarse values at the new pins would leave the guess off
+    by the translation 0.5 (l - 1) everywhere but at the pins."""
+    from hyperoc.mesh import refine
+
+    kw = dict(dirichlet=None, dirichlet_components={"front": (2,)})
+    coarse, coarse_sol = compressed_box(**kw)
+    fine = ho.StateModel(refine(box(2, dirichlet="front")), ho.NeoHookean(MU, 1.0), **kw)
+    pins = lambda model: {tuple(x) for x in model.space.nodes[model.pinned_dofs // 3]}
+    assert pins(coarse) != pins(fine)
+    load = fine.load_vector(traction=(0.0, 0.0, -T), neumann="back")
+    cold = solve_static(fine, load=load, steps=2)
+    guess = fine.prolong(coarse, coarse_sol.u)
+    scale = np.max(np.abs(cold.u))
+    print(f"\nmax |prolonged - fine| = {np.max(np.abs(guess - cold.u)):.1e} (max |u| = {scale:.3f})")
+    assert np.max(np.abs(guess - cold.u)) <= 1e-9 * scale
+    assert np.max(np.abs(fine.expand(guess)[fine.pinned_dofs // 3, fine.pinned_dofs % 3])) == 0.0
+    warm = solve_static(fine, load=load, guess=guess)
+    assert warm.from_guess and warm.newton_iterations.tolist() == [1]
+    assert np.max(np.abs(warm.u - cold.u)) <= 1e-9 * scale
