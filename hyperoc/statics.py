@@ -161,8 +161,9 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
         load path is not walked again). This Newton always backtracks (``line_search`` concerns
         the load steps): with no small load increment to bound it, a full Newton step from such a
         guess can overshoot (Land problem 2, Taylor-Hood, level 1 -> 2: full steps diverge,
-        backtracking converges in 9 iterations, bench/README.md). The multiplier starts at 0. If Newton fails from it, the load stepping from ``u0``
-        runs as without a guess (``StaticSolution.from_guess`` tells which happened).
+        backtracking converges in 9 iterations, bench/README.md). The multiplier starts at 0. If
+        Newton fails from it, the load stepping from ``u0`` runs as without a guess
+        (``StaticSolution.from_guess`` tells which happened).
     solver : a linear solver or its name (`hyperoc.linsolve.make_solver`: made once per model and name,
         and reused by later solves, with its compiled Newton solve); with follower pressures the
         tangent is not symmetric, so ``"minres"`` is refused.
