@@ -217,9 +217,11 @@ class SparseSolver:
                       "off_diagonal_pivots": 0, "pivoting_fallbacks": 0}
 
     # --- structure ----------------------------------------------------------------------------
-    def _factor(self, K, thresh):
+    def _factor(self, K, thresh, permuted: bool):
+        """SuperLU of K: in its own numbering if ``permuted`` (K already in the fixed ordering),
+        else ordered by SuperLU's minimum degree on ``K + K^T``."""
         t0 = time.perf_counter()
-        lu = spla.splu(K, permc_spec="NATURAL" if self._order is not None else "MMD_AT_PLUS_A",
+        lu = spla.splu(K, permc_spec="NATURAL" if permuted else "MMD_AT_PLUS_A",
                        diag_pivot_thresh=thresh, options={"SymmetricMode": True})
         self.stats["factor_s"] += time.perf_counter() - t0
         self.stats["factorizations"] += 1
@@ -291,7 +293,7 @@ class SparseSolver:
             if q is not None:
                 rhs = rhs[q]
             if not self._reuse or self._lu is None:
-                self._lu, ab = self._fresh_solve(K, rhs)
+                self._lu, ab = self._fresh_solve(K, rhs, q is not None)
                 if q is None and not self._pardiso:
                     self._lu = None  # first "mmd" call: K in the original numbering; later ones are permuted
             else:
@@ -299,7 +301,7 @@ class SparseSolver:
                 if ab is None:  # the kept factorization is too far from K: refresh it
                     self.stats["refactor_after_stall"] += 1
                     self._lu = None  # freed before the new factorization is built
-                    self._lu, ab = self._fresh_solve(K, rhs)
+                    self._lu, ab = self._fresh_solve(K, rhs, q is not None)
             if not self._reuse:
                 self._lu = None
             if q is not None:
@@ -312,29 +314,30 @@ class SparseSolver:
         self.stats["host_s"] += time.perf_counter() - t_start
         return np.concatenate([a - b * qmult, [qmult]])
 
-    def _fresh_solve(self, K, rhs):
-        """Factor K and solve with refinement: ``(lu, x)``. Diagonal pivots first; when they leave
+    def _fresh_solve(self, K, rhs, permuted: bool):
+        """Factor K (``permuted``: in the fixed ordering, `_matrix`) and solve with refinement: ``(lu, x)``. Diagonal pivots first; when they leave
         the refinement short of ``rtol``, threshold partial pivoting (``fallback_thresh``). PARDISO:
         refinement of its perturbed ``L D L^T`` of ``(K + K^T) / 2``, up to ``reuse_max_iter`` steps."""
         if self._pardiso:
             lu = self._factor_ldl(K)
             return lu, self._solve_refined(K, rhs, lu, max_iter=self.reuse_max_iter, strict=True)
-        lu = self._direct(K, self.pivot_thresh)
+        lu = self._direct(K, self.pivot_thresh, permuted)
         can_fall_back = self.fallback_thresh > self.pivot_thresh  # else a second factorization repeats the first
         x = self._solve_refined(K, rhs, lu, max_iter=2, rate=self.reuse_rate if can_fall_back else None)
         if x is None:
             self.stats["pivoting_fallbacks"] += 1
             lu = None  # freed before the second factorization is built (GBs at 80k dofs)
-            lu = self._direct(K, self.fallback_thresh)
+            lu = self._direct(K, self.fallback_thresh, permuted)
             x = self._solve_refined(K, rhs, lu, max_iter=2)
         return lu, x
 
-    def _direct(self, K, thresh):
-        """Factor K; with ``ordering="mmd"`` the first call also fixes the ordering reused afterwards."""
-        if self._order is not None:
-            return self._factor(K, thresh)
-        lu = self._factor(K, thresh)
-        self._set_order(np.argsort(lu.perm_c))
+    def _direct(self, K, thresh, permuted: bool):
+        """Factor K; with ``ordering="mmd"`` the first factorization also fixes the ordering reused
+        afterwards. A K that is not ``permuted`` is ordered by SuperLU even when an ordering is fixed
+        by then: the fallback of the very first call factors the same unpermuted K again."""
+        lu = self._factor(K, thresh, permuted)
+        if self._order is None:
+            self._set_order(np.argsort(lu.perm_c))
         return lu
 
     def _solve_refined(self, K, rhs, lu, *, max_iter, rate=None, strict=False):

@@ -200,3 +200,24 @@ def test_large_dirichlet_laplace_solve_by_amg_cg_meets_its_residual_and_error_bo
     print(f"\nn = {free.size}, cond_2 = {cond:.0f}, relative error {error:.2e}")
     assert error <= cond * 1e-12
     assert np.array_equal(x[boundary], exact[boundary])
+
+
+def test_first_call_fallback_with_minimum_degree_keeps_the_minimum_degree_ordering(model):
+    """``ordering="mmd"`` takes its ordering from the first factorization; when that first call falls
+    back to partial pivoting, K is still in the original numbering and must be ordered again, not
+    factored in the original numbering (which on this box stores more fill)."""
+    import scipy.sparse.linalg as spla
+
+    nc, k, _ = model.pattern.element_shape
+    P = np.random.default_rng(3).standard_normal((nc, k, k))
+    blocks = P + np.swapaxes(P, 1, 2)
+    blocks[:, np.arange(k), np.arange(k)] = 1e-12
+    solver = solve_within_forward_error_bound(model, SparseSolver(model, "lu", ordering="mmd"), blocks)
+    assert solver.stats["pivoting_fallbacks"] == 1
+    K = model.pattern.matrix(blocks).tocsc()
+    expected = spla.splu(K, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=solver.fallback_thresh,
+                         options={"SymmetricMode": True}).nnz
+    natural = spla.splu(K, permc_spec="NATURAL", diag_pivot_thresh=solver.fallback_thresh,
+                        options={"SymmetricMode": True}).nnz
+    print(f"\nfill of the fallback: {solver.stats['fill']}, minimum degree {expected}, original numbering {natural}")
+    assert solver.stats["fill"] == expected < natural
