@@ -315,8 +315,9 @@ class SparseSolver:
         return np.concatenate([a - b * qmult, [qmult]])
 
     def _fresh_solve(self, K, rhs, permuted: bool):
-        """Factor K (``permuted``: in the fixed ordering, `_matrix`) and solve with refinement: ``(lu, x)``. Diagonal pivots first; when they leave
-        the refinement short of ``rtol``, threshold partial pivoting (``fallback_thresh``). PARDISO:
+        """Factor K (``permuted``: in the fixed ordering, `_matrix`) and solve with refinement:
+        ``(lu, x)``. Diagonal pivots first; when they leave the refinement short of ``rtol``,
+        threshold partial pivoting (``fallback_thresh``). PARDISO:
         refinement of its perturbed ``L D L^T`` of ``(K + K^T) / 2``, up to ``reuse_max_iter`` steps."""
         if self._pardiso:
             lu = self._factor_ldl(K)
