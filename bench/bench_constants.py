@@ -45,7 +45,7 @@ def child(h0: float, level: int) -> dict:
 
     model, follower = ventricle_problem(h0, kappa=1000.0, refinements=level)
     lin = make_solver(model, "auto")
-    solve = _compiled_solve(model, lin, Scheme(), (follower,), False, False)
+    solve, _ = _compiled_solve(model, lin, Scheme(), (follower,), False, False)
     x0, fk = jnp.zeros(model.n + 1), jnp.zeros(model.n)
     t0 = time.perf_counter()
     solve.lower(x0, fk, 0.0, 1.0).compile()

@@ -47,12 +47,14 @@ import functools
 import json
 import math
 import os
+import sys
 from pathlib import Path
 
 
 from hyperoc.benchmarks import FORMULATIONS, beam_deflection, load_state, save_state, ventricle_apex
 from hyperoc.errors import SolverError
 from hyperoc.linsolve import SparseSolver
+from hyperoc.newton import NewtonLog
 
 
 #: Problem 2 values: apex z (mm) and deformed cavity volume (mm^3; missing in rows from before it).
@@ -211,6 +213,8 @@ def main():
     ap.add_argument("--coarse-state", default=None, metavar="NPZ",
                     help="a --save-states file of the level below the first of --lv-refinements: that level starts "
                          "from it (with --nested-start), so a fine level can run in a process of its own")
+    ap.add_argument("--newton-log", action="store_true",
+                    help="print every Newton iteration to stderr as it ends (hyperoc.newton.NewtonLog)")
     ap.add_argument("--json", default=None, help="write all results here")
     ap.add_argument("--render", nargs="+", default=None, metavar="JSON",
                     help="only print the tables of earlier runs (their --json files or stdout logs)")
@@ -237,6 +241,7 @@ def main():
     problems = {int(v) for v in _floats(args.problems)}
     lv_sequences = [[(h, 0)] for h in _floats(args.lv_sizes)] if args.lv_refinements is None else \
         [[(h, int(k)) for k in _floats(args.lv_refinements)] for h in _floats(args.lv_sizes)]
+    monitor = NewtonLog(sys.stderr) if args.newton_log else None
     solved = {}  # (problem, h, kappa, refinements) -> the last level's BenchmarkResult, for --nested-start
 
     def lv_solve(problem, level, kappa):
@@ -247,7 +252,7 @@ def main():
         res = ventricle_apex(h, kappa=kappa, steps=args.lv_steps, cutbacks=args.cutbacks, curved=not args.faceted,
                              base=args.base, refinements=k, solver=args.solver, volumetric=args.volumetric,
                              isochoric=args.isochoric, predictor=args.predictor, problem=problem,
-                             taper=args.taper if problem == 3 else 0.0, coarse=coarse)
+                             taper=args.taper if problem == 3 else 0.0, coarse=coarse, monitor=monitor)
         if args.nested_start:
             solved[(problem, h, kappa, k)] = res
         if args.save_states:
@@ -260,7 +265,7 @@ def main():
         (1, "Problem 1 (beam)", [[int(v) for v in _floats(args.beam_levels)]],
          lambda lv, k: record(beam_deflection(lv, kappa=k, steps=args.beam_steps, cutbacks=args.cutbacks,
                                               volumetric=args.volumetric, isochoric=args.isochoric,
-                                              predictor=args.predictor)), "n", ["z_tip"]),
+                                              predictor=args.predictor, monitor=monitor)), "n", ["z_tip"]),
         (2, "Problem 2 (ventricle)", lv_levels, lv_run(2), None, LV_KEYS),
         (3, "Problem 3 (contraction)", lv_levels, lv_run(3), None, LV_KEYS),
     ):

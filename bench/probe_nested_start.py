@@ -40,7 +40,7 @@ def min_det(model, u) -> float:
 def homotopy(model, load, u0, steps: int, budget: int) -> tuple[float, int]:
     """Largest lam reached (and the Newton iterations spent) on ``R(u) = (1 - lam) R(u0)``."""
     lin = make_solver(model, "auto")
-    solve = _compiled_solve(model, lin, Scheme(), (load,), False, False)
+    solve, _ = _compiled_solve(model, lin, Scheme(), (load,), False, False)
     r0 = model.internal_force(jnp.asarray(u0)) - load.force(jnp.asarray(u0), 1.0)
     x = initial_unknown(model, u0, constrained=False)
     lam, dlam, cuts, its = 0.0, 1.0 / steps, 0, 0

@@ -211,14 +211,15 @@ def node_position(model: StateModel, u, point, tol: float = 1e-9) -> np.ndarray:
 
 
 def _solve(model, follower, steps, cutbacks, solver, points: dict, params: dict, extra=None,
-           coarse: BenchmarkResult | None = None) -> BenchmarkResult:
+           coarse: BenchmarkResult | None = None, monitor=None) -> BenchmarkResult:
     """Solve; ``values`` are the z of the deformed ``points`` (name -> X) and ``extra(model, u)`` (a dict).
     ``coarse``: the same problem solved on the mesh this one refines, whose prolonged solution is
-    Newton's first try at the full load (`solve_static`'s ``guess``)."""
+    Newton's first try at the full load (`solve_static`'s ``guess``); ``monitor``: `solve_static`'s."""
     t0 = time.perf_counter()
     guess = None if coarse is None else model.prolong(coarse.model, coarse.u)
     sol = solve_static(model, follower=follower, constrained=False, steps=steps, solver=solver,
-                       line_search=False, cutbacks=cutbacks, predictor=params["predictor"], guess=guess)
+                       line_search=False, cutbacks=cutbacks, predictor=params["predictor"], guess=guess,
+                       monitor=monitor)
     seconds = time.perf_counter() - t0
     if coarse is not None:
         params["start"] = "prolonged" if sol.from_guess else "prolonged, failed: load stepping"
@@ -235,25 +236,28 @@ def _solve(model, follower, steps, cutbacks, solver, points: dict, params: dict,
 
 def beam_deflection(n: int, *, kappa: float = 1000.0, degree: int = 2, steps: int = 10, cutbacks: int = 8,
                     solver="auto", volumetric: str = "pointwise", isochoric: bool = False,
-                    predictor: str = "previous") -> BenchmarkResult:
-    """Problem 1: ``values["z_tip"]`` = z of the deformed point (10, 0.5, 1) (mm; 1 at rest)."""
+                    predictor: str = "previous", monitor=None) -> BenchmarkResult:
+    """Problem 1: ``values["z_tip"]`` = z of the deformed point (10, 0.5, 1) (mm; 1 at rest).
+    ``monitor``: `solve_static`'s (e.g. ``hyperoc.newton.NewtonLog(sys.stderr)``)."""
     model, load = beam_problem(n, kappa=kappa, degree=degree, volumetric=volumetric, isochoric=isochoric)
     return _solve(model, load, steps, cutbacks, solver, {"z_tip": BEAM["point"]},
                   {"problem": 1, "n": n, "kappa": kappa, "degree": degree, "steps": steps, "cutbacks": cutbacks,
-                   "volumetric": volumetric, "isochoric": isochoric, "predictor": predictor})
+                   "volumetric": volumetric, "isochoric": isochoric, "predictor": predictor}, monitor=monitor)
 
 
 def ventricle_apex(h: float, *, kappa: float = 1000.0, degree: int = 2, steps: int = 10, cutbacks: int = 8,
                    solver="auto", curved: bool = True, base: str = "clamped", refinements: int = 0,
                    volumetric: str = "pointwise", isochoric: bool = False, predictor: str = "previous",
-                   problem: int = 2, taper: float = 0.0, coarse: BenchmarkResult | None = None) -> BenchmarkResult:
+                   problem: int = 2, taper: float = 0.0, coarse: BenchmarkResult | None = None,
+                   monitor=None) -> BenchmarkResult:
     """Problem 2 (`ventricle_problem`) or 3 (``problem=3``, `contraction_problem`): ``values["z_endo"]``,
     ``values["z_epi"]`` = z of the deformed endocardial and epicardial apex (mm; -17 and -20 at rest),
     ``values["V_cavity"]`` the deformed cavity volume (mm^3, `hyperoc.report.cavity_volume`: the
     endocardium closed by the base plane). ``taper``: problem 3 only, `contraction_problem`.
     ``coarse``: this problem's result on the mesh of ``refinements - 1`` (nested iteration: Newton
     starts at the full load from its prolonged solution, and steps the load only if that fails;
-    ``params["start"]`` says which). Raises `InputError` if this mesh does not refine its mesh."""
+    ``params["start"]`` says which). ``monitor``: `solve_static`'s, e.g. ``hyperoc.newton.NewtonLog(sys.stderr)``
+    to follow a long solve. Raises `InputError` if this mesh does not refine its mesh."""
     from .report import cavity_volume
 
     if problem not in (2, 3):
@@ -268,7 +272,7 @@ def ventricle_apex(h: float, *, kappa: float = 1000.0, degree: int = 2, steps: i
                   {"problem": problem, "mesh_size": h, "kappa": kappa, "degree": degree, "steps": steps,
                    "cutbacks": cutbacks, "curved": curved, "base": base, "refinements": refinements,
                    "volumetric": volumetric, "isochoric": isochoric, "predictor": predictor,
-                   **({"taper": taper} if taper else {})}, cavity, coarse)
+                   **({"taper": taper} if taper else {})}, cavity, coarse, monitor)
 
 
 def _ventricle_setup(problem: int, h: float, *, taper: float = 0.0, **kwargs):

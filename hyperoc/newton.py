@@ -3,20 +3,72 @@
 The unknown is ``x = (u, p)`` (n displacement dofs and one multiplier). The caller gives the
 residual ``r(x)`` (n+1,) and the Jacobian parts ``(blocks, col, row)`` of
 ``[[K, col], [row^T, 0]]``, K by element blocks, which a solver from `hyperoc.linsolve` inverts.
+
+The loop is compiled, so it prints nothing while it runs; a long solve (a fine 3D mesh, minutes per
+iteration) is followed through ``monitor``, a hook called once per iteration inside the loop, which
+the caller turns into a host callback (`hyperoc.statics.solve_static`'s ``monitor``,
+`NewtonIteration`, `NewtonLog`).
 """
 
 from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
 
 import jax
 import jax.numpy as jnp
 
 from . import _jax  # noqa: F401
 
-__all__ = ["newton"]
+__all__ = ["newton", "NewtonIteration", "NewtonLog"]
+
+
+@dataclass(frozen=True)
+class NewtonIteration:
+    """One Newton iteration, as seen by a monitor.
+
+    load : the load factor in (0, 1] of the load step (static solves).
+    iteration : 1, 2, ... within this Newton solve.
+    residual : ``|r_u|_2`` of the iterate the step starts from (the force balance, n entries).
+    constraint : ``|r_p|`` of that iterate (the volume constraint, or the gauge when unconstrained).
+    increment : ``|du|_inf`` of the full Newton increment (mm for the benchmarks).
+    step : the step length taken, ``2^-k`` after k halvings (1 for a full step).
+    converged : whether this increment passed the stopping test.
+    """
+
+    load: float
+    iteration: int
+    residual: float
+    constraint: float
+    increment: float
+    step: float
+    converged: bool
+
+
+@dataclass
+class NewtonLog:
+    """A monitor that keeps every `NewtonIteration` (``records``) and, given a ``stream``, prints one
+    line per iteration as it ends, with the wall time since the previous line or the log's creation
+    (a factorization and the line search; the first line also holds the compilation).
+    ``NewtonLog(sys.stderr)`` follows a long solve live."""
+
+    stream: object = None
+    records: list = field(default_factory=list)
+    _last: float = field(default_factory=time.perf_counter, repr=False)
+
+    def __call__(self, record: NewtonIteration) -> None:
+        now = time.perf_counter()
+        self.records.append(record)
+        if self.stream is not None:
+            print(f"newton: load {record.load:.4g} it {record.iteration:2d} |r| {record.residual:.3e} "
+                  f"|r_p| {record.constraint:.2e} |du| {record.increment:.3e} step {record.step:.4g}"
+                  f"{' converged' if record.converged else ''} ({now - self._last:.1f} s)",
+                  file=self.stream, flush=True)
+        self._last = now
 
 
 def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, max_iter: int,
-           line_search: bool = True):
+           line_search: bool = True, monitor=None):
     """Solve ``residual(x) = 0``; returns ``(x, iterations, status)``.
 
     Convergence: ``|du|_inf <= rtol |u|_inf + atol`` for the Newton increment du; with quadratic
@@ -25,6 +77,9 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
     not decrease ``|r|^2`` (sufficient decrease 1e-4), it is halved (at most 12 times);
     ``line_search=False`` always takes the full step (penalty-stiff static problems with load
     stepping, where the merit of the first full step can grow although Newton then converges).
+
+    ``monitor(iteration, residual, constraint, increment, step, converged)``, if given, is called on
+    traced scalars at the end of every iteration (the fields of `NewtonIteration` but the load).
     """
     merit = lambda r: jnp.sum(r * r)
 
@@ -54,6 +109,8 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
         else:
             alpha = 1.0
         x_new = x + alpha * dx
+        if monitor is not None:
+            monitor(it + 1, jnp.sqrt(merit(r[:-1])), jnp.abs(r[-1]), jnp.max(jnp.abs(du)), alpha, converged)
         finite = jnp.all(jnp.isfinite(x_new))
         status = jnp.where(~finite, 2, jnp.where(converged, 0, 1))
         return x_new, it + 1, status, finite

@@ -47,7 +47,7 @@ from .dynamics import Scheme
 from .errors import InputError, SolverError
 from .linsolve import make_solver
 from .model import StateModel
-from .newton import newton
+from .newton import NewtonIteration, newton
 
 __all__ = ["StaticSolution", "solve_static"]
 
@@ -73,17 +73,20 @@ class StaticSolution:
 
 
 def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, constrained: bool,
-                    line_search: bool):
-    """The jitted Newton solve of one load step, cached on the model per (linear solver instance,
-    scheme, follower loads, constraint on/off, line search on/off).
+                    line_search: bool, monitored: bool = False):
+    """The jitted Newton solve of one load step and its monitor slot, cached on the model per (linear
+    solver instance, scheme, follower loads, constraint on/off, line search on/off, monitored or not).
 
     ``solve(x0, fk, Vk, s)`` takes the unknown ``x`` ((u, p), or (w, t) unconstrained), the fixed
-    load ``fk`` (n,), the volume ``Vk`` and the load factor ``s`` of the follower pressures.
+    load ``fk`` (n,), the volume ``Vk`` and the load factor ``s`` of the follower pressures. When
+    ``monitored``, every Newton iteration calls ``slot[0]`` on the host with a `NewtonIteration`;
+    the caller sets the slot, so one compilation serves every monitor.
     """
     cache = model.__dict__.setdefault("_static_solves", {})
-    key = (id(lin), scheme, tuple(map(id, followers)), constrained, line_search)  # lin lives in the cache
+    key = (id(lin), scheme, tuple(map(id, followers)), constrained, line_search, monitored)  # lin lives in the cache
     if key in cache:
         return cache[key]
+    slot = [None]
     e = jnp.full(model.n, model.n ** -0.5)
 
     def displacement(x):
@@ -112,14 +115,19 @@ def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, co
         Ke = jax.jvp(lambda v: force_balance(v, fk, s), (u,), (e,))[1]
         return blocks, Ke, e
 
+    def report(*values):
+        slot[0](NewtonIteration(float(values[0]), int(values[1]), *map(float, values[2:6]), bool(values[6])))
+
     @jax.jit
     def solve(x0, fk, Vk, s):
+        monitor = (lambda *values: jax.debug.callback(report, s, *values)) if monitored else None
         x, it, status = newton(lambda x: residual(x, fk, Vk, s), lambda x: jacobian_parts(x, fk, s), lin, x0,
-                               rtol=scheme.rtol, atol=scheme.atol, max_iter=scheme.max_iter, line_search=line_search)
+                               rtol=scheme.rtol, atol=scheme.atol, max_iter=scheme.max_iter, line_search=line_search,
+                               monitor=monitor)
         return x, it, status, model.min_det_F(displacement(x))
 
-    cache[key] = solve
-    return solve
+    cache[key] = solve, slot
+    return cache[key]
 
 
 def initial_unknown(model: StateModel, u: np.ndarray, constrained: bool) -> jnp.ndarray:
@@ -134,7 +142,7 @@ def initial_unknown(model: StateModel, u: np.ndarray, constrained: bool) -> jnp.
 def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None = None, steps: int = 1,
                  scheme: Scheme = Scheme(), solver="auto", u0=None, follower=(), constrained: bool = True,
                  line_search: bool = True, cutbacks: int = 0, predictor: str = "previous",
-                 guess=None) -> StaticSolution:
+                 guess=None, monitor=None) -> StaticSolution:
     """Equilibrium under the load vector ``load`` (n,), control ``xi`` and follower pressures, ramped in ``steps``.
 
     Parameters
@@ -167,6 +175,10 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
     solver : a linear solver or its name (`hyperoc.linsolve.make_solver`: made once per model and name,
         and reused by later solves, with its compiled Newton solve); with follower pressures the
         tangent is not symmetric, so ``"minres"`` is refused.
+    monitor : a callable given a `hyperoc.newton.NewtonIteration` after every Newton iteration, of
+        the guess and of every load increment, rejected ones included (``NewtonLog(sys.stderr)``
+        prints them as they come). A host callback from the compiled loop: the solve is compiled once
+        with it (for any monitor) and once without.
 
     Raises `SolverError` naming the load step (index of the failed increment, and its load factor as
     ``time``) when Newton fails or an element inverts (``det F <= 0``) and no cutback is left.
@@ -186,13 +198,17 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
     V_start = float(model.jitted["volume"](jnp.asarray(u)))
     V = V_start if volume is None else float(volume)
 
+    def compiled(search: bool):
+        solve, slot = _compiled_solve(model, lin, scheme, followers, constrained, search, monitor is not None)
+        slot[0] = monitor
+        return solve
+
     rejected = 0
     if guess is not None:
-        solve_backtracking = _compiled_solve(model, lin, scheme, followers, constrained, True)
-        solution, rejected = _solve_from_guess(model, lin, solve_backtracking, guess, f, V, constrained)
+        solution, rejected = _solve_from_guess(model, lin, compiled(True), guess, f, V, constrained)
         if solution is not None:
             return solution
-    solve = _compiled_solve(model, lin, scheme, followers, constrained, line_search)
+    solve = compiled(line_search)
     x = initial_unknown(model, u, constrained)
     iters, s_done, ds, cuts, k = [], 0.0, 1.0 / steps, 0, 0
     last = None  # (x, s) of the equilibrium before the current one, for the secant predictor

@@ -8,6 +8,7 @@ change) differs at O(1/steps).
 """
 
 import gc
+import io
 import weakref
 
 import jax.numpy as jnp
@@ -20,6 +21,7 @@ from hyperoc.linsolve import SparseSolver
 from hyperoc.materials import NeoHookean, Ogden, SaintVenantKirchhoff
 from hyperoc.mesh import rectangle, refine
 from hyperoc.model import StateModel
+from hyperoc.newton import NewtonLog
 from hyperoc.statics import solve_static
 
 
@@ -164,7 +166,7 @@ def test_release_kernels_frees_the_compiled_solves_and_a_new_solve_rebuilds_them
     so the equilibrium is the same to round-off."""
     model, load, xi, V = loaded_problem
     before = solve_static(model, load=load, xi=xi, volume=V)
-    compiled = [weakref.ref(fn) for fn in model.__dict__["_static_solves"].values()]
+    compiled = [weakref.ref(fn) for fn, _ in model.__dict__["_static_solves"].values()]
     model.release_kernels()
     gc.collect()
     assert compiled and all(ref() is None for ref in compiled)
@@ -196,3 +198,42 @@ def test_nested_iteration_from_the_prolonged_coarse_equilibrium():
     print(f"\nNewton its on the fine mesh: from zero {cold.newton_iterations}, nested {warm.newton_iterations}")
     assert warm.from_guess and warm.newton_iterations[0] < cold.newton_iterations[0]
     assert np.max(np.abs(warm.u - cold.u)) <= 1e-9 * np.max(np.abs(cold.u))
+
+
+def test_monitor_sees_every_newton_iteration_of_every_load_step(loaded_problem):
+    """The monitor gets one record per Newton iteration, numbered within each load step, the last
+    of each step converged. The first iteration starts at u = 0, p = 0, where R(0) = 0 (stress-free
+    reference), so its residual is exactly ``|s f|_2`` (f = load + B xi) and its constraint residual
+    ``s |V - V0|`` at the first load factor s = 1/steps. Monitoring changes nothing in the solve."""
+    model, load, xi, V = loaded_problem
+    steps, text = 3, io.StringIO()
+    log = NewtonLog(text)
+    plain = solve_static(model, load=load, xi=xi, volume=V, steps=steps)
+    watched = solve_static(model, load=load, xi=xi, volume=V, steps=steps, monitor=log)
+    print("\n" + text.getvalue())
+    assert np.array_equal(watched.newton_iterations, plain.newton_iterations)
+    assert np.max(np.abs(watched.u - plain.u)) <= 1e-14 * np.max(np.abs(plain.u))
+    records = log.records
+    assert len(records) == plain.newton_iterations.sum() == len(text.getvalue().splitlines())
+    ends = np.cumsum(plain.newton_iterations)
+    for k, (start, end) in enumerate(zip([0, *ends[:-1]], ends)):
+        step = records[start:end]
+        assert [r.iteration for r in step] == list(range(1, end - start + 1))
+        assert all(r.load == pytest.approx((k + 1) / steps, rel=1e-15) for r in step)
+        assert step[-1].converged and not any(r.converged for r in step[:-1])
+    f = np.asarray(load) + np.asarray(model.jax_operators[2] @ jnp.asarray(xi))
+    assert records[0].residual == pytest.approx(np.linalg.norm(f) / steps, rel=1e-12)
+    assert records[0].constraint == pytest.approx((V - model.mesh.volume()) / steps, rel=1e-12)
+    assert all(r.step == 1.0 for r in records)  # this smooth problem needs no backtracking
+    assert text.getvalue().splitlines()[-1].split("(")[0].rstrip().endswith("converged")
+
+
+def test_monitor_counts_the_iterations_of_rejected_attempts(loaded_problem):
+    """An inverted guess (as above) fails and load stepping follows; the monitor sees the failed
+    iterations too: records = accepted + rejected iterations."""
+    model, load, xi, V = loaded_problem
+    inverted = model.interpolate(lambda x: np.stack([-2 * x[:, 0], 0 * x[:, 1]], axis=1))
+    log = NewtonLog()
+    sol = solve_static(model, load=load, xi=xi, volume=V, steps=2, guess=inverted, monitor=log)
+    assert not sol.from_guess and sol.rejected_iterations > 0
+    assert len(log.records) == sol.newton_iterations.sum() + sol.rejected_iterations
