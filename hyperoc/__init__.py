@@ -8,7 +8,8 @@ The curated API (see the README for a tour)::
     controls    BodyForce, ActiveStress, Region
     model       StateModel; mixed: TaylorHoodModel (P2-P1, quasi-static, incompressible allowed)
     dynamics    Scheme, TimeStepper, solve_state, StateSolution; statics: solve_static with state-dependent
-                loads FollowerPressure (pressure on the deformed boundary), FibreTension (active stress)
+                loads FollowerPressure (pressure on the deformed boundary), FibreTension (active stress),
+                and NewtonLog, a monitor that prints or keeps every Newton iteration
     time        uniform_grid, TimeGrid, TimeTransform
     objectives  Objective, ControlCost, PressureAt, PressureRise
     gradients   ReducedFunctional, ControlPoint, taylor_test
@@ -31,6 +32,7 @@ from .follower import FollowerPressure
 from .materials import Fung, Guccione, HolzapfelOgden, NeoHookean, Ogden, SaintVenantKirchhoff
 from .mesh import Mesh, box, interval, rectangle, refine
 from .mixed import TaylorHoodModel
+from .newton import NewtonLog
 from .model import StateModel
 from .objectives import ControlCost, Objective, PressureAt, PressureRise
 from .optimize import barzilai_borwein, lbfgsb
@@ -47,5 +49,5 @@ __all__ = [
     "NeoHookean", "Ogden", "SaintVenantKirchhoff", "Guccione", "HolzapfelOgden", "rule_based_fibres", "prolate_fibres",
     "transmural_coordinate", "Mesh", "box", "interval", "rectangle", "refine", "StateModel", "TaylorHoodModel",
     "ControlCost", "Objective", "PressureAt", "PressureRise", "barzilai_borwein", "lbfgsb", "ControlPoint",
-    "ReducedFunctional", "solve_static", "FollowerPressure", "FibreTension", "TimeGrid", "TimeTransform", "uniform_grid", "taylor_test",
+    "ReducedFunctional", "solve_static", "NewtonLog", "FollowerPressure", "FibreTension", "TimeGrid", "TimeTransform", "uniform_grid", "taylor_test",
 ]

@@ -222,7 +222,7 @@ def _solve(model, follower, steps, cutbacks, solver, points: dict, params: dict,
                        monitor=monitor)
     seconds = time.perf_counter() - t0
     if coarse is not None:
-        params["start"] = "prolonged" if sol.from_guess else "prolonged, failed: load stepping"
+        params["start"] = "prolonged" if sol.from_guess else f"prolonged, failed ({sol.guess_failure}): load stepping"
     J = np.asarray(det(model.deformation_gradient(jnp.asarray(sol.u))))  # (nc, nq)
     volume = float(np.sum(model.quad.wdx))  # |Omega|
     values = {name: float(node_position(model, sol.u, X)[2]) for name, X in points.items()}

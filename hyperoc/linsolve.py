@@ -133,9 +133,14 @@ class SparseSolver:
         (conservative loads: the benchmarks' tangents are symmetric to round-off) it stores one
         triangle instead of L and U and runs threaded: bench/bench_pardiso.py. ``"pardiso_single"``,
         ``"pardiso_single_reuse"``: the factorization in single precision (half its memory), refined
-        against K in double precision to the same ``rtol``, or the solve fails. Needs the ``mkl``
-        package; ``pivot_thresh``, ``fallback_thresh`` and ``ordering`` do not apply (PARDISO
-        orders with METIS and pivots in 1x1 and 2x2 blocks, perturbing the pivots it cannot take).
+        against K in double precision to the same ``rtol``, or the solve fails. The refinement of a
+        fresh PARDISO factorization goes on while the backward error falls by 10% or more per step,
+        up to ``refine_max_iter`` steps: its rate is ``|K_s^-1 K_a|``, K's skew part (follower
+        loads) against its symmetric part, plus ``cond * 6e-8`` with the single factor (Land
+        problem 2, sliding base, level 3: 8 steps, the cap before 2026-12-02, left 6e-12 > 1e-13).
+        Needs the ``mkl`` package; ``pivot_thresh``, ``fallback_thresh`` and ``ordering`` do not
+        apply (PARDISO orders with METIS and pivots in 1x1 and 2x2 blocks, perturbing the pivots it
+        cannot take).
         ``"minres"``: MINRES preconditioned by the absolute diagonal (K is mass dominated in
         dynamics), restarted until the true backward error is ``<= rtol``. (Smoothed-aggregation
         AMG of ``|K|``, set up at every call, was 10x slower here: see bench/README.md.)
@@ -177,7 +182,8 @@ class SparseSolver:
 
     def __init__(self, model, method: str = "lu", rtol: float = 1e-13, *, pivot_thresh: float = 0.0,
                  fallback_thresh: float = 0.1,
-                 reuse_rate: float = 0.25, reuse_max_iter: int = 8, ordering: str = "nd"):
+                 reuse_rate: float = 0.25, reuse_max_iter: int = 8, refine_max_iter: int = 50,
+                 ordering: str = "nd"):
         if method not in self.methods:
             raise InputError(f"unknown sparse method {method!r} ({', '.join(self.methods)})")
         if ordering not in self.orderings:
@@ -194,7 +200,7 @@ class SparseSolver:
         self._single = method.startswith("pardiso_single")
         self._upper = None  # (slot, weight, indices, indptr): CSR data -> the upper triangle of (K + K^T) / 2
         self.pivot_thresh, self.fallback_thresh, self.ordering = pivot_thresh, fallback_thresh, ordering
-        self.reuse_rate, self.reuse_max_iter = reuse_rate, reuse_max_iter
+        self.reuse_rate, self.reuse_max_iter, self.refine_max_iter = reuse_rate, reuse_max_iter, refine_max_iter
         self._order = None  # (q, position, indices, indptr) of the permuted CSC, after the first call
         self._lu = None  # kept factorization ("lu_reuse")
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hyperoc-superlu")
@@ -317,11 +323,12 @@ class SparseSolver:
     def _fresh_solve(self, K, rhs, permuted: bool):
         """Factor K (``permuted``: in the fixed ordering, `_matrix`) and solve with refinement:
         ``(lu, x)``. Diagonal pivots first; when they leave the refinement short of ``rtol``,
-        threshold partial pivoting (``fallback_thresh``). PARDISO:
-        refinement of its perturbed ``L D L^T`` of ``(K + K^T) / 2``, up to ``reuse_max_iter`` steps."""
+        threshold partial pivoting (``fallback_thresh``). PARDISO: refinement of its perturbed
+        ``L D L^T`` of ``(K + K^T) / 2`` while it contracts (by 0.9 or better per step), up to
+        ``refine_max_iter`` steps; refactoring would not help, as a kept factorization's refinement does."""
         if self._pardiso:
             lu = self._factor_ldl(K)
-            return lu, self._solve_refined(K, rhs, lu, max_iter=self.reuse_max_iter, strict=True)
+            return lu, self._solve_refined(K, rhs, lu, max_iter=self.refine_max_iter, rate=0.9, strict=True)
         lu = self._direct(K, self.pivot_thresh, permuted)
         can_fall_back = self.fallback_thresh > self.pivot_thresh  # else a second factorization repeats the first
         x = self._solve_refined(K, rhs, lu, max_iter=2, rate=self.reuse_rate if can_fall_back else None)
@@ -368,8 +375,9 @@ class SparseSolver:
             self.stats["iterations"] += 1
         self.stats["solve_s"] += time.perf_counter() - t0
         if strict:
-            raise np.linalg.LinAlgError(f"iterative refinement stalled at backward error {err:.2e} > {self.rtol:.0e} "
-                                        f"after {it} steps (K far from symmetric, or singular)")
+            how = "did not converge in" if it == max_iter else "stalled after"
+            raise np.linalg.LinAlgError(f"iterative refinement {how} {it} steps at backward error {err:.2e} > "
+                                        f"{self.rtol:.0e} (K far from symmetric, or singular)")
         # With a fresh factorization the refinement floor is round-off: keep the refined x (a
         # numerically singular K shows up as a Newton failure, reported with the step).
         return None if rate is not None else x

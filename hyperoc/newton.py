@@ -31,7 +31,8 @@ class NewtonIteration:
     iteration : 1, 2, ... within this Newton solve.
     residual : ``|r_u|_2`` of the iterate the step starts from (the force balance, n entries).
     constraint : ``|r_p|`` of that iterate (the volume constraint, or the gauge when unconstrained).
-    increment : ``|du|_inf`` of the full Newton increment (mm for the benchmarks).
+    increment : ``|du|_inf`` of the full Newton increment (mm for the benchmarks); NaN when the
+        linear solve failed (the solver's ``last_failure`` says why).
     step : the step length taken, ``2^-k`` after k halvings (1 for a full step).
     converged : whether this increment passed the stopping test.
     """
@@ -99,18 +100,22 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
             alpha, m1 = ls
             return (~(m1 <= (1 - 1e-4 * alpha) * m0)) & (alpha > 2.0**-12)
 
+        # A failed linear solve returns NaN, whose max is not NaN in XLA's reduction (-inf on CPU):
+        # test for it first, so that it is neither "converged" nor backtracked on 12 times.
+        solved = jnp.all(jnp.isfinite(dx))
+        increment = jnp.where(solved, jnp.max(jnp.abs(du)), jnp.nan)
         # An increment below the tolerance is taken whole: its merit is at round-off level and
         # backtracking on it would only stall.
         scale = jnp.max(jnp.abs(x[:-1] + du))
-        converged = jnp.max(jnp.abs(du)) <= rtol * scale + atol
+        converged = solved & (increment <= rtol * scale + atol)
         if line_search:
-            alpha, _ = jax.lax.cond(converged, lambda: (1.0, 0.0),
+            alpha, _ = jax.lax.cond(converged | ~solved, lambda: (1.0, 0.0),
                                     lambda: jax.lax.while_loop(keep_shrinking, shrink, (1.0, merit(residual(x + dx)))))
         else:
             alpha = 1.0
         x_new = x + alpha * dx
         if monitor is not None:
-            monitor(it + 1, jnp.sqrt(merit(r[:-1])), jnp.abs(r[-1]), jnp.max(jnp.abs(du)), alpha, converged)
+            monitor(it + 1, jnp.sqrt(merit(r[:-1])), jnp.abs(r[-1]), increment, alpha, converged)
         finite = jnp.all(jnp.isfinite(x_new))
         status = jnp.where(~finite, 2, jnp.where(converged, 0, 1))
         return x_new, it + 1, status, finite

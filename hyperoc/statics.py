@@ -36,6 +36,7 @@ backtracking stalls at its smallest step. ``line_search=False`` takes full Newto
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import jax
@@ -58,7 +59,9 @@ class StaticSolution:
     Newton iterations per accepted load step; ``from_guess``: reached by one Newton solve at the full
     load from ``solve_static``'s ``guess`` (then ``newton_iterations`` has that one entry);
     ``rejected_iterations``: Newton iterations of the attempts thrown away (a guess Newton failed
-    from, halved load increments), so the work done is ``newton_iterations.sum() + rejected_iterations``."""
+    from, halved load increments), so the work done is ``newton_iterations.sum() + rejected_iterations``;
+    ``guess_failure``: why Newton from the guess failed (cause and detail, e.g. the linear solver's
+    message), None when there was no guess or it converged."""
 
     model: StateModel
     u: np.ndarray
@@ -67,6 +70,7 @@ class StaticSolution:
     newton_iterations: np.ndarray
     from_guess: bool = False
     rejected_iterations: int = 0
+    guess_failure: str | None = None
 
     def displacement(self) -> np.ndarray:
         return self.model.expand(self.u)
@@ -170,8 +174,8 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
         the load steps): with no small load increment to bound it, a full Newton step from such a
         guess can overshoot (Land problem 2, Taylor-Hood, level 1 -> 2: full steps diverge,
         backtracking converges in 9 iterations, bench/README.md). The multiplier starts at 0. If
-        Newton fails from it, the load stepping from ``u0`` runs as without a guess
-        (``StaticSolution.from_guess`` tells which happened).
+        Newton fails from it, a `RuntimeWarning` says why and the load stepping from ``u0`` runs as
+        without a guess (``StaticSolution.from_guess`` and ``guess_failure`` tell what happened).
     solver : a linear solver or its name (`hyperoc.linsolve.make_solver`: made once per model and name,
         and reused by later solves, with its compiled Newton solve); with follower pressures the
         tangent is not symmetric, so ``"minres"`` is refused.
@@ -203,11 +207,13 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
         slot[0] = monitor
         return solve
 
-    rejected = 0
+    rejected, guess_failure = 0, None
     if guess is not None:
-        solution, rejected = _solve_from_guess(model, lin, compiled(True), guess, f, V, constrained)
+        solution, rejected, guess_failure = _solve_from_guess(model, lin, compiled(True), guess, f, V, constrained)
         if solution is not None:
             return solution
+        warnings.warn(f"solve_static: Newton from the guess failed ({guess_failure}); stepping the load instead",
+                      RuntimeWarning, stacklevel=2)
     solve = compiled(line_search)
     x = initial_unknown(model, u, constrained)
     iters, s_done, ds, cuts, k = [], 0.0, 1.0 / steps, 0, 0
@@ -227,7 +233,7 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
         else:
             raise SolverError(k, s, cause, f"load step {k + 1} (load factor {s:.6g} of 1, {steps} nominal steps"
                               f"{f', after {cuts} cutbacks' if cuts else ''}), {detail}")
-    return _solution(model, x, constrained, iters, rejected=rejected)
+    return _solution(model, x, constrained, iters, rejected=rejected, guess_failure=guess_failure)
 
 
 def _static_solver(model: StateModel, solver):
@@ -259,24 +265,25 @@ def _failure(lin, failed_before: int, status, mindet) -> tuple:
 
 
 def _solution(model: StateModel, x, constrained: bool, iters, from_guess: bool = False,
-              rejected: int = 0) -> StaticSolution:
+              rejected: int = 0, guess_failure: str | None = None) -> StaticSolution:
     """The `StaticSolution` of the compiled solve's unknown x (`initial_unknown`'s layout)."""
     x = np.asarray(x)
     u = x[:-1] if constrained else x[:-1] + x[-1] * model.n ** -0.5
     p = float(x[-1]) if constrained else 0.0
     return StaticSolution(model, u, p, float(model.jitted["volume"](jnp.asarray(u))), np.array(iters), from_guess,
-                          rejected)
+                          rejected, guess_failure)
 
 
 def _solve_from_guess(model: StateModel, lin, solve, guess, f, V: float, constrained: bool):
-    """Newton at the full load (s = 1) from ``guess`` (n,): ``(the StaticSolution, 0)``, or ``(None, its
-    Newton iterations)`` if Newton fails, a linear solve fails or an element inverts (the caller then
-    steps the load)."""
+    """Newton at the full load (s = 1) from ``guess`` (n,): ``(the StaticSolution, 0, None)``, or
+    ``(None, its Newton iterations, "cause, Newton iteration k: detail")`` if Newton fails, a linear
+    solve fails or an element inverts (the caller then steps the load)."""
     guess = np.asarray(guess, dtype=np.float64)
     if guess.shape != (model.n,):
         raise InputError(f"solve_static: guess must have shape ({model.n},), got {guess.shape}")
     failed = _failed_solves(lin)
     x, it, status, mindet = solve(initial_unknown(model, guess, constrained), f, V, 1.0)
-    if _failure(lin, failed, status, mindet)[0] is not None:
-        return None, int(it)
-    return _solution(model, x, constrained, [int(it)], from_guess=True), 0
+    cause, detail = _failure(lin, failed, status, mindet)
+    if cause is not None:
+        return None, int(it), f"{cause}, Newton iteration {int(it)}: {detail}"
+    return _solution(model, x, constrained, [int(it)], from_guess=True), 0, None

@@ -10,7 +10,8 @@
   normwise backward error ``rtol`` and the forward-error bound ``2 cond_inf(A) rtol``.
 - K not symmetric: PARDISO factors ``(K + K^T) / 2``, refined against K itself. A skew part well below
   the symmetric one (relative 1e-3: the refinement contracts by about that per step) is solved to the
-  same bounds; a skew part comparable to it makes the refinement stall, and the solve fails (NaN from
+  same bounds, and so is one that contracts slowly (0.4 per step: more steps than the old cap of 8);
+  a skew part comparable to the symmetric one makes the refinement stall, and the solve fails (NaN from
   the traced solve, the message kept), never returning an inaccurate answer.
 """
 
@@ -104,3 +105,17 @@ def test_a_far_from_symmetric_matrix_fails_loudly(model):  # noqa: F811
     du, dp = jax.jit(solver.solve)(blocks, jnp.asarray(col), jnp.asarray(row), jnp.asarray(r_u), r_c)
     assert np.all(np.isnan(np.asarray(du))) and solver.stats["failed"] == 1
     assert "refinement stalled" in solver.last_failure
+
+
+def test_a_slowly_contracting_refinement_runs_until_it_converges(model):  # noqa: F811
+    """Refinement with the factor of the symmetric part K_s contracts by ``rho = |K_s^-1 K_a|`` per step
+    (K_a the skew part). Scaled to rho = 0.4 (computed densely), reaching rtol = 1e-13 takes about
+    log(1e-13) / log(0.4) = 33 steps: more than the 8 allowed before 2026-12-02, within
+    ``refine_max_iter``; the solve meets the backward and forward error bounds."""
+    Ks = model.pattern.matrix(spd_blocks(model)).toarray()
+    Ka = model.pattern.matrix(skewed_blocks(model, 1.0) - spd_blocks(model)).toarray()
+    rho1 = np.max(np.abs(np.linalg.eigvals(np.linalg.solve(Ks, Ka))))
+    solver = solve_within_forward_error_bound(model, SparseSolver(model, "pardiso"),
+                                              skewed_blocks(model, 0.4 / rho1))
+    print(f"\nrho = 0.4: {solver.stats['iterations']} refinement steps")
+    assert 8 < solver.stats["iterations"] < solver.refine_max_iter and solver.stats["failed"] == 0

@@ -124,8 +124,10 @@ def test_a_guess_newton_cannot_start_from_falls_back_to_load_stepping(loaded_pro
     inverted = model.interpolate(lambda x: np.stack([-2 * x[:, 0], 0 * x[:, 1]], axis=1))
     plain = solve_static(model, load=load, xi=xi, volume=V, steps=2)
     lin = SparseSolver(model, "lu")
-    fallback = solve_static(model, load=load, xi=xi, volume=V, steps=2, guess=inverted, solver=lin)
+    with pytest.warns(RuntimeWarning, match="Newton from the guess failed"):
+        fallback = solve_static(model, load=load, xi=xi, volume=V, steps=2, guess=inverted, solver=lin)
     assert not fallback.from_guess and len(fallback.newton_iterations) == 2
+    assert plain.guess_failure is None and fallback.guess_failure.split(",")[0] in ("detF", "nonfinite", "newton")
     assert np.max(np.abs(fallback.u - plain.u)) <= 1e-9 * np.max(np.abs(plain.u))
     assert plain.rejected_iterations == 0 and fallback.rejected_iterations > 0
     assert lin.stats["calls"] == fallback.newton_iterations.sum() + fallback.rejected_iterations
@@ -234,6 +236,34 @@ def test_monitor_counts_the_iterations_of_rejected_attempts(loaded_problem):
     model, load, xi, V = loaded_problem
     inverted = model.interpolate(lambda x: np.stack([-2 * x[:, 0], 0 * x[:, 1]], axis=1))
     log = NewtonLog()
-    sol = solve_static(model, load=load, xi=xi, volume=V, steps=2, guess=inverted, monitor=log)
+    with pytest.warns(RuntimeWarning, match="Newton from the guess failed"):
+        sol = solve_static(model, load=load, xi=xi, volume=V, steps=2, guess=inverted, monitor=log)
     assert not sol.from_guess and sol.rejected_iterations > 0
     assert len(log.records) == sol.newton_iterations.sum() + sol.rejected_iterations
+
+
+class _FailsOnce(SparseSolver):
+    """LU that raises on its first solve, as PARDISO or SuperLU does on a bad K."""
+
+    def host_solve(self, *args):
+        if self.stats["calls"] == 0:
+            self.stats["calls"] += 1
+            raise np.linalg.LinAlgError("injected failure")
+        return super().host_solve(*args)
+
+
+def test_a_failed_linear_solve_is_reported_not_converged(loaded_problem):
+    """A linear solve that fails returns NaN; Newton from the guess stops at once (no backtracking on
+    NaN), the monitor shows a NaN increment, not converged, and the solution says why the guess
+    failed before load stepping took over."""
+    model, load, xi, V = loaded_problem
+    log = NewtonLog()
+    plain = solve_static(model, load=load, xi=xi, volume=V, steps=2)
+    with pytest.warns(RuntimeWarning, match="linear solve failed: injected failure"):
+        sol = solve_static(model, load=load, xi=xi, volume=V, steps=2, guess=plain.u, solver=_FailsOnce(model, "lu"),
+                           monitor=log)
+    first = log.records[0]
+    assert np.isnan(first.increment) and not first.converged and first.step == 1.0
+    assert not sol.from_guess and sol.rejected_iterations == 1
+    assert sol.guess_failure == "newton, Newton iteration 1: linear solve failed: injected failure"
+    assert np.max(np.abs(sol.u - plain.u)) <= 1e-9 * np.max(np.abs(plain.u))
