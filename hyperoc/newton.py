@@ -31,8 +31,9 @@ class NewtonIteration:
     iteration : 1, 2, ... within this Newton solve.
     residual : ``|r_u|_2`` of the iterate the step starts from (the force balance, n entries).
     constraint : ``|r_p|`` of that iterate (the volume constraint, or the gauge when unconstrained).
-    increment : ``|du|_inf`` of the full Newton increment (mm for the benchmarks); NaN when the
-        linear solve failed (the solver's ``last_failure`` says why).
+    increment : ``|du|_inf`` of the full Newton increment over all n unknowns (displacements, mm in
+        the benchmarks, and with `hyperoc.mixed.TaylorHoodModel` the pressure field, kPa); NaN when
+        the linear solve failed (the solver's ``last_failure`` says why).
     step : the step length taken, ``2^-k`` after k halvings (1 for a full step).
     converged : whether this increment passed the stopping test.
     """
