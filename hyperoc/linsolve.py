@@ -130,7 +130,8 @@ class SparseSolver:
         indefinite ``L D L^T`` (`hyperoc.pardiso.PardisoLDL`) of the symmetric part ``(K + K^T) / 2``
         in place of SuperLU, refined against K itself to the same ``rtol`` (so a K that is not
         symmetric is still solved exactly, or the solve fails, never silently). For symmetric K
-        (conservative loads: the benchmarks' tangents are symmetric to round-off) it stores one
+        (conservative loads, and follower pressures on a surface whose rim is held: the clamped
+        benchmarks' tangents are symmetric to round-off; a sliding base lets the rim move) it stores one
         triangle instead of L and U and runs threaded: bench/bench_pardiso.py. ``"pardiso_single"``,
         ``"pardiso_single_reuse"``: the factorization in single precision (half its memory), refined
         against K in double precision to the same ``rtol``, or the solve fails. The refinement of a
@@ -325,7 +326,8 @@ class SparseSolver:
         ``(lu, x)``. Diagonal pivots first; when they leave the refinement short of ``rtol``,
         threshold partial pivoting (``fallback_thresh``). PARDISO: refinement of its perturbed
         ``L D L^T`` of ``(K + K^T) / 2`` while it contracts (by 0.9 or better per step), up to
-        ``refine_max_iter`` steps; refactoring would not help, as a kept factorization's refinement does."""
+        ``refine_max_iter`` steps (a fresh factor is the best there is, so a slow contraction is waited
+        out, where a kept factor is refreshed instead)."""
         if self._pardiso:
             lu = self._factor_ldl(K)
             return lu, self._solve_refined(K, rhs, lu, max_iter=self.refine_max_iter, rate=0.9, strict=True)
