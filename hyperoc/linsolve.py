@@ -135,7 +135,7 @@ class SparseSolver:
         triangle instead of L and U and runs threaded: bench/bench_pardiso.py. ``"pardiso_single"``,
         ``"pardiso_single_reuse"``: the factorization in single precision (half its memory), refined
         against K in double precision to the same ``rtol``, or the solve fails. The refinement of a
-        fresh PARDISO factorization goes on while the backward error falls by 10% or more per step,
+        fresh PARDISO factorization goes on while the backward error falls by 10% or more in 3 steps,
         up to ``refine_max_iter`` steps: its rate is ``|K_s^-1 K_a|``, K's skew part (follower
         loads) against its symmetric part, plus ``cond * 6e-8`` with the single factor (Land
         problem 2, sliding base, level 3: 8 steps, the cap before 2026-12-02, left 6e-12 > 1e-13).
@@ -325,12 +325,13 @@ class SparseSolver:
         """Factor K (``permuted``: in the fixed ordering, `_matrix`) and solve with refinement:
         ``(lu, x)``. Diagonal pivots first; when they leave the refinement short of ``rtol``,
         threshold partial pivoting (``fallback_thresh``). PARDISO: refinement of its perturbed
-        ``L D L^T`` of ``(K + K^T) / 2`` while it contracts (by 0.9 or better per step), up to
+        ``L D L^T`` of ``(K + K^T) / 2`` while it contracts (by 0.9 or better in 3 steps), up to
         ``refine_max_iter`` steps (a fresh factor is the best there is, so a slow contraction is waited
         out, where a kept factor is refreshed instead)."""
         if self._pardiso:
             lu = self._factor_ldl(K)
-            return lu, self._solve_refined(K, rhs, lu, max_iter=self.refine_max_iter, rate=0.9, strict=True)
+            return lu, self._solve_refined(K, rhs, lu, max_iter=self.refine_max_iter, rate=0.9, patience=3,
+                                           strict=True)
         lu = self._direct(K, self.pivot_thresh, permuted)
         can_fall_back = self.fallback_thresh > self.pivot_thresh  # else a second factorization repeats the first
         x = self._solve_refined(K, rhs, lu, max_iter=2, rate=self.reuse_rate if can_fall_back else None)
@@ -350,19 +351,20 @@ class SparseSolver:
             self._set_order(np.argsort(lu.perm_c))
         return lu
 
-    def _solve_refined(self, K, rhs, lu, *, max_iter, rate=None, strict=False):
+    def _solve_refined(self, K, rhs, lu, *, max_iter, rate=None, patience=1, strict=False):
         """Iterative refinement with ``lu`` (of K or of an earlier K) to backward error ``rtol``.
 
         Returns None when ``rate`` is given (a kept factorization, or diagonal pivots that can fall
-        back, `_fresh_solve`) and the refinement does not contract by at least that factor per
-        iteration or does not converge in ``max_iter``; with ``strict`` (a factorization of a
-        modified K: PARDISO's perturbed LDL^T of the symmetric part) that raises ``LinAlgError``.
+        back, `_fresh_solve`) and the refinement does not contract by at least that factor in
+        ``patience`` steps (the error of a stationary iteration need not fall at every step) or
+        does not converge in ``max_iter``; with ``strict`` (a factorization of a modified K:
+        PARDISO's perturbed LDL^T of the symmetric part) that raises ``LinAlgError``.
         """
         t0 = time.perf_counter()
         x = lu.solve(rhs)
         Knorm = abs(K).sum(axis=0).max()
         bnorm = np.abs(rhs).max(axis=0)
-        err_prev = np.inf
+        history = []  # backward errors of the earlier iterates
         for it in range(max_iter + 1):
             r = rhs - K @ x
             scale = Knorm * np.abs(x).max(axis=0) + bnorm
@@ -370,9 +372,9 @@ class SparseSolver:
             if err <= self.rtol:
                 self.stats["solve_s"] += time.perf_counter() - t0
                 return x
-            if it == max_iter or (rate is not None and it > 0 and err > rate * err_prev):
+            if it == max_iter or (rate is not None and it >= patience and err > rate * history[-patience]):
                 break
-            err_prev = err
+            history.append(err)
             x = x + lu.solve(r)
             self.stats["iterations"] += 1
         self.stats["solve_s"] += time.perf_counter() - t0
