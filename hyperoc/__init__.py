@@ -32,8 +32,8 @@ from .follower import FollowerPressure
 from .materials import Fung, Guccione, HolzapfelOgden, NeoHookean, Ogden, SaintVenantKirchhoff
 from .mesh import Mesh, box, interval, rectangle, refine
 from .mixed import TaylorHoodModel
-from .newton import NewtonLog
 from .model import StateModel
+from .newton import NewtonLog
 from .objectives import ControlCost, Objective, PressureAt, PressureRise
 from .optimize import barzilai_borwein, lbfgsb
 from .reduced import ControlPoint, ReducedFunctional

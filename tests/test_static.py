@@ -115,13 +115,18 @@ def test_warm_start_from_a_nearby_equilibrium_converges_at_full_load(loaded_prob
     assert abs(warm.p - cold.p) <= 1e-9 * max(abs(cold.p), 1.0)
 
 
+def inverted_guess(model):
+    """u = (-2 x, 0): F = diag(-1, 1), det F = -1 everywhere; Newton cannot start from it."""
+    return model.interpolate(lambda x: np.stack([-2 * x[:, 0], 0 * x[:, 1]], axis=1))
+
+
 def test_a_guess_newton_cannot_start_from_falls_back_to_load_stepping(loaded_problem):
     """An inverted guess (u = (-2 x, 0): F = diag(-1, 1), det F = -1 everywhere) fails; the load
     stepping then runs as without it and gives the same equilibrium. The failed attempt's Newton
     iterations are counted as rejected: with one linear solve per Newton iteration, the solver's
     calls are the accepted plus the rejected iterations."""
     model, load, xi, V = loaded_problem
-    inverted = model.interpolate(lambda x: np.stack([-2 * x[:, 0], 0 * x[:, 1]], axis=1))
+    inverted = inverted_guess(model)
     plain = solve_static(model, load=load, xi=xi, volume=V, steps=2)
     lin = SparseSolver(model, "lu")
     with pytest.warns(RuntimeWarning, match="Newton from the guess failed"):
@@ -234,7 +239,7 @@ def test_monitor_counts_the_iterations_of_rejected_attempts(loaded_problem):
     """An inverted guess (as above) fails and load stepping follows; the monitor sees the failed
     iterations too: records = accepted + rejected iterations."""
     model, load, xi, V = loaded_problem
-    inverted = model.interpolate(lambda x: np.stack([-2 * x[:, 0], 0 * x[:, 1]], axis=1))
+    inverted = inverted_guess(model)
     log = NewtonLog()
     with pytest.warns(RuntimeWarning, match="Newton from the guess failed"):
         sol = solve_static(model, load=load, xi=xi, volume=V, steps=2, guess=inverted, monitor=log)
