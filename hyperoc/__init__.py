@@ -7,9 +7,10 @@ The curated API (see the README for a tour)::
     fibres      transmural_coordinate, rule_based_fibres (helix angle rule), prolate_fibres (analytic, Land)
     controls    BodyForce, ActiveStress, Region
     model       StateModel; mixed: TaylorHoodModel (P2-P1, quasi-static, incompressible allowed)
-    dynamics    Scheme, TimeStepper, solve_state, StateSolution; statics: solve_static with state-dependent
-                loads FollowerPressure (pressure on the deformed boundary), FibreTension (active stress),
-                and NewtonLog, a monitor that prints or keeps every Newton iteration
+    dynamics    Scheme, TimeStepper, solve_state (monitor= sees each step's StepRecord), StateSolution;
+                statics: solve_static with state-dependent loads FollowerPressure (pressure on the
+                deformed boundary), FibreTension (active stress), and NewtonLog, a monitor that
+                prints or keeps every Newton iteration
     time        uniform_grid, TimeGrid, TimeTransform
     objectives  Objective, ControlCost, PressureAt, PressureRise
     gradients   ReducedFunctional, ControlPoint, taylor_test
