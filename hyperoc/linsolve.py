@@ -292,6 +292,10 @@ class SparseSolver:
             self.stats["order_s"] += time.perf_counter() - t_start
         K, q = self._matrix(blocks)
         rhs = np.stack([np.asarray(r_u, dtype=np.float64), np.asarray(col, dtype=np.float64)], axis=1)
+        if not (np.isfinite(K.data).all() and np.isfinite(rhs).all()):
+            # A Newton iterate outside the energy's domain (inverted elements): no factorization
+            # can help, and PARDISO corrupts its heap on such values (`hyperoc.pardiso`).
+            raise np.linalg.LinAlgError("the tangent or the residual has non-finite entries (NaN or Inf)")
         if self.method == "minres":
             t0 = time.perf_counter()
             ab = np.stack([self._minres(K, rhs[:, j]) for j in range(2)], axis=1)
@@ -403,7 +407,9 @@ class SparseSolver:
         return x
 
     def _host_solve_or_nan(self, *args):
-        """`host_solve`, with NaN for a singular matrix (SuperLU) or a MINRES failure: JAX leaves an
+        """`host_solve`, with NaN for a singular matrix (SuperLU), a tangent or residual with NaN or
+        Inf entries (an iterate with inverted elements), a refinement that fails (PARDISO) or a MINRES
+        failure: JAX leaves an
         exception raised inside ``jax.pure_callback`` undefined, while NaN makes Newton fail, so the
         caller cuts the load step back or raises `SolverError` naming the step. ``stats["failed"]``
         counts these, and ``last_failure`` keeps the message."""

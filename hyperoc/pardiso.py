@@ -63,6 +63,16 @@ def available() -> bool:
     return True
 
 
+def _cast_finite(values: np.ndarray, dtype, what: str, *, fortran: bool = False) -> np.ndarray:
+    """``values`` in PARDISO's precision, or ``LinAlgError`` when one of them is NaN or Inf there."""
+    with np.errstate(over="ignore"):  # a double beyond single precision becomes Inf: refused below
+        out = (np.asfortranarray if fortran else np.ascontiguousarray)(values, dtype=dtype)
+    if not np.isfinite(out).all():
+        raise np.linalg.LinAlgError(f"PARDISO: the {what} has non-finite entries (NaN or Inf"
+                                    f"{', or beyond single precision' if dtype == np.float32 else ''})")
+    return out
+
+
 class PardisoLDL:
     """``L D L^T`` of the symmetric matrix whose upper triangle (diagonal included) is ``upper`` (CSR, n x n).
     ``single``: values, factor and solves in single precision (``iparm(28) = 1``; half the factor's
@@ -72,6 +82,11 @@ class PardisoLDL:
     (``iparm(14)``), ``inertia`` (positive and negative eigenvalues of K, ``iparm(22)``, ``iparm(23)``),
     ``memory_mb`` (PARDISO's peak, ``max(iparm(15), iparm(16) + iparm(17))`` KB). ``free()`` releases
     the factor (also when the object is collected); calls must come from one thread at a time.
+
+    A matrix or right-hand side with a NaN or Inf entry (in the precision PARDISO gets: a double above
+    3.4e38 is Inf in single precision) raises ``LinAlgError`` before PARDISO sees it: its scaling and
+    matching on such values corrupted the heap ("double free or corruption", the process aborted),
+    measured on a Newton iterate of Land problem 3 that had inverted elements.
     """
 
     def __init__(self, upper: sp.csr_matrix, *, single: bool = False):
@@ -80,7 +95,7 @@ class PardisoLDL:
         self.n = upper.shape[0]
         self._lib = _library()
         self._dtype = np.float32 if single else np.float64
-        self._data = np.ascontiguousarray(upper.data, dtype=self._dtype)
+        self._data = _cast_finite(upper.data, self._dtype, "matrix")
         self._indptr = np.ascontiguousarray(upper.indptr, dtype=np.int32)
         self._indices = np.ascontiguousarray(upper.indices, dtype=np.int32)
         self._pt = np.zeros(64, dtype=np.int64)  # PARDISO's opaque handle; zero before the first call
@@ -111,7 +126,7 @@ class PardisoLDL:
     def solve(self, b: np.ndarray) -> np.ndarray:
         """``K^-1 b`` for b (n,) or (n, k)."""
         b = np.asarray(b, dtype=np.float64)
-        cols = np.asfortranarray(b.reshape(self.n, -1), dtype=self._dtype)
+        cols = _cast_finite(b.reshape(self.n, -1), self._dtype, "right-hand side", fortran=True)
         return self._call(_SOLVE, cols).astype(np.float64).reshape(b.shape)
 
     def free(self):

@@ -100,6 +100,30 @@ def test_singular_matrix_gives_nan_from_the_traced_solve(model):
     assert np.all(np.isfinite(x))
 
 
+def check_non_finite_tangent_fails_cleanly(model, method):
+    """A tangent with NaN or Inf entries (a Newton iterate with inverted elements) gives NaN from the
+    traced solve and says why, also when a factorization is kept from an earlier call; the solver
+    works again afterwards."""
+    solver = SparseSolver(model, method)
+    col, row, r_u, r_c = bordered_rhs(model)
+    good = spd_blocks(model)
+    solve = jax.jit(solver.solve)
+    args = (jnp.asarray(col), jnp.asarray(row), jnp.asarray(r_u), r_c)
+    assert np.all(np.isfinite(np.asarray(solve(jnp.asarray(good), *args)[0])))
+    for failures, bad_value in enumerate((np.nan, np.inf), start=1):
+        bad = good.copy()
+        bad[:, 0, 0] = bad_value  # in every element: some of these entries are free dofs' (not dropped)
+        du, dp = solve(jnp.asarray(bad), *args)
+        assert np.all(np.isnan(np.asarray(du))) and np.isnan(float(dp))
+        assert solver.stats["failed"] == failures and "non-finite" in solver.last_failure
+    assert np.all(np.isfinite(np.asarray(solve(jnp.asarray(good), *args)[0])))
+
+
+@pytest.mark.parametrize("method", ["lu", "lu_reuse", "minres"])
+def test_non_finite_tangent_fails_cleanly(model, method):
+    check_non_finite_tangent_fails_cleanly(model, method)
+
+
 def test_nested_dissection_is_a_permutation_of_the_dofs():
     model = StateModel(box(4, dirichlet="left"), SaintVenantKirchhoff(1.0, 1.0), degree=2)
     q = nested_dissection(model.pattern)

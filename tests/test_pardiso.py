@@ -25,7 +25,8 @@ from hyperoc.linsolve import SparseSolver
 from hyperoc.pardiso import PardisoLDL, available
 
 from test_linsolve import model  # noqa: F401  (the fixture)
-from test_linsolve import bordered_rhs, solve_within_forward_error_bound, spd_blocks, taylor_hood_saddle_point
+from test_linsolve import (bordered_rhs, check_non_finite_tangent_fails_cleanly, solve_within_forward_error_bound,
+                           spd_blocks, taylor_hood_saddle_point)
 
 pytestmark = pytest.mark.skipif(not available(), reason="MKL (pip install mkl) is not installed")
 EPS = np.finfo(float).eps
@@ -52,6 +53,36 @@ def test_inertia_and_solve_of_a_saddle_point():
         assert np.abs(x - expected).max() <= bound * np.abs(expected).max()
     lu.free()
     lu.free()  # idempotent
+
+
+@pytest.mark.parametrize("single", [False, True])
+def test_non_finite_values_never_reach_pardiso(single):
+    """PARDISO corrupted its heap on a matrix with Inf entries (process aborted): such a matrix or
+    right-hand side is refused with LinAlgError, in the precision PARDISO would get (a double of
+    1e39 is Inf in single precision), and a factor stays usable after a refused right-hand side."""
+    K, rng = saddle_point()
+    upper = sp.triu(K).tocsr()
+    bad_values = (np.nan, np.inf, -np.inf) + ((1e39,) if single else ())
+    for bad in bad_values:
+        U = upper.copy()
+        U.data[5] = bad
+        with pytest.raises(np.linalg.LinAlgError, match="matrix has non-finite"):
+            PardisoLDL(U, single=single)
+    lu = PardisoLDL(upper, single=single)
+    b = rng.standard_normal(K.shape[0])
+    for bad in bad_values:
+        with pytest.raises(np.linalg.LinAlgError, match="right-hand side has non-finite"):
+            lu.solve(np.where(np.arange(b.size) == 3, bad, b))
+    Kd = K.toarray()
+    expected = np.linalg.solve(Kd, b)
+    unit = np.finfo(np.float32 if single else np.float64).eps  # the bounds of the two tests above
+    assert np.abs(lu.solve(b) - expected).max() <= 100 * unit * np.linalg.cond(Kd, np.inf) * np.abs(expected).max()
+    lu.free()
+
+
+@pytest.mark.parametrize("method", ["pardiso", "pardiso_reuse", "pardiso_single", "pardiso_single_reuse"])
+def test_non_finite_tangent_fails_cleanly_with_pardiso(model, method):  # noqa: F811
+    check_non_finite_tangent_fails_cleanly(model, method)
 
 
 @pytest.mark.parametrize("method", ["pardiso", "pardiso_reuse", "pardiso_single", "pardiso_single_reuse"])
