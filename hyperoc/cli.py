@@ -22,6 +22,9 @@ def _parser() -> argparse.ArgumentParser:
     s = sub.add_parser("simulate", help="forward solve with a prescribed control")
     s.add_argument("config")
     s.add_argument("--out", required=True)
+    s.add_argument("--log-steps", action="store_true",
+                   help="one line per time step on stderr (Newton iterations, min det F, volume drift, pressure) "
+                        "instead of the progress bar, for output going to a file")
     o = sub.add_parser("optimize", help="optimize the control and the time tau")
     o.add_argument("config", nargs="?")
     o.add_argument("--out")
@@ -70,12 +73,18 @@ def _optimize(args) -> None:
           f"converged = {summary.get('converged')}  -> {out / 'summary.json'}")
 
 
+def _print_step(record) -> None:
+    """``--log-steps``: one `hyperoc.dynamics.StepRecord` per line, flushed (a log file follows the run)."""
+    print(f"step {record.step} t = {record.t:.6g}: {record.describe()}", file=sys.stderr, flush=True)
+
+
 def _run(args) -> None:
     if args.command == "simulate":
         from .config import load_config
         from .workflows import simulate
 
-        summary = simulate(load_config(args.config), args.out, progress=not args.no_progress)
+        summary = simulate(load_config(args.config), args.out, progress=not (args.no_progress or args.log_steps),
+                           monitor=_print_step if args.log_steps else None)
         print(f"max p = {summary['pressure_max']:.6g} at t = {summary['t_pressure_max']:.6g}; "
               f"volume drift {summary['volume_drift']:.2e} -> {Path(args.out) / 'summary.json'}")
         for w in summary["warnings"]:

@@ -24,13 +24,14 @@ from .verification import random_directions, taylor_test
 __all__ = ["simulate", "build_reduced", "optimize_single", "optimize", "check_gradient"]
 
 
-def simulate(cfg: Config, out, *, progress: bool = False) -> dict:
-    """Forward solve with the prescribed control of ``[control]``; writes the standard outputs."""
+def simulate(cfg: Config, out, *, progress: bool = False, monitor=None) -> dict:
+    """Forward solve with the prescribed control of ``[control]``; writes the standard outputs.
+    ``monitor``: called with each step's `hyperoc.dynamics.StepRecord` (`TimeStepper.run`)."""
     model = cfg.model()
     grid = cfg.grid()
     xi = cfg.prescribed_control(model, grid.t)
     stepper = TimeStepper(model, cfg.scheme(), cfg["dynamics"]["solver"])
-    sol = stepper.run(grid, xi, progress=progress)
+    sol = stepper.run(grid, xi, progress=progress, monitor=monitor)
     o = cfg["output"]
     return write_state_outputs(Path(out), sol, snapshot_times=o.get("snapshot_times"), series_every=o.get("series_every"),
                                frames=cfg.fibres(model.mesh))

@@ -1,6 +1,7 @@
 """The command line: outputs of simulate/check-gradient, and bad input -> one line, exit status 2."""
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -106,6 +107,21 @@ def test_solver_failure_names_step(tmp_path, capsys):
     assert main(["simulate", str(cfg), "--out", str(tmp_path / "o"), "--no-progress"]) == 1
     err = capsys.readouterr().err
     assert "solver failed at step" in err and ("detF" in err or "newton" in err or "nonfinite" in err)
+
+
+def test_log_steps_prints_each_step_and_the_failing_one(tmp_path, capsys):
+    """``--log-steps``: one line per step; on a failure the last line is the step the error names."""
+    cfg = _write(tmp_path, SMALL_1D)
+    assert main(["simulate", str(cfg), "--out", str(tmp_path / "ok"), "--log-steps"]) == 0
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("step ")]
+    assert [int(line.split()[1]) for line in lines] == list(range(40))  # SMALL_1D: T = 2, dt = 0.05
+    assert all(", min det F " in line and ", dV " in line for line in lines)
+    cfg = _write(tmp_path, SMALL_1D.replace('value = "0.05 * sin(pi * t)"', 'value = "50.0 * t"'))
+    assert main(["simulate", str(cfg), "--out", str(tmp_path / "bad"), "--log-steps"]) == 1
+    err = capsys.readouterr().err
+    failing = re.search(r"solver failed at step (\d+) .*?: (\w+)", err)
+    last = [line for line in err.splitlines() if line.startswith("step ")][-1]
+    assert last.startswith(f"step {failing.group(1)} ") and last.endswith(f"FAILED: {failing.group(2)}")
 
 
 @pytest.mark.parametrize("name", ["simulate-1d.toml", "annulus-2d.toml"])
