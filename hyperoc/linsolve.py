@@ -409,10 +409,9 @@ class SparseSolver:
     def _host_solve_or_nan(self, *args):
         """`host_solve`, with NaN for a singular matrix (SuperLU), a tangent or residual with NaN or
         Inf entries (an iterate with inverted elements), a refinement that fails (PARDISO) or a MINRES
-        failure: JAX leaves an
-        exception raised inside ``jax.pure_callback`` undefined, while NaN makes Newton fail, so the
-        caller cuts the load step back or raises `SolverError` naming the step. ``stats["failed"]``
-        counts these, and ``last_failure`` keeps the message."""
+        failure: JAX leaves an exception raised inside ``jax.pure_callback`` undefined, while NaN
+        makes Newton fail, so the caller cuts the load step back or raises `SolverError` naming the
+        step. ``stats["failed"]`` counts these, and ``last_failure`` keeps the message."""
         try:
             return self.host_solve(*args)
         except (RuntimeError, np.linalg.LinAlgError) as err:
