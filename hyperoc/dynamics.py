@@ -392,7 +392,7 @@ class TimeStepper:
             raise InputError(f"external loads must have shape (N+1, n) = {(N + 1, n)}, got {ext.shape}")
         return ext
 
-    def _python_loop(self, y0, y1, p0, xis, fs, grid, V0, progress, monitor):
+    def _python_loop(self, y0, y1, p0, xis, fs, grid, V0, progress, monitor=None):
         from tqdm.auto import tqdm
 
         carry = (jnp.asarray(y0), jnp.asarray(y1), jnp.asarray(p0, dtype=jnp.float64), jnp.asarray(False))
