@@ -23,6 +23,8 @@ from hyperoc.mesh import interval
 from hyperoc.model import StateModel
 from hyperoc.timegrid import uniform_grid
 
+from test_regimes import constant_control
+
 EPS = np.finfo(float).eps
 
 
@@ -34,10 +36,6 @@ def bar_1d():
     stepper = TimeStepper(model, Scheme())
     assert stepper.solver.traced
     return stepper
-
-
-def constant_control(stepper, grid, value):
-    return np.full((len(grid.t), stepper.model.control.size), value)
 
 
 def check_records_match(records, sol, grid, volume_tol):
