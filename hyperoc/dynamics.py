@@ -432,7 +432,8 @@ class TimeStepper:
         cause = STATUS.get(int(status[n]), "unknown")
         detail = {
             "newton": f"Newton did not converge in {int(its[n])} iterations (try a smaller dt, or a larger kappa)",
-            "nonfinite": "NaN/Inf in the Newton iterate",
+            "nonfinite": "NaN/Inf in the Newton iterate, or in the residual at every line-search step "
+                         "(an inverted element along the whole Newton direction; try a smaller dt)",
             "detF": f"min det F = {float(mindet[n]):.3g} <= 0: an element is inverted",
         }.get(cause, "")
         raise SolverError(n, grid.t[n + 1], cause, detail)

@@ -75,7 +75,8 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
 
     Convergence: ``|du|_inf <= rtol |u|_inf + atol`` for the Newton increment du; with quadratic
     convergence the error after that update is far below the test. Status 0 = converged,
-    1 = not converged in ``max_iter`` iterations, 2 = non-finite iterate. When the full step does
+    1 = not converged in ``max_iter`` iterations, 2 = non-finite iterate, or a residual that is
+    non-finite at every line-search step. When the full step does
     not decrease ``|r|^2`` (sufficient decrease 1e-4), it is halved (at most 12 times);
     ``line_search=False`` always takes the full step (penalty-stiff static problems with load
     stepping, where the merit of the first full step can grow although Newton then converges).
@@ -110,14 +111,16 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
         scale = jnp.max(jnp.abs(x[:-1] + du))
         converged = solved & (increment <= rtol * scale + atol)
         if line_search:
-            alpha, _ = jax.lax.cond(converged | ~solved, lambda: (1.0, 0.0),
-                                    lambda: jax.lax.while_loop(keep_shrinking, shrink, (1.0, merit(residual(x + dx)))))
+            alpha, m1 = jax.lax.cond(converged | ~solved, lambda: (1.0, 0.0),
+                                     lambda: jax.lax.while_loop(keep_shrinking, shrink, (1.0, merit(residual(x + dx)))))
         else:
-            alpha = 1.0
+            alpha, m1 = 1.0, 0.0
         x_new = x + alpha * dx
         if monitor is not None:
             monitor(it + 1, jnp.sqrt(merit(r[:-1])), jnp.abs(r[-1]), increment, alpha, converged)
-        finite = jnp.all(jnp.isfinite(x_new))
+        # A residual that is NaN even at the smallest step (e.g. log det F of an inverted element
+        # all along the Newton direction) is a failure now, not one iteration later.
+        finite = jnp.all(jnp.isfinite(x_new)) & jnp.isfinite(m1)
         status = jnp.where(~finite, 2, jnp.where(converged, 0, 1))
         return x_new, it + 1, status, finite
 

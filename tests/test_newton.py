@@ -1,0 +1,73 @@
+"""`hyperoc.newton.newton` on two unknowns ``x = (u, p)``, solved densely.
+
+The residual ``log(u) + c`` is undefined for ``u <= 0``, like the log det F terms of the hyperelastic
+laws for an inverted element; the multiplier p is decoupled (``r_p = p``) or, in the bordered
+problem, fixes u through the constraint ``u = u_p``.
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from hyperoc.newton import newton
+
+
+class DenseBordered:
+    """Solves ``[[K, col], [row^T, 0]] [du; dp] = [ru; rp]`` with K given as a dense block."""
+
+    def solve(self, K, col, row, ru, rp):
+        A = jnp.block([[K, col[:, None]], [row[None, :], jnp.zeros((1, 1))]])
+        x = jnp.linalg.solve(A, jnp.concatenate([ru, jnp.atleast_1d(rp)]))
+        return x[:-1], x[-1]
+
+
+class Decoupled:
+    """Solves ``K du = ru`` and ``dp = rp`` (the multiplier's row is the identity)."""
+
+    def solve(self, K, col, row, ru, rp):
+        return jnp.linalg.solve(K, ru), rp
+
+
+def solve_log(c, *, max_iter=30):
+    """Newton on ``log(u) + c = 0, p = 0`` from (1, 0); returns (x, iterations, status, steps taken)."""
+    residual = lambda x: jnp.array([jnp.log(x[0]) + c, x[1]])
+    parts = lambda x: (jnp.array([[1.0 / x[0]]]), jnp.zeros(1), jnp.zeros(1))
+    steps = []
+    record = lambda *values: steps.append(float(values[4]))  # the step length taken
+    x, it, status = newton(residual, parts, Decoupled(), jnp.array([1.0, 0.0]), rtol=1e-12, atol=0.0,
+                           max_iter=max_iter, monitor=lambda *values: jax.debug.callback(record, *values))
+    return np.asarray(x), int(it), int(status), steps
+
+
+def test_bordered_solve_converges_to_the_root():
+    residual = lambda x: jnp.array([jnp.log(x[0]) + 0.5 + x[1], x[0] - 2.0])
+    parts = lambda x: (jnp.array([[1.0 / x[0]]]), jnp.ones(1), jnp.ones(1))
+    x, it, status = newton(residual, parts, DenseBordered(), jnp.array([1.0, 0.0]), rtol=1e-12, atol=0.0,
+                           max_iter=20)
+    assert int(status) == 0
+    np.testing.assert_allclose(np.asarray(x), [2.0, -0.5 - np.log(2.0)], rtol=1e-14)
+
+
+def test_backtracks_from_nan_trials_into_the_domain_of_the_residual():
+    """c = 3: the full step goes to u = 1 - 3 < 0 and the half step to -0.5 (NaN residuals); the
+    quarter step to 0.25 decreases |r| from 3 to 1.61 and is taken; Newton then converges to e^-3."""
+    x, it, status, steps = solve_log(3.0)
+    assert status == 0 and steps[0] == 0.25
+    np.testing.assert_allclose(x[0], np.exp(-3.0), rtol=1e-14)
+
+
+def test_a_residual_nan_at_every_line_search_step_fails_in_that_iteration():
+    """c = 5000: even the smallest step 2^-12 lands at u = 1 - 5000/4096 < 0, so every trial residual
+    is NaN: status 2 (non-finite) after the first iteration, not a 2^-12 step into NaN first."""
+    _, it, status, steps = solve_log(5000.0)
+    assert status == 2 and it == 1 and steps == [2.0**-12]
+
+
+@pytest.mark.parametrize("line_search", [True, False])
+def test_a_failed_linear_solve_is_status_two_at_once(line_search):
+    residual = lambda x: jnp.array([x[0] - 1.0, x[1]])
+    parts = lambda x: (jnp.zeros((1, 1)), jnp.zeros(1), jnp.zeros(1))  # singular K: the solve gives NaN/Inf
+    _, it, status = newton(residual, parts, Decoupled(), jnp.array([0.0, 0.0]), rtol=1e-12, atol=0.0,
+                           max_iter=20, line_search=line_search)
+    assert int(status) == 2 and int(it) == 1
