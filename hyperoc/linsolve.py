@@ -376,14 +376,17 @@ class SparseSolver:
             if err <= self.rtol:
                 self.stats["solve_s"] += time.perf_counter() - t0
                 return x
-            if it == max_iter or (rate is not None and it >= patience and err > rate * history[-patience]):
+            # A NaN backward error (a singular factor) does not recover by refining.
+            if it == max_iter or not np.isfinite(err) or (rate is not None and it >= patience
+                                                          and err > rate * history[-patience]):
                 break
             history.append(err)
             x = x + lu.solve(r)
             self.stats["iterations"] += 1
         self.stats["solve_s"] += time.perf_counter() - t0
         if strict:
-            how = "did not converge in" if it == max_iter else "stalled after"
+            how = ("gave a non-finite iterate after" if not np.isfinite(err) else
+                   "did not converge in" if it == max_iter else "stalled after")
             raise np.linalg.LinAlgError(f"iterative refinement {how} {it} steps at backward error {err:.2e} > "
                                         f"{self.rtol:.0e} (K far from symmetric, or singular)")
         # With a fresh factorization the refinement floor is round-off: keep the refined x (a

@@ -245,3 +245,24 @@ def test_first_call_fallback_with_minimum_degree_keeps_the_minimum_degree_orderi
                         options={"SymmetricMode": True}).nnz
     print(f"\nfill of the fallback: {solver.stats['fill']}, minimum degree {expected}, original numbering {natural}")
     assert solver.stats["fill"] == expected < natural
+
+
+class _NaNFactor:
+    """A factorization whose solves are NaN (a singular factor: zero pivots divide)."""
+
+    def solve(self, rhs):
+        return np.full_like(rhs, np.nan)
+
+
+@pytest.mark.parametrize("rate", [None, 0.25])
+def test_refinement_stops_at_a_non_finite_iterate(model, rate):
+    """Refining cannot recover a NaN iterate: no refinement step is taken; a strict refinement
+    (PARDISO's perturbed factor) says so, a kept factorization (``rate``) is given up (None)."""
+    solver = SparseSolver(model, "lu")
+    K = model.pattern.matrix(spd_blocks(model)).tocsr()
+    rhs = np.ones(K.shape[0])
+    result = solver._solve_refined(K, rhs, _NaNFactor(), max_iter=50, rate=rate)
+    assert (result is None) if rate else np.all(np.isnan(result))
+    with pytest.raises(np.linalg.LinAlgError, match="non-finite iterate after 0 steps"):
+        solver._solve_refined(K, rhs, _NaNFactor(), max_iter=50, rate=rate, strict=True)
+    assert solver.stats["iterations"] == 0
