@@ -202,21 +202,35 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
     V_start = float(model.jitted["volume"](jnp.asarray(u)))
     V = V_start if volume is None else float(volume)
 
+    slots = []
+
     def compiled(search: bool):
         solve, slot = _compiled_solve(model, lin, scheme, followers, constrained, search, monitor is not None)
         slot[0] = monitor
+        slots.append(slot)
         return solve
 
-    rejected, guess_failure = 0, None
-    if guess is not None:
-        solution, rejected, guess_failure = _solve_from_guess(model, lin, compiled(True), guess, f, V, constrained)
-        if solution is not None:
-            return solution
-        warnings.warn(f"solve_static: Newton from the guess failed ({guess_failure}); stepping the load instead",
-                      RuntimeWarning, stacklevel=2)
-    solve = compiled(line_search)
-    x = initial_unknown(model, u, constrained)
-    iters, s_done, ds, cuts, k = [], 0.0, 1.0 / steps, 0, 0
+    try:
+        rejected, guess_failure = 0, None
+        if guess is not None:
+            solution, rejected, guess_failure = _solve_from_guess(model, lin, compiled(True), guess, f, V, constrained)
+            if solution is not None:
+                return solution
+            warnings.warn(f"solve_static: Newton from the guess failed ({guess_failure}); stepping the load instead",
+                          RuntimeWarning, stacklevel=2)
+        x, iters, cut = _step_load(lin, compiled(line_search), initial_unknown(model, u, constrained), f, V_start, V,
+                                   steps=steps, cutbacks=cutbacks, predictor=predictor)
+        return _solution(model, x, constrained, iters, rejected=rejected + cut, guess_failure=guess_failure)
+    finally:  # the cached solve must not keep the caller's monitor (and all it holds) alive
+        for slot in slots:
+            slot[0] = None
+
+
+def _step_load(lin, solve, x, f, V_start: float, V: float, *, steps: int, cutbacks: int, predictor: str):
+    """Walk the load factor s from 0 to 1 in ``steps`` nominal increments, each solved by ``solve``
+    (`_compiled_solve`) from the predictor; a failed increment is halved while cutbacks are left.
+    Returns ``(x at s = 1, Newton iterations per accepted increment, iterations of rejected ones)``."""
+    iters, rejected, s_done, ds, cuts, k = [], 0, 0.0, 1.0 / steps, 0, 0
     last = None  # (x, s) of the equilibrium before the current one, for the secant predictor
     while s_done < 1.0:
         s = s_done + ds if s_done + ds < 1.0 - 1e-12 else 1.0
@@ -233,7 +247,7 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
         else:
             raise SolverError(k, s, cause, f"load step {k + 1} (load factor {s:.6g} of 1, {steps} nominal steps"
                               f"{f', after {cuts} cutbacks' if cuts else ''}), {detail}")
-    return _solution(model, x, constrained, iters, rejected=rejected, guess_failure=guess_failure)
+    return x, iters, rejected
 
 
 def _static_solver(model: StateModel, solver):

@@ -7,6 +7,7 @@ relative; a path-dependent result (e.g. a ramp that forgets part of the load or 
 change) differs at O(1/steps).
 """
 
+import contextlib
 import gc
 import io
 import weakref
@@ -246,6 +247,20 @@ def test_monitor_counts_the_iterations_of_rejected_attempts(loaded_problem):
     assert not sol.from_guess and sol.rejected_iterations > 0
     assert len(log.records) == sol.newton_iterations.sum() + sol.rejected_iterations
 
+
+
+def test_a_solve_keeps_no_reference_to_its_monitor(loaded_problem):
+    """The compiled solve is cached on the model; the monitor is not (after a converged solve and
+    after a failing one), so a `NewtonLog` and all it holds are freed with the caller's reference."""
+    model, load, xi, V = loaded_problem
+    for guess, expect_warning in ((None, None), (inverted_guess(model), RuntimeWarning)):
+        log = NewtonLog()
+        ref = weakref.ref(log)
+        with pytest.warns(expect_warning) if expect_warning else contextlib.nullcontext():
+            solve_static(model, load=load, xi=xi, volume=V, steps=2, guess=guess, monitor=log)
+        del log
+        gc.collect()
+        assert ref() is None
 
 class _FailsOnce(SparseSolver):
     """LU that raises on its first solve, as PARDISO or SuperLU does on a bad K."""
