@@ -29,13 +29,16 @@ class NewtonIteration:
 
     load : the load factor in (0, 1] of the load step (static solves).
     iteration : 1, 2, ... within this Newton solve.
-    residual : ``|r_u|_2`` of the iterate the step starts from (the force balance, n entries).
+    residual : ``|r_u|_2`` of the iterate the step starts from (the force balance over the
+        displacement unknowns).
     constraint : ``|r_p|`` of that iterate (the volume constraint, or the gauge when unconstrained).
-    increment : ``|du|_inf`` of the full Newton increment over all n unknowns (displacements, mm in
-        the benchmarks, and with `hyperoc.mixed.TaylorHoodModel` the pressure field, kPa); NaN when
-        the linear solve failed (the solver's ``last_failure`` says why).
+    increment : ``|du|_inf`` of the full Newton increment over the displacement unknowns (mm in the
+        benchmarks); NaN when the linear solve failed (the solver's ``last_failure`` says why).
     step : the step length taken, ``2^-k`` after k halvings (1 for a full step).
-    converged : whether this increment passed the stopping test.
+    converged : whether this increment passed the stopping test (which spans all unknowns).
+    field_residual, field_increment : with a pressure field among the unknowns
+        (`hyperoc.mixed.TaylorHoodModel`: kPa), ``|r_q|_2`` of its equations (``J - 1 - q/kappa``
+        tested against P1) and ``|dq|_inf`` of its increment; None without one.
     """
 
     load: float
@@ -45,6 +48,8 @@ class NewtonIteration:
     increment: float
     step: float
     converged: bool
+    field_residual: float | None = None
+    field_increment: float | None = None
 
 
 @dataclass
@@ -62,15 +67,17 @@ class NewtonLog:
         now = time.perf_counter()
         self.records.append(record)
         if self.stream is not None:
+            field = ("" if record.field_residual is None else
+                     f" |r_q| {record.field_residual:.3e} |dq| {record.field_increment:.3e}")
             print(f"newton: load {record.load:.4g} it {record.iteration:2d} |r| {record.residual:.3e} "
-                  f"|r_p| {record.constraint:.2e} |du| {record.increment:.3e} step {record.step:.4g}"
+                  f"|r_p| {record.constraint:.2e} |du| {record.increment:.3e}{field} step {record.step:.4g}"
                   f"{' converged' if record.converged else ''} ({now - self._last:.1f} s)",
                   file=self.stream, flush=True)
         self._last = now
 
 
 def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, max_iter: int,
-           line_search: bool = True, monitor=None):
+           line_search: bool = True, monitor=None, n_u: int | None = None):
     """Solve ``residual(x) = 0``; returns ``(x, iterations, status)``.
 
     Convergence: ``|du|_inf <= rtol |u|_inf + atol`` for the Newton increment du; with quadratic
@@ -81,8 +88,11 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
     ``line_search=False`` always takes the full step (penalty-stiff static problems with load
     stepping, where the merit of the first full step can grow although Newton then converges).
 
-    ``monitor(iteration, residual, constraint, increment, step, converged)``, if given, is called on
-    traced scalars at the end of every iteration (the fields of `NewtonIteration` but the load).
+    ``monitor(iteration, residual, constraint, increment, step, converged[, field_residual,
+    field_increment])``, if given, is called on traced scalars at the end of every iteration (the
+    fields of `NewtonIteration` but the load). ``n_u``: the first n_u of the n unknowns are
+    displacements, the others a pressure field (Taylor-Hood); the monitor then gets the two
+    parts' residuals and increments apart.
     """
     merit = lambda r: jnp.sum(r * r)
 
@@ -117,7 +127,8 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
             alpha, m1 = 1.0, 0.0
         x_new = x + alpha * dx
         if monitor is not None:
-            monitor(it + 1, jnp.sqrt(merit(r[:-1])), jnp.abs(r[-1]), increment, alpha, converged)
+            res, inc, *field = _parts(r[:-1], du, solved, n_u)
+            monitor(it + 1, res, jnp.abs(r[-1]), inc, alpha, converged, *field)
         # A residual that is NaN even at the smallest step (e.g. log det F of an inverted element
         # all along the Newton direction) is a failure now, not one iteration later.
         finite = jnp.all(jnp.isfinite(x_new)) & jnp.isfinite(m1)
@@ -130,3 +141,12 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
 
     x, it, status, _ = jax.lax.while_loop(cond, body, (x0, 0, 1, True))
     return x, it, status
+
+
+def _parts(r_u, du, solved, n_u):
+    """``(|r|_2, |du|_inf)`` of the displacement unknowns, or with ``n_u``
+    ``(|r[:n_u]|_2, |du[:n_u]|_inf, |r[n_u:]|_2, |du[n_u:]|_inf)``; increments NaN if not ``solved``."""
+    norms = lambda r, d: (jnp.linalg.norm(r), jnp.where(solved, jnp.max(jnp.abs(d)), jnp.nan))
+    if n_u is None:
+        return norms(r_u, du)
+    return (*norms(r_u[:n_u], du[:n_u]), *norms(r_u[n_u:], du[n_u:]))

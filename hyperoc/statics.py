@@ -119,15 +119,16 @@ def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, co
         Ke = jax.jvp(lambda v: force_balance(v, fk, s), (u,), (e,))[1]
         return blocks, Ke, e
 
-    def report(*values):
-        slot[0](NewtonIteration(float(values[0]), int(values[1]), *map(float, values[2:6]), bool(values[6])))
+    def report(load, iteration, *values):
+        slot[0](NewtonIteration(float(load), int(iteration), *map(float, values[:4]), bool(values[4]),
+                                *map(float, values[5:])))
 
     @jax.jit
     def solve(x0, fk, Vk, s):
         monitor = (lambda *values: jax.debug.callback(report, s, *values)) if monitored else None
         x, it, status = newton(lambda x: residual(x, fk, Vk, s), lambda x: jacobian_parts(x, fk, s), lin, x0,
                                rtol=scheme.rtol, atol=scheme.atol, max_iter=scheme.max_iter, line_search=line_search,
-                               monitor=monitor)
+                               monitor=monitor, n_u=getattr(model, "n_u", None))
         return x, it, status, model.min_det_F(displacement(x))
 
     cache[key] = solve, slot

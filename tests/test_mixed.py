@@ -15,6 +15,7 @@ What is checked:
 - bad arguments are `InputError`.
 """
 
+import io
 import math
 
 import jax
@@ -74,6 +75,27 @@ def test_uniaxial_patch_test_is_exact():
     assert np.max(np.abs(model.pressure(sol.u) - mu * (1 - 1 / stretch))) <= tol * mu
     assert abs(sol.volume - 1.0) <= tol
 
+
+
+def test_newton_monitor_reports_the_pressure_field_apart():
+    """The uniaxial patch above, monitored: every record has the pressure field's residual and
+    increment besides the displacement's. The first iteration starts at the stress-free reference
+    (u = 0, q = 0: J = 1, so the field's equations ``int (J - 1) psi`` vanish exactly) with the
+    force residual ``|f / steps|_2`` of the dead traction; each load step ends converged."""
+    mu, stretch, steps = 1.5, 1.2, 2
+    t = mu * (stretch - stretch**-2)
+    model = TaylorHoodModel(box(1), ho.NeoHookean(mu, 0.0), bulk_modulus=math.inf, dirichlet=None,
+                            dirichlet_components={"left": (0,), "bottom": (1,), "front": (2,)}, pin_rigid=False,
+                            neumann="right", traction=(t, 0.0, 0.0))
+    text = io.StringIO()
+    log = ho.NewtonLog(text)
+    sol = solve_static(model, load=model.traction_load, constrained=False, steps=steps, monitor=log)
+    first = log.records[0]
+    assert first.field_residual == 0.0 and first.field_increment > 0
+    assert first.residual == pytest.approx(np.linalg.norm(model.traction_load[: model.n_u]) / steps, rel=1e-12)
+    assert all(r.field_residual is not None and np.isfinite(r.field_increment) for r in log.records)
+    assert [r.converged for r in log.records].count(True) == steps == len(sol.newton_iterations)
+    assert all("|dq|" in line for line in text.getvalue().splitlines())
 
 def test_incompressible_beam_keeps_its_volume_and_does_not_lock():
     moduli = BEAM["C"] * max(BEAM["bf"], BEAM["bt"], BEAM["bfs"])  # kPa, the largest small-strain modulus

@@ -71,3 +71,19 @@ def test_a_failed_linear_solve_is_status_two_at_once(line_search):
     _, it, status = newton(residual, parts, Decoupled(), jnp.array([0.0, 0.0]), rtol=1e-12, atol=0.0,
                            max_iter=20, line_search=line_search)
     assert int(status) == 2 and int(it) == 1
+
+
+def test_monitor_reports_displacement_and_pressure_field_apart():
+    """``x = (u, q, p)`` with a displacement u, a pressure field q (``n_u = 1``) and the multiplier p;
+    the linear residual ``(u - 2, q - 30, p)`` from 0 is solved in one step (du = 2, dq = 30), the
+    second iteration's increment is 0 and converges. The monitor gets each part's residual and
+    increment: (2, 2) and (30, 30), then zeros."""
+    residual = lambda x: jnp.array([x[0] - 2.0, x[1] - 30.0, x[2]])
+    parts = lambda x: (jnp.eye(2), jnp.zeros(2), jnp.zeros(2))
+    records = []
+    record = lambda *values: records.append(tuple(float(v) for v in values))
+    _, it, status = newton(residual, parts, Decoupled(), jnp.zeros(3), rtol=1e-12, atol=0.0, max_iter=5, n_u=1,
+                           monitor=lambda *values: jax.debug.callback(record, *values))
+    assert int(status) == 0 and int(it) == 2
+    # (iteration, |r_u|, |r_p|, |du|, step, converged, |r_q|, |dq|)
+    assert records == [(1.0, 2.0, 0.0, 2.0, 1.0, 0.0, 30.0, 30.0), (2.0, 0.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0)]

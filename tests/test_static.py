@@ -233,6 +233,7 @@ def test_monitor_sees_every_newton_iteration_of_every_load_step(loaded_problem):
     assert records[0].residual == pytest.approx(np.linalg.norm(f) / steps, rel=1e-12)
     assert records[0].constraint == pytest.approx((V - model.mesh.volume()) / steps, rel=1e-12)
     assert all(r.step == 1.0 for r in records)  # this smooth problem needs no backtracking
+    assert all(r.field_residual is None and r.field_increment is None for r in records)  # no pressure field
     assert text.getvalue().splitlines()[-1].split("(")[0].rstrip().endswith("converged")
 
 
