@@ -81,8 +81,10 @@ def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, co
     """The jitted Newton solve of one load step and its monitor slot, cached on the model per (linear
     solver instance, scheme, follower loads, constraint on/off, line search on/off, monitored or not).
 
-    ``solve(x0, fk, Vk, s)`` takes the unknown ``x`` ((u, p), or (w, t) unconstrained), the fixed
-    load ``fk`` (n,), the volume ``Vk`` and the load factor ``s`` of the follower pressures. When
+    ``solve(x0, fk, Vk, s, fit_multiplier=False)`` takes the unknown ``x`` ((u, p), or (w, t)
+    unconstrained), the fixed load ``fk`` (n,), the volume ``Vk`` and the load factor ``s`` of the
+    follower pressures; ``fit_multiplier`` replaces x0's multiplier by the least-squares one of the
+    force balance at x0's displacement (a guess carries no multiplier). When
     ``monitored``, every Newton iteration calls ``slot[0]`` on the host with a `NewtonIteration`;
     the caller sets the slot, so one compilation serves every monitor.
     """
@@ -123,8 +125,17 @@ def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, co
         slot[0](NewtonIteration(float(load), int(iteration), *map(float, values[:4]), bool(values[4]),
                                 *map(float, values[5:])))
 
+    def fitted_multiplier(x, fk, s):
+        """x with the multiplier that best balances the forces at its displacement u,
+        ``p = argmin |r(u) + p G(u)|_2 = -G.r / G.G`` (the multiplier of the nearest equilibrium)."""
+        u = displacement(x)
+        r, G = force_balance(u, fk, s), model.volume_gradient(u)
+        return x.at[-1].set(-(G @ r) / (G @ G))
+
     @jax.jit
-    def solve(x0, fk, Vk, s):
+    def solve(x0, fk, Vk, s, fit_multiplier=False):
+        if constrained:  # traced flag: the guess path and the load steps share one compilation
+            x0 = jax.lax.cond(fit_multiplier, lambda: fitted_multiplier(x0, fk, s), lambda: x0)
         monitor = (lambda *values: jax.debug.callback(report, s, *values)) if monitored else None
         x, it, status = newton(lambda x: residual(x, fk, Vk, s), lambda x: jacobian_parts(x, fk, s), lin, x0,
                                rtol=scheme.rtol, atol=scheme.atol, max_iter=scheme.max_iter, line_search=line_search,
@@ -174,7 +185,9 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
         load path is not walked again). This Newton always backtracks (``line_search`` concerns
         the load steps): with no small load increment to bound it, a full Newton step from such a
         guess can overshoot (Land problem 2, Taylor-Hood, level 1 -> 2: full steps diverge,
-        backtracking converges in 9 iterations, bench/README.md). The multiplier starts at 0. If
+        backtracking converges in 9 iterations, bench/README.md). The multiplier starts at the
+        least-squares balance of the forces at the guess, ``-G.r / G.G`` (one Newton iteration fewer
+        than from 0 on the test plate from its 0.9-load equilibrium, as from the exact one). If
         Newton fails from it, a `RuntimeWarning` says why and the load stepping from ``u0`` runs as
         without a guess (``StaticSolution.from_guess`` and ``guess_failure`` tell what happened).
     solver : a linear solver or its name (`hyperoc.linsolve.make_solver`: made once per model and name,
@@ -297,7 +310,7 @@ def _solve_from_guess(model: StateModel, lin, solve, guess, f, V: float, constra
     if guess.shape != (model.n,):
         raise InputError(f"solve_static: guess must have shape ({model.n},), got {guess.shape}")
     failed = _failed_solves(lin)
-    x, it, status, mindet = solve(initial_unknown(model, guess, constrained), f, V, 1.0)
+    x, it, status, mindet = solve(initial_unknown(model, guess, constrained), f, V, 1.0, True)
     cause, detail = _failure(lin, failed, status, mindet)
     if cause is not None:
         return None, int(it), f"{cause}, Newton iteration {int(it)}: {detail}"
