@@ -433,7 +433,7 @@ class TimeStepper:
         detail = {
             "newton": f"Newton did not converge in {int(its[n])} iterations (try a smaller dt, or a larger kappa)",
             "nonfinite": "NaN/Inf in the Newton iterate, or in the residual at every line-search step "
-                         "(an inverted element along the whole Newton direction; try a smaller dt)",
+                         "(e.g. an element inverted all along the Newton direction; try a smaller dt)",
             "detF": f"min det F = {float(mindet[n]):.3g} <= 0: an element is inverted",
         }.get(cause, "")
         raise SolverError(n, grid.t[n + 1], cause, detail)

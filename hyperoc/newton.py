@@ -83,10 +83,10 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
     Convergence: ``|du|_inf <= rtol |u|_inf + atol`` for the Newton increment du; with quadratic
     convergence the error after that update is far below the test. Status 0 = converged,
     1 = not converged in ``max_iter`` iterations, 2 = non-finite iterate, or a residual that is
-    non-finite at every line-search step. When the full step does
-    not decrease ``|r|^2`` (sufficient decrease 1e-4), it is halved (at most 12 times);
-    ``line_search=False`` always takes the full step (penalty-stiff static problems with load
-    stepping, where the merit of the first full step can grow although Newton then converges).
+    non-finite at every line-search step. When the full step does not decrease ``|r|^2``
+    (sufficient decrease 1e-4), it is halved (at most 12 times); ``line_search=False`` always
+    takes the full step (penalty-stiff static problems with load stepping, where the merit of the
+    first full step can grow although Newton then converges).
 
     ``monitor(iteration, residual, constraint, increment, step, converged[, field_residual,
     field_increment])``, if given, is called on traced scalars at the end of every iteration (the
