@@ -54,16 +54,21 @@ def test_tangent_is_the_hessian_of_the_lagrangian(mesh, material, bulk):
     assert float(jnp.max(jnp.abs(K - H))) <= ROUNDOFF * float(jnp.max(jnp.abs(H)))
 
 
+def uniaxial_patch(mesh, mu: float, stretch: float) -> TaylorHoodModel:
+    """The unit cube on three symmetry planes with the dead traction ``t e_x``, ``t = mu (l - l^-2)``,
+    on x = 1 that stretches incompressible neo-Hookean to ``l`` (below)."""
+    return TaylorHoodModel(mesh, ho.NeoHookean(mu, 0.0), bulk_modulus=math.inf, dirichlet=None,
+                           dirichlet_components={"left": (0,), "bottom": (1,), "front": (2,)}, pin_rigid=False,
+                           neumann="right", traction=(mu * (stretch - stretch**-2), 0.0, 0.0))
+
+
 def test_uniaxial_patch_test_is_exact():
     """Cube [0, 1]^3 on three symmetry planes (u_x = 0 at x = 0, u_y = 0 at y = 0, u_z = 0 at z = 0), dead
     traction t e_x on x = 1, incompressible neo-Hookean (``W_rest = mu/2 (I1 - 3) - mu ln J``). Exact:
     ``F = diag(l, l^-1/2, l^-1/2)`` with ``t = mu (l - l^-2)`` and ``p = mu (1 - 1/l)`` (from
     ``P = mu (F - F^-T) + p cof F``, lateral faces free)."""
     mu, stretch = 1.5, 1.2
-    t = mu * (stretch - stretch**-2)
-    model = TaylorHoodModel(box(2), ho.NeoHookean(mu, 0.0), bulk_modulus=math.inf, dirichlet=None,
-                            dirichlet_components={"left": (0,), "bottom": (1,), "front": (2,)}, pin_rigid=False,
-                            neumann="right", traction=(t, 0.0, 0.0))
+    model = uniaxial_patch(box(2), mu, stretch)
     sol = solve_static(model, load=model.traction_load, constrained=False, steps=4)
     F = np.asarray(model.deformation_gradient(jnp.asarray(sol.u)))
     exact = np.diag([stretch, stretch**-0.5, stretch**-0.5])
@@ -82,11 +87,8 @@ def test_newton_monitor_reports_the_pressure_field_apart():
     increment besides the displacement's. The first iteration starts at the stress-free reference
     (u = 0, q = 0: J = 1, so the field's equations ``int (J - 1) psi`` vanish exactly) with the
     force residual ``|f / steps|_2`` of the dead traction; each load step ends converged."""
-    mu, stretch, steps = 1.5, 1.2, 2
-    t = mu * (stretch - stretch**-2)
-    model = TaylorHoodModel(box(1), ho.NeoHookean(mu, 0.0), bulk_modulus=math.inf, dirichlet=None,
-                            dirichlet_components={"left": (0,), "bottom": (1,), "front": (2,)}, pin_rigid=False,
-                            neumann="right", traction=(t, 0.0, 0.0))
+    steps = 2
+    model = uniaxial_patch(box(1), mu=1.5, stretch=1.2)
     text = io.StringIO()
     log = ho.NewtonLog(text)
     sol = solve_static(model, load=model.traction_load, constrained=False, steps=steps, monitor=log)
