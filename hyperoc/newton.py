@@ -35,7 +35,8 @@ class NewtonIteration:
     increment : ``|du|_inf`` of the full Newton increment over the displacement unknowns (mm in the
         benchmarks); NaN when the linear solve failed (the solver's ``last_failure`` says why).
     step : the step length taken, ``2^-k`` after k halvings (1 for a full step).
-    converged : whether this increment passed the stopping test (which spans all unknowns).
+    converged : whether this increment passed the stopping test (each block of unknowns against its
+        own scale: displacements, and the pressure field if there is one).
     field_residual, field_increment : with a pressure field among the unknowns
         (`hyperoc.mixed.TaylorHoodModel`: kPa), ``|r_q|_2`` of its equations (``J - 1 - q/kappa``
         tested against P1) and ``|dq|_inf`` of its increment; None without one.
@@ -80,8 +81,11 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
            line_search: bool = True, monitor=None, n_u: int | None = None):
     """Solve ``residual(x) = 0``; returns ``(x, iterations, status)``.
 
-    Convergence: ``|du|_inf <= rtol |u|_inf + atol`` for the Newton increment du; with quadratic
-    convergence the error after that update is far below the test. Status 0 = converged,
+    Convergence: ``|du|_inf <= rtol |u + du|_inf + atol`` for the Newton increment du; with
+    quadratic convergence the error after that update is far below the test. With ``n_u`` (a
+    pressure field q among the unknowns) the test is made on each block apart,
+    ``|du|_inf <= rtol |u + du|_inf + atol`` and ``|dq|_inf <= rtol |q + dq|_inf + atol``, so that
+    neither block's stopping depends on the other's units (mm and kPa). Status 0 = converged,
     1 = not converged in ``max_iter`` iterations, 2 = non-finite iterate, or a residual that is
     non-finite at every line-search step. When the full step does not decrease ``|r|^2``
     (sufficient decrease 1e-4), it is halved (at most 12 times); ``line_search=False`` always
@@ -115,11 +119,9 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
         # A failed linear solve returns NaN, whose max is not NaN in XLA's reduction (-inf on CPU):
         # test for it first, so that it is neither "converged" nor backtracked on 12 times.
         solved = jnp.all(jnp.isfinite(dx))
-        increment = jnp.where(solved, jnp.max(jnp.abs(du)), jnp.nan)
         # An increment below the tolerance is taken whole: its merit is at round-off level and
         # backtracking on it would only stall.
-        scale = jnp.max(jnp.abs(x[:-1] + du))
-        converged = solved & (increment <= rtol * scale + atol)
+        converged = solved & _small(x[:-1], du, n_u, rtol, atol)
         if line_search:
             alpha, m1 = jax.lax.cond(converged | ~solved, lambda: (1.0, 0.0),
                                      lambda: jax.lax.while_loop(keep_shrinking, shrink, (1.0, merit(residual(x + dx)))))
@@ -141,6 +143,14 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
 
     x, it, status, _ = jax.lax.while_loop(cond, body, (x0, 0, 1, True))
     return x, it, status
+
+
+def _small(u, du, n_u, rtol, atol):
+    """Whether ``|du_b|_inf <= rtol |u_b + du_b|_inf + atol`` on every block b of the unknowns:
+    all of them, or with ``n_u`` the first n_u and the rest apart."""
+    blocks = [slice(None)] if n_u is None else [slice(None, n_u), slice(n_u, None)]
+    small = [jnp.max(jnp.abs(du[b])) <= rtol * jnp.max(jnp.abs(u[b] + du[b])) + atol for b in blocks]
+    return jnp.all(jnp.stack(small))
 
 
 def _parts(r_u, du, solved, n_u):

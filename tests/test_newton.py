@@ -87,3 +87,18 @@ def test_monitor_reports_displacement_and_pressure_field_apart():
     assert int(status) == 0 and int(it) == 2
     # (iteration, |r_u|, |r_p|, |du|, step, converged, |r_q|, |dq|)
     assert records == [(1.0, 2.0, 0.0, 2.0, 1.0, 0.0, 30.0, 30.0), (2.0, 0.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0)]
+
+
+@pytest.mark.parametrize("n_u, converged_u", [(None, False), (1, True)])
+def test_each_block_of_unknowns_stops_against_its_own_scale(n_u, converged_u):
+    """``x = (u, q, p)``: ``log(u / 1e-3) = 0`` in mm and a field equation ``q = 1e6`` in kPa, from
+    u = 2e-3. A test over all unknowns measures |du| against |q| = 1e6, stops once |du| <= 1e-6,
+    about 1e-3 of u, and leaves u with the error of the next quadratic step, far above rtol. With
+    ``n_u`` each block is measured against itself and u converges to rtol."""
+    rtol, u_star = 1e-12, 1e-3
+    residual = lambda x: jnp.array([jnp.log(x[0] / u_star), x[1] - 1e6, x[2]])
+    parts = lambda x: (jnp.diag(jnp.array([1.0 / x[0], 1.0])), jnp.zeros(2), jnp.zeros(2))
+    x, _, status = newton(residual, parts, Decoupled(), jnp.array([2 * u_star, 0.0, 0.0]), rtol=rtol, atol=0.0,
+                          max_iter=30, n_u=n_u)
+    assert int(status) == 0 and float(x[1]) == 1e6
+    assert (abs(float(x[0]) / u_star - 1.0) <= rtol) == converged_u
