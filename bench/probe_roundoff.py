@@ -12,21 +12,12 @@ iteration at which the iterate differs from the unperturbed run's by more than 1
 from __future__ import annotations
 
 import argparse
-import tomllib
-from importlib import resources
 
 import hyperoc  # noqa: F401  (before JAX: hyperoc._jax sets JAX's flags)
 import numpy as np
 
-from hyperoc.config import parse_config
-from hyperoc.paper import XI_MAX
+from hyperoc.paper import bounded_config
 from hyperoc.workflows import optimize_single
-
-
-def bounded_config():
-    raw = tomllib.loads(resources.files("hyperoc").joinpath("data/paper-1d.toml").read_text())
-    raw["optimize"]["xi_bounds"] = [-XI_MAX, XI_MAX]
-    return parse_config(raw)
 
 
 def run(cfg, tau0: float) -> tuple[dict, float]:

@@ -55,6 +55,11 @@ def paper_config() -> Config:
     return parse_config(tomllib.loads(text))
 
 
+def bounded_config() -> Config:
+    """The paper configuration with the bounds ``|xi| <= XI_MAX`` of the bounded variant."""
+    return _with(paper_config(), optimize__xi_bounds=[-XI_MAX, XI_MAX])
+
+
 def _with(cfg: Config, **changes) -> Config:
     sections = {k: dict(v) for k, v in cfg.sections.items()}
     for dotted, value in changes.items():
