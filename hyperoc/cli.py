@@ -44,6 +44,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="processes running the independent studies in parallel (default: min(2, CPUs))")
     for q in (s, o, r):
         q.add_argument("--no-progress", action="store_true", help="no progress bar")
+    for q in (s, o, g):
+        q.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", dest="overrides",
+                       help="override a config entry, e.g. --set optimize.xi_bounds=[-0.05,0.05] (repeatable; "
+                            "VALUE is read as TOML, else as a string)")
     return p
 
 
@@ -51,23 +55,25 @@ def _optimize(args) -> None:
     from .config import load_config
     from .workflows import optimize
 
+    overrides = args.overrides + ([f"optimize.method={args.method}"] if args.method else [])
     if args.resume:
         out = Path(args.resume)
         config = out / "config.toml"
         if not config.exists():
             raise InputError(f"--resume: {out} has no config.toml (is it an optimize output folder?)")
+        if overrides:
+            raise InputError(f"--resume continues the run configured in {config}; --set and --method apply to a new run")
     else:
         if not (args.config and args.out):
             raise InputError("optimize needs CONFIG and --out DIR (or --resume DIR)")
         out, config = Path(args.out), Path(args.config)
-    cfg = load_config(config)
-    if args.method:
-        cfg.sections["optimize"]["method"] = args.method
+    cfg = load_config(config, overrides)
     if not args.resume:
         out.mkdir(parents=True, exist_ok=True)
         from .io import atomic_write_text
 
-        atomic_write_text(out / "config.toml", config.read_text())
+        # what runs, overrides and defaults included, so that --resume continues this very problem
+        atomic_write_text(out / "config.toml", cfg.to_toml())
     summary = optimize(cfg, out, progress=not args.no_progress, scheduler=args.scheduler, workers=args.workers)
     print(f"tau = {summary.get('tau', float('nan')):.6g}  J = {summary.get('objective', float('nan')):.6g}  "
           f"converged = {summary.get('converged')}  -> {out / 'summary.json'}")
@@ -83,7 +89,7 @@ def _run(args) -> None:
         from .config import load_config
         from .workflows import simulate
 
-        summary = simulate(load_config(args.config), args.out, progress=not (args.no_progress or args.log_steps),
+        summary = simulate(load_config(args.config, args.overrides), args.out, progress=not (args.no_progress or args.log_steps),
                            monitor=_print_step if args.log_steps else None)
         print(f"max p = {summary['pressure_max']:.6g} at t = {summary['t_pressure_max']:.6g}; "
               f"volume drift {summary['volume_drift']:.2e} -> {Path(args.out) / 'summary.json'}")
@@ -95,7 +101,7 @@ def _run(args) -> None:
         from .config import load_config
         from .workflows import check_gradient
 
-        res = check_gradient(load_config(args.config), seed=args.seed)
+        res = check_gradient(load_config(args.config, args.overrides), seed=args.seed)
         if args.json:
             print(json.dumps(res, indent=2))
         else:

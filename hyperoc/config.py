@@ -8,6 +8,8 @@ into one line on stderr and exit status 2.
 
 from __future__ import annotations
 
+import json
+import math
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,7 +28,7 @@ from .objectives import objective_from_config
 from .reduced import checkpoint_options
 from .timegrid import TimeTransform, uniform_grid
 
-__all__ = ["Config", "load_config", "parse_config"]
+__all__ = ["Config", "load_config", "parse_config", "apply_overrides"]
 
 NUMBER = (int, float)
 
@@ -113,6 +115,19 @@ class Config:
 
     def __getitem__(self, name: str) -> dict:
         return self.sections[name]
+
+    def to_toml(self) -> str:
+        """The configuration as TOML, every default written out and file paths made absolute, so
+        that `load_config` of the text, from any folder, gives the same `Config` sections."""
+        lines = []
+        for name, section in self.sections.items():
+            lines.append(f"[{name}]")
+            for key, value in section.items():
+                if key == "file":
+                    value = str((self.base / value).resolve())
+                lines.append(f"{key} = {_toml_value(value)}")
+            lines.append("")
+        return "\n".join(lines)
 
     # --- builders ---------------------------------------------------------------------------------
     def mesh(self) -> Mesh:
@@ -325,8 +340,9 @@ def parse_config(data: dict, base: Path = Path(".")) -> Config:
     return Config(sections, Path(base))
 
 
-def load_config(path) -> Config:
-    """Read and validate a TOML file; every problem raises `InputError` with a one-line message."""
+def load_config(path, overrides=()) -> Config:
+    """Read and validate a TOML file, with ``overrides`` (`apply_overrides`) applied first; every
+    problem raises `InputError` with a one-line message."""
     path = Path(path)
     if not path.exists():
         raise InputError(f"config file not found: {path}")
@@ -334,4 +350,50 @@ def load_config(path) -> Config:
         data = tomllib.loads(path.read_text())
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise InputError(f"config {path}: invalid TOML: {exc}") from None
-    return parse_config(data, path.parent)
+    return parse_config(apply_overrides(data, overrides), path.parent)
+
+
+def apply_overrides(data: dict, overrides) -> dict:
+    """``data`` (a config as read from TOML) with each ``"SECTION.KEY=VALUE"`` of ``overrides`` set,
+    e.g. ``optimize.xi_bounds=[-0.05, 0.05]`` or ``control.region.kind=box`` (a key path of any
+    depth). VALUE is read as a TOML value (``0.05``, ``[1, 2]``, ``"svk"``, ``true``, ``{ a = 1 }``)
+    or, when it is none, taken as a string (``material.law=svk``). The result is validated like the
+    file by `parse_config`."""
+    data = json.loads(json.dumps(data))  # a deep copy: the caller's dict stays as read
+    for item in overrides:
+        path, sep, text = item.partition("=")
+        keys = path.strip().split(".")
+        if not sep or len(keys) < 2 or not all(keys):
+            raise InputError(f"override {item!r}: expected SECTION.KEY=VALUE, e.g. dynamics.dt=0.01")
+        table = data
+        for key in keys[:-1]:
+            table = table.setdefault(key, {})
+            if not isinstance(table, dict):
+                raise InputError(f"override {item!r}: {key} is not a table")
+        table[keys[-1]] = _read_value(text.strip())
+    return data
+
+
+def _read_value(text: str):
+    """A TOML value, or the text itself if it is not one."""
+    try:
+        return tomllib.loads(f"value = {text}")["value"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def _toml_value(value) -> str:
+    """One value of a validated config (bool, number, string, list, table) as TOML."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float) and not math.isfinite(value):
+        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
+    if isinstance(value, (int, float)):
+        return repr(value)
+    if isinstance(value, str):
+        return json.dumps(value)  # a TOML basic string: JSON's escapes are TOML's
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{ " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in value.items()) + " }"
+    raise TypeError(f"no TOML form for {value!r}")

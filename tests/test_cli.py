@@ -182,3 +182,61 @@ def test_config_cell_mean_volumetric(tmp_path):
     mu, lam = 0.05, 0.05  # W = mu/2 (J^2 - 1) - mu ln J  +  lam/2 (ln J)^2 on theta
     expected = np.sum(w * (0.5 * mu * (J**2 - 1) - mu * np.log(J))) + np.sum(np.sum(w, axis=1) * 0.5 * lam * np.log(theta) ** 2)
     assert abs(float(model.strain_energy(u)) - expected) <= 1e-13 * abs(expected)
+
+
+def test_set_overrides_config_entries_and_optimize_records_what_ran(tmp_path, capsys):
+    """``--set`` and ``--method`` change the run (here a bound |xi| <= 0.01 that the optimizer hits,
+    and L-BFGS-B); the output folder's config.toml is the configuration that ran, so reloading it
+    gives the same sections, and ``--resume`` refuses new overrides."""
+    from hyperoc.config import load_config
+
+    cfg, out = _write(tmp_path, SMALL_1D), tmp_path / "o"
+    overrides = ["--set", "optimize.xi_bounds=[-0.01, 0.01]", "--set", "optimize.max_iter=2", "--method", "lbfgsb"]
+    assert main(["optimize", str(cfg), "--out", str(out), "--no-progress", *overrides]) == 0
+    ran = load_config(out / "config.toml")
+    assert ran.sections == load_config(cfg, ["optimize.xi_bounds=[-0.01, 0.01]", "optimize.max_iter=2",
+                                             "optimize.method=lbfgsb"]).sections
+    assert ran["optimize"]["method"] == "lbfgsb" and ran["optimize"]["xi_bounds"] == [-0.01, 0.01]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["iterations"] <= 2 and np.max(np.abs(np.load(out / "results.npz")["xi"])) == pytest.approx(0.01)
+    capsys.readouterr()
+    assert main(["optimize", "--resume", str(out), "--set", "optimize.max_iter=5"]) == 2
+    assert "--resume continues the run" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("override, message", [
+    ("dynamics.dt=abc", "dt must be a number"),
+    ("dynamics.dt", "expected SECTION.KEY=VALUE"),
+    ("dt=0.1", "expected SECTION.KEY=VALUE"),
+    ("dynamicz.dt=0.1", "unknown section"),
+    ("mesh.n.x=1", "n is not a table"),
+    ("material.mu=-1", "mu must be > 0"),
+])
+def test_bad_override_exit_2(tmp_path, capsys, override, message):
+    cfg = _write(tmp_path, SMALL_1D)
+    assert main(["simulate", str(cfg), "--out", str(tmp_path / "o"), "--no-progress", "--set", override]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("hyperoc: error:") and message in err[0], err
+
+
+@pytest.mark.parametrize("name", ["paper-1d.toml", "simulate-1d.toml", "annulus-2d.toml", "ventricle-3d.toml"])
+def test_config_to_toml_reloads_to_the_same_config_from_another_folder(tmp_path, name):
+    from hyperoc.config import load_config
+
+    cfg = load_config(EXAMPLES / name)
+    again = load_config(_write(tmp_path, cfg.to_toml()))
+    assert again.sections == cfg.sections
+
+
+def test_config_to_toml_makes_file_paths_absolute(tmp_path):
+    from hyperoc.config import load_config
+
+    (tmp_path / "run").mkdir()
+    text = SMALL_1D.replace('value = "0.05 * sin(pi * t)"', 'file = "xi.npz"')
+    model = load_config(_write(tmp_path / "run", text)).model()
+    xi = np.random.default_rng(0).standard_normal((41, model.control.size))  # T = 2, dt = 0.05: 41 levels
+    np.savez(tmp_path / "run" / "xi.npz", xi=xi)
+    cfg = load_config(tmp_path / "run" / "c.toml")
+    again = load_config(_write(tmp_path, cfg.to_toml()))
+    assert again["control"]["file"] == str((tmp_path / "run" / "xi.npz").resolve())
+    np.testing.assert_array_equal(again.prescribed_control(model, again.grid().t), xi)
