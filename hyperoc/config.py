@@ -8,6 +8,7 @@ into one line on stderr and exit status 2.
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 import tomllib
@@ -359,7 +360,7 @@ def apply_overrides(data: dict, overrides) -> dict:
     depth). VALUE is read as a TOML value (``0.05``, ``[1, 2]``, ``"svk"``, ``true``, ``{ a = 1 }``)
     or, when it is none, taken as a string (``material.law=svk``). The result is validated like the
     file by `parse_config`."""
-    data = json.loads(json.dumps(data))  # a deep copy: the caller's dict stays as read
+    data = copy.deepcopy(data)  # the caller's dict stays as read
     for item in overrides:
         path, sep, text = item.partition("=")
         keys = path.strip().split(".")

@@ -145,18 +145,20 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
     return x, it, status
 
 
+def _blocks(n_u):
+    """The blocks of the unknowns (the multiplier excluded): all of them, or with ``n_u`` the
+    displacements ``[:n_u]`` and the pressure field ``[n_u:]``."""
+    return [slice(None)] if n_u is None else [slice(None, n_u), slice(n_u, None)]
+
+
 def _small(u, du, n_u, rtol, atol):
-    """Whether ``|du_b|_inf <= rtol |u_b + du_b|_inf + atol`` on every block b of the unknowns:
-    all of them, or with ``n_u`` the first n_u and the rest apart."""
-    blocks = [slice(None)] if n_u is None else [slice(None, n_u), slice(n_u, None)]
-    small = [jnp.max(jnp.abs(du[b])) <= rtol * jnp.max(jnp.abs(u[b] + du[b])) + atol for b in blocks]
+    """Whether ``|du_b|_inf <= rtol |u_b + du_b|_inf + atol`` on every block b (`_blocks`)."""
+    small = [jnp.max(jnp.abs(du[b])) <= rtol * jnp.max(jnp.abs(u[b] + du[b])) + atol for b in _blocks(n_u)]
     return jnp.all(jnp.stack(small))
 
 
 def _parts(r_u, du, solved, n_u):
-    """``(|r|_2, |du|_inf)`` of the displacement unknowns, or with ``n_u``
-    ``(|r[:n_u]|_2, |du[:n_u]|_inf, |r[n_u:]|_2, |du[n_u:]|_inf)``; increments NaN if not ``solved``."""
+    """``(|r_b|_2, |du_b|_inf)`` of each block b (`_blocks`), one after the other; increments NaN if
+    not ``solved``."""
     norms = lambda r, d: (jnp.linalg.norm(r), jnp.where(solved, jnp.max(jnp.abs(d)), jnp.nan))
-    if n_u is None:
-        return norms(r_u, du)
-    return (*norms(r_u[:n_u], du[:n_u]), *norms(r_u[n_u:], du[n_u:]))
+    return tuple(value for b in _blocks(n_u) for value in norms(r_u[b], du[b]))
