@@ -69,14 +69,18 @@ def _optimize(args) -> None:
         out, config = Path(args.out), Path(args.config)
     cfg = load_config(config, overrides)
     if not args.resume:
-        out.mkdir(parents=True, exist_ok=True)
-        from .io import atomic_write_text
-
-        # what runs, overrides and defaults included, so that --resume continues this very problem
-        atomic_write_text(out / "config.toml", cfg.to_toml())
+        _record_config(cfg, out)  # --resume continues this very problem
     summary = optimize(cfg, out, progress=not args.no_progress, scheduler=args.scheduler, workers=args.workers)
     print(f"tau = {summary.get('tau', float('nan')):.6g}  J = {summary.get('objective', float('nan')):.6g}  "
           f"converged = {summary.get('converged')}  -> {out / 'summary.json'}")
+
+
+def _record_config(cfg, out: Path) -> None:
+    """``out/config.toml``: the configuration that runs, overrides and defaults included."""
+    from .io import atomic_write_text
+
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out / "config.toml", cfg.to_toml())
 
 
 def _print_step(record) -> None:
@@ -89,7 +93,9 @@ def _run(args) -> None:
         from .config import load_config
         from .workflows import simulate
 
-        summary = simulate(load_config(args.config, args.overrides), args.out, progress=not (args.no_progress or args.log_steps),
+        cfg = load_config(args.config, args.overrides)
+        _record_config(cfg, Path(args.out))
+        summary = simulate(cfg, args.out, progress=not (args.no_progress or args.log_steps),
                            monitor=_print_step if args.log_steps else None)
         print(f"max p = {summary['pressure_max']:.6g} at t = {summary['t_pressure_max']:.6g}; "
               f"volume drift {summary['volume_drift']:.2e} -> {Path(args.out) / 'summary.json'}")

@@ -44,14 +44,18 @@ def _write(tmp_path, text, name="c.toml"):
 
 
 def test_simulate_writes_outputs(tmp_path):
+    from hyperoc.config import load_config
+
     cfg = _write(tmp_path, SMALL_1D)
-    assert main(["simulate", str(cfg), "--out", str(tmp_path / "out"), "--no-progress"]) == 0
+    assert main(["simulate", str(cfg), "--out", str(tmp_path / "out"), "--no-progress", "--set", "dynamics.dt=0.1"]) == 0
     out = tmp_path / "out"
+    ran = load_config(out / "config.toml")  # the configuration that ran
+    assert ran.sections == load_config(cfg, ["dynamics.dt=0.1"]).sections and ran["dynamics"]["dt"] == 0.1
     summary = json.loads((out / "summary.json").read_text())
     data = np.load(out / "results.npz")
     for key in ("t", "p", "volume", "nodes", "displacement", "xi"):
         assert key in data
-    assert data["displacement"].shape == (41, 21, 1)
+    assert data["displacement"].shape == (21, 21, 1)  # T = 2, dt = 0.1: 21 levels, n = 20: 21 nodes
     assert summary["volume_drift"] < 1e-12
     assert (out / "pressure.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert (out / summary["files"]["time_series"]).exists()
