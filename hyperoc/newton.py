@@ -123,8 +123,9 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
         # backtracking on it would only stall.
         converged = solved & _small(x[:-1], du, n_u, rtol, atol)
         if line_search:
-            alpha, m1 = jax.lax.cond(converged | ~solved, lambda: (1.0, 0.0),
-                                     lambda: jax.lax.while_loop(keep_shrinking, shrink, (1.0, merit(residual(x + dx)))))
+            take_whole = converged | ~solved
+            m_full = jnp.where(take_whole, 0.0, merit(residual(x + dx)))
+            alpha, m1 = jax.lax.while_loop(lambda ls: ~take_whole & keep_shrinking(ls), shrink, (1.0, m_full))
         else:
             alpha, m1 = 1.0, 0.0
         x_new = x + alpha * dx
