@@ -223,19 +223,33 @@ class TimeStepper:
 
     def residual(self, x, y0, y1, p_prev, xi0, xi1, f0, f1, dt, V0):
         """Step residual (n+1,): momentum rows then the volume constraint."""
+        return self.residual_at(x, self.known_terms(y0, y1, xi0, xi1, f0, f1, dt), y0, y1, p_prev, dt, V0)
+
+    def known_terms(self, y0, y1, xi0, xi1, f0, f1, dt):
+        """The parts of the momentum rows that do not depend on the unknown x = (y0', p'): computed
+        once per step rather than at every Newton iterate.
+
+        Returns ``(c, G_old)`` with ``c = -M y1 + dt (1 - th) A(y0, y1) - dt (th L1 + (1 - th) L0)``
+        (n,), ``A(y0, y1) = kappa K y1 + f_int(y0)``, and ``G_old = dV/dy0 (y0)`` (n,).
+        """
         m, th = self.model, self.scheme.theta
+        A_old = m.kappa * (self._K @ y1) + m.internal_force(y0)
+        c = -(self._M @ y1) + dt * (1 - th) * A_old - dt * (th * self.load(xi1, f1) + (1 - th) * self.load(xi0, f0))
+        return c, m.volume_gradient(y0)
+
+    def residual_at(self, x, known, y0, y1, p_prev, dt, V0):
+        """`residual` given the `known_terms` of the step."""
+        m, th = self.model, self.scheme.theta
+        c, G_old = known
         y0n, pn = x[:-1], x[-1]
         y1n = self.velocity(y0n, y0, y1, dt)
-        kappa = m.kappa
-        A_new = kappa * (self._K @ y1n) + m.internal_force(y0n)
-        A_old = kappa * (self._K @ y1) + m.internal_force(y0)
-        G_new, G_old = m.volume_gradient(y0n), m.volume_gradient(y0)
+        A_new = m.kappa * (self._K @ y1n) + m.internal_force(y0n)
+        G_new = m.volume_gradient(y0n)
         if self.scheme.multiplier == "step":
             mult = pn * (th * G_new + (1 - th) * G_old)
         else:
             mult = th * pn * G_new + (1 - th) * p_prev * G_old
-        Fu = (self._M @ (y1n - y1) + dt * (th * A_new + (1 - th) * A_old) + dt * mult
-              - dt * (th * self.load(xi1, f1) + (1 - th) * self.load(xi0, f0)))
+        Fu = self._M @ y1n + dt * th * A_new + dt * mult + c
         Fc = m.volume(y0n) - V0
         return jnp.concatenate([Fu, Fc[None]])
 
@@ -261,10 +275,11 @@ class TimeStepper:
         y0, y1, p_prev, failed = carry
         xi0, xi1, f0, f1, dt, V0 = inputs
         m, sch = self.model, self.scheme
-        args = (y0, y1, p_prev, xi0, xi1, f0, f1, dt, V0)
+        known = self.known_terms(y0, y1, xi0, xi1, f0, f1, dt)
 
         def attempt(_):
-            x, it, status = newton(lambda x: self.residual(x, *args), lambda x: self.jacobian_parts(x, y0, dt),
+            x, it, status = newton(lambda x: self.residual_at(x, known, y0, y1, p_prev, dt, V0),
+                                   lambda x: self.jacobian_parts(x, y0, dt),
                                    self.solver, jnp.concatenate([y0, p_prev[None]]),
                                    rtol=sch.rtol, atol=sch.atol, max_iter=sch.max_iter)
             y0n = x[:-1]
