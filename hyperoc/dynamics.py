@@ -466,7 +466,7 @@ def detect_regimes(sol: StateSolution) -> list:
     out = []
     count = len(sol.t) if m.n * len(sol.t) <= 2_000_000 else 21
     levels = np.unique(np.linspace(0, len(sol.t) - 1, count).astype(int))
-    eig = np.array([m.min_acoustic_eigenvalue(sol.y0[k]) for k in levels])
+    eig = m.min_acoustic_eigenvalues(sol.y0[levels])
     if np.any(eig < 0):
         k = levels[int(np.argmax(eig < 0))]
         out.append(f"loss of strong ellipticity from t = {sol.t[k]:.4g} (min acoustic-tensor eigenvalue {eig.min():.3g}): "

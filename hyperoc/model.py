@@ -543,27 +543,27 @@ class StateModel:
         r = np.sqrt(1 - z**2)
         return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
 
+    def _min_acoustic(self, u):
+        """Traced `min_acoustic_eigenvalues` of one state u (n,)."""
+        F = self.deformation_gradient(u)
+        A = self._pointwise(jax.hessian(self.material.energy_of_F), F)  # (nc, nq, d, d, d, d)
+        Q = jnp.einsum("cqijkl,nj,nl->cqnik", A, jnp.asarray(self._directions), jnp.asarray(self._directions))
+        return jnp.min(jnp.linalg.eigvalsh(Q))
+
     @cached_property
     def _ellipticity_fn(self):
-        dirs = jnp.asarray(self._directions)
+        # one compiled loop over the states (lax.map: one state's tensors in memory at a time)
+        return jax.jit(lambda U: jax.lax.map(self._min_acoustic, U))
 
-        def fn(u):
-            F = self.deformation_gradient(u)
-            A = self._pointwise(jax.hessian(self.material.energy_of_F), F)  # (nc, nq, d, d, d, d)
-            Q = jnp.einsum("cqijkl,nj,nl->cqnik", A, dirs, dirs)  # acoustic tensors
-            return jnp.min(jnp.linalg.eigvalsh(Q))
-
-        return jax.jit(fn)
-
-    def min_acoustic_eigenvalue(self, u) -> float:
+    def min_acoustic_eigenvalues(self, U) -> np.ndarray:
         """Smallest eigenvalue of the acoustic tensor ``Q(n)_ik = dP_iJ/dF_kL n_J n_L`` over quadrature
-        points and sampled unit directions n.
+        points and sampled unit directions n, for each state of ``U`` (levels, n): (levels,).
 
         Negative values mean loss of strong ellipticity: the continuum problem is no longer
         well posed and discrete solutions localize (e.g. Saint Venant-Kirchhoff in strong
         compression; in 1D exactly ``dP/dF < 0``, i.e. ``u_x < -1 + 1/sqrt(3)``).
         """
-        return float(self._ellipticity_fn(jnp.asarray(u)))
+        return np.asarray(self._ellipticity_fn(jnp.asarray(U)))
 
     @cached_property
     def jitted(self):
