@@ -77,7 +77,7 @@ class NewtonLog:
         self._last = now
 
 
-def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, max_iter: int,
+def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, max_iter,
            line_search: bool = True, monitor=None, n_u: int | None = None):
     """Solve ``residual(x) = 0``; returns ``(x, iterations, status)``.
 
@@ -87,7 +87,8 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
     ``|du|_inf <= rtol |u + du|_inf + atol`` and ``|dq|_inf <= rtol |q + dq|_inf + atol``, so that
     neither block's stopping depends on the other's units (mm and kPa). Status 0 = converged,
     1 = not converged in ``max_iter`` iterations, 2 = non-finite iterate, or a residual that is
-    non-finite at every line-search step. When the full step does not decrease ``|r|^2``
+    non-finite at every line-search step. ``max_iter`` may be traced (0: no iteration, x0 returned
+    with status 1). When the full step does not decrease ``|r|^2``
     (sufficient decrease 1e-4), it is halved (at most 12 times); ``line_search=False`` always
     takes the full step (penalty-stiff static problems with load stepping, where the merit of the
     first full step can grow although Newton then converges).
