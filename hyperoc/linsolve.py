@@ -74,23 +74,41 @@ class TridiagonalSolver:
         both = (ed[:, 0] >= 0) & (ed[:, 1] >= 0)
         if not np.all(np.abs(ed[both, 1] - ed[both, 0]) == 1):
             raise InputError("the tridiagonal solver needs dofs numbered along the line")
-        self.n = model.n
-        lo = np.minimum(ed[:, 0], ed[:, 1])
-        swap = ed[:, 0] > ed[:, 1]
-        self._diag_idx = jnp.asarray(np.where(ed < 0, self.n, ed))
-        self._upper_idx = jnp.asarray(np.where(both, lo, self.n))
-        self._swap = jnp.asarray(swap)
+        self.n = n = model.n
+        # Flat positions in blocks (nc, 2, 2) summed into each diagonal entry: gathers, which XLA
+        # fuses with the sums, rather than scatters.
+        cells = np.arange(len(ed))
+        flat = lambda c, a, b: 4 * c + 2 * a + b
+        lo = np.argmin(np.where(ed < 0, n, ed), axis=1)  # local index of the lower dof of a full cell
+        hi = 1 - lo
+        row_lo = ed[cells, lo]
+        diag = [(ed[:, a], flat(cells, a, a)) for a in (0, 1)]
+        self._diag = _gather_table(n, diag, 4 * len(ed))
+        self._upper = _gather_table(n, [(np.where(both, row_lo, -1), flat(cells, lo, hi))], 4 * len(ed))
+        self._lower = _gather_table(n, [(np.where(both, row_lo + 1, -1), flat(cells, hi, lo))], 4 * len(ed))
 
     def solve(self, blocks, col, row, r_u, r_c):
-        n = self.n
-        d = jnp.zeros(n + 1).at[self._diag_idx[:, 0]].add(blocks[:, 0, 0]).at[self._diag_idx[:, 1]].add(blocks[:, 1, 1])[:n]
-        up_val = jnp.where(self._swap, blocks[:, 1, 0], blocks[:, 0, 1])
-        lo_val = jnp.where(self._swap, blocks[:, 0, 1], blocks[:, 1, 0])
-        du = jnp.zeros(n + 1).at[self._upper_idx].add(up_val)[:n]
-        dl = jnp.concatenate([jnp.zeros(1), jnp.zeros(n + 1).at[self._upper_idx].add(lo_val)[: n - 1]])
-        du = du.at[n - 1].set(0.0)
+        flat = jnp.concatenate([blocks.reshape(-1), jnp.zeros(1, blocks.dtype)])
+        d, du, dl = (flat[t].sum(axis=1) for t in (self._diag, self._upper, self._lower))
         solve2 = lambda B: jax.lax.linalg.tridiagonal_solve(dl, d, du, B)
         return _schur(solve2, col, row, r_u, r_c)
+
+
+def _gather_table(n, pairs, sentinel):
+    """Index table (n, w) of the flat positions summed into each of n entries, padded with
+    ``sentinel`` (the index of an appended zero). pairs: [(target (m,), position (m,))], target < 0
+    skipped."""
+    target = np.concatenate([t for t, _ in pairs])
+    pos = np.concatenate([p for _, p in pairs])
+    keep = target >= 0
+    target, pos = target[keep], pos[keep]
+    order = np.argsort(target, kind="stable")
+    target, pos = target[order], pos[order]
+    counts = np.bincount(target, minlength=n)
+    table = np.full((n, max(int(counts.max(initial=0)), 1)), sentinel)
+    slot = np.arange(len(target)) - np.repeat(np.cumsum(counts) - counts, counts)
+    table[target, slot] = pos
+    return jnp.asarray(table)
 
 
 def nested_dissection(pattern) -> np.ndarray:
