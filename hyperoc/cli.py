@@ -53,7 +53,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def _optimize(args) -> None:
     from .config import load_config
-    from .workflows import optimize
+    from .workflows import check_run, optimize
 
     overrides = args.overrides + ([f"optimize.method={args.method}"] if args.method else [])
     if args.resume:
@@ -68,15 +68,18 @@ def _optimize(args) -> None:
             raise InputError("optimize needs CONFIG and --out DIR (or --resume DIR)")
         out, config = Path(args.out), Path(args.config)
     cfg = load_config(config, overrides)
+    model = check_run(cfg, "optimize")
     if not args.resume:
         _record_config(cfg, out)  # --resume continues this very problem
-    summary = optimize(cfg, out, progress=not args.no_progress, scheduler=args.scheduler, workers=args.workers)
+    summary = optimize(cfg, out, progress=not args.no_progress, scheduler=args.scheduler, workers=args.workers,
+                       model=model)
     print(f"tau = {summary.get('tau', float('nan')):.6g}  J = {summary.get('objective', float('nan')):.6g}  "
           f"converged = {summary.get('converged')}  -> {out / 'summary.json'}")
 
 
 def _record_config(cfg, out: Path) -> None:
-    """``out/config.toml``: the configuration that runs, overrides and defaults included."""
+    """``out/config.toml``: the configuration that runs, overrides and defaults included (written
+    after `hyperoc.workflows.check_run`, so that bad input leaves no file behind)."""
     from .io import atomic_write_text
 
     out.mkdir(parents=True, exist_ok=True)
@@ -91,12 +94,13 @@ def _print_step(record) -> None:
 def _run(args) -> None:
     if args.command == "simulate":
         from .config import load_config
-        from .workflows import simulate
+        from .workflows import check_run, simulate
 
         cfg = load_config(args.config, args.overrides)
+        model = check_run(cfg, "simulate")
         _record_config(cfg, Path(args.out))
         summary = simulate(cfg, args.out, progress=not (args.no_progress or args.log_steps),
-                           monitor=_print_step if args.log_steps else None)
+                           monitor=_print_step if args.log_steps else None, model=model)
         print(f"max p = {summary['pressure_max']:.6g} at t = {summary['t_pressure_max']:.6g}; "
               f"volume drift {summary['volume_drift']:.2e} -> {Path(args.out) / 'summary.json'}")
         for w in summary["warnings"]:

@@ -21,13 +21,33 @@ from .reduced import ControlPoint, ReducedFunctional
 from .report import write_state_outputs
 from .verification import random_directions, taylor_test
 
-__all__ = ["simulate", "build_reduced", "optimize_single", "optimize", "check_gradient"]
+__all__ = ["check_run", "simulate", "build_reduced", "optimize_single", "optimize", "check_gradient"]
 
 
-def simulate(cfg: Config, out, *, progress: bool = False, monitor=None) -> dict:
-    """Forward solve with the prescribed control of ``[control]``; writes the standard outputs.
-    ``monitor``: called with each step's `hyperoc.dynamics.StepRecord` (`TimeStepper.run`)."""
+def check_run(cfg: Config, command: str):
+    """Everything a ``simulate`` or ``optimize`` run checks before it starts, so that bad input
+    fails (`InputError`) before any output is written: the model (mesh, material, boundary tags,
+    control region), the time grid, and for ``simulate`` the prescribed control, for ``optimize``
+    every start's tau, the objective and the optimizer options. Returns the model, which the run
+    can reuse (``model=``)."""
     model = cfg.model()
+    grid = cfg.grid()
+    if command == "simulate":
+        cfg.prescribed_control(model, grid.t)
+    elif command == "optimize":
+        cfg.tau_starts()
+        cfg.objective()
+        _check_optimizer_options(cfg["optimize"])
+    else:
+        raise ValueError(f"check_run: unknown command {command!r}")
+    return model
+
+
+def simulate(cfg: Config, out, *, progress: bool = False, monitor=None, model=None) -> dict:
+    """Forward solve with the prescribed control of ``[control]``; writes the standard outputs.
+    ``monitor``: called with each step's `hyperoc.dynamics.StepRecord` (`TimeStepper.run`);
+    ``model``: the config's model if already built (`check_run`)."""
+    model = model or cfg.model()
     grid = cfg.grid()
     xi = cfg.prescribed_control(model, grid.t)
     stepper = TimeStepper(model, cfg.scheme(), cfg["dynamics"]["solver"])
@@ -64,21 +84,26 @@ def optimize_single(cfg: Config, tau0: float, *, checkpoint=None, method: str | 
 
     kwargs = dict(gtol=float(o["gtol"]), max_iter=int(o["max_iter"]), checkpoint=checkpoint, callback=callback,
                   tau_margin=o.get("tau_margin"))
+    _check_optimizer_options({**o, "method": method})
+    if method == "bb":
+        res = barzilai_borwein(J, J.zero(tau0), xi_bounds=cfg.xi_bounds(), steps=o["steps"], bb_step=o["bb_step"],
+                               **kwargs)
+    else:
+        res = lbfgsb(J, J.zero(tau0), xi_bounds=cfg.xi_bounds(), tau_scale=o["tau_scale"], **kwargs)
+    if bar is not None:
+        bar.close()
+    return J, res
+
+
+def _check_optimizer_options(o: dict) -> None:
+    """The ``[optimize]`` entries that only the optimizer reads: method, steps, bb_step, tau_scale."""
+    if o["method"] not in ("bb", "lbfgsb"):
+        raise InputError(f"config: [optimize] method {o['method']!r} unknown (bb, lbfgsb)")
     if o["steps"] not in ("joint", "blockwise"):
         raise InputError(f"config: [optimize] steps must be 'joint' or 'blockwise', got {o['steps']!r}")
     if o["bb_step"] not in BBStepRule.RULES:
         raise InputError(f"config: [optimize] bb_step must be one of {', '.join(BBStepRule.RULES)}, got {o['bb_step']!r}")
     check_tau_scale(o["tau_scale"])  # used by L-BFGS-B only, checked for every method
-    if method == "bb":
-        res = barzilai_borwein(J, J.zero(tau0), xi_bounds=cfg.xi_bounds(), steps=o["steps"], bb_step=o["bb_step"],
-                               **kwargs)
-    elif method == "lbfgsb":
-        res = lbfgsb(J, J.zero(tau0), xi_bounds=cfg.xi_bounds(), tau_scale=o["tau_scale"], **kwargs)
-    else:
-        raise InputError(f"config: [optimize] method {method!r} unknown (bb, lbfgsb)")
-    if bar is not None:
-        bar.close()
-    return J, res
 
 
 def _progress_bar(enabled: bool, total: int, desc: str):
@@ -127,18 +152,22 @@ def _run_start(cfg_sections: dict, base: str, tau0: float, folder: str) -> dict:
         return {"tau0": tau0, "status": "failed", "error": f"{type(exc).__name__}: {exc}", "folder": folder.name}
 
 
-def optimize(cfg: Config, out, *, progress: bool = False, scheduler: str | None = None, workers: int = 2) -> dict:
+def optimize(cfg: Config, out, *, progress: bool = False, scheduler: str | None = None, workers: int = 2,
+             model=None) -> dict:
     """Optimize from every tau start of ``[optimize]``; several starts run in parallel on Dask.
 
     Each start writes into its own folder; a start whose ``summary.json`` exists is not recomputed
-    (resume). The best start's outputs are also written at the top level of ``out``.
+    (resume). The best start's outputs are also written at the top level of ``out``. ``model``: the
+    config's model if already built (`check_run`), used by a single start (each start of several
+    builds its own, on its worker).
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     starts = cfg.tau_starts()
     start_time = time.perf_counter()
     if len(starts) == 1:
-        J, res = optimize_single(cfg, starts[0], checkpoint=out / "checkpoint", progress=progress)
+        J, res = optimize_single(cfg, starts[0], checkpoint=out / "checkpoint", progress=progress,
+                                 J=build_reduced(cfg, starts[0], model))
         return write_optimization_outputs(out, cfg, J, res)
     results = _multistart(cfg, out, starts, scheduler, workers)
     ok = [r for r in results if r["status"] == "ok"]

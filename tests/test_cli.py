@@ -100,6 +100,7 @@ def test_bad_input_exit_2(tmp_path, change, message):
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("hyperoc: error:") and message in lines[0], proc.stderr
     assert "Traceback" not in proc.stderr
+    assert not (tmp_path / "o").exists()  # checked before anything is written
 
 
 def test_missing_config_exit_2(tmp_path):
@@ -221,6 +222,7 @@ def test_bad_override_exit_2(tmp_path, capsys, override, message):
     assert main(["simulate", str(cfg), "--out", str(tmp_path / "o"), "--no-progress", "--set", override]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("hyperoc: error:") and message in err[0], err
+    assert not (tmp_path / "o").exists()
 
 
 @pytest.mark.parametrize("name", ["paper-1d.toml", "simulate-1d.toml", "annulus-2d.toml", "ventricle-3d.toml"])
