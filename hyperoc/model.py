@@ -547,7 +547,8 @@ class StateModel:
         """Traced `min_acoustic_eigenvalues` of one state u (n,)."""
         F = self.deformation_gradient(u)
         A = self._pointwise(jax.hessian(self.material.energy_of_F), F)  # (nc, nq, d, d, d, d)
-        Q = jnp.einsum("cqijkl,nj,nl->cqnik", A, jnp.asarray(self._directions), jnp.asarray(self._directions))
+        dirs = jnp.asarray(self._directions)
+        Q = jnp.einsum("cqijkl,nj,nl->cqnik", A, dirs, dirs)  # acoustic tensors
         return jnp.min(jnp.linalg.eigvalsh(Q))
 
     @cached_property
