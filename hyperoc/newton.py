@@ -102,8 +102,9 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
     merit = lambda r: jnp.sum(r * r)
 
     def body(state):
-        x, it, _, _ = state
-        r = residual(x)
+        # r = residual(x) is carried: the line search evaluates it at the point it accepts, which
+        # is the next iterate, so each iteration evaluates the residual once (plus backtracking).
+        x, r, it, _, _ = state
         blocks, col, row = jacobian_parts(x)
         du, dp = solver.solve(blocks, col, row, -r[:-1], -r[-1])
         dx = jnp.concatenate([du, dp[None]])
@@ -111,11 +112,11 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
 
         def shrink(ls):
             alpha, _ = ls
-            return alpha / 2, merit(residual(x + alpha / 2 * dx))
+            return alpha / 2, residual(x + alpha / 2 * dx)
 
         def keep_shrinking(ls):
-            alpha, m1 = ls
-            return (~(m1 <= (1 - 1e-4 * alpha) * m0)) & (alpha > 2.0**-12)
+            alpha, r1 = ls
+            return (~(merit(r1) <= (1 - 1e-4 * alpha) * m0)) & (alpha > 2.0**-12)
 
         # A failed linear solve returns NaN, whose max is not NaN in XLA's reduction (-inf on CPU):
         # test for it first, so that it is neither "converged" nor backtracked on 12 times.
@@ -123,27 +124,28 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
         # An increment below the tolerance is taken whole: its merit is at round-off level and
         # backtracking on it would only stall.
         converged = solved & _small(x[:-1], du, n_u, rtol, atol)
+        r_full = residual(x + dx)
         if line_search:
             take_whole = converged | ~solved
-            m_full = jnp.where(take_whole, 0.0, merit(residual(x + dx)))
-            alpha, m1 = jax.lax.while_loop(lambda ls: ~take_whole & keep_shrinking(ls), shrink, (1.0, m_full))
+            alpha, r1 = jax.lax.while_loop(lambda ls: ~take_whole & keep_shrinking(ls), shrink, (1.0, r_full))
         else:
-            alpha, m1 = 1.0, 0.0
+            alpha, r1 = 1.0, r_full
         x_new = x + alpha * dx
         if monitor is not None:
             res, inc, *field = _parts(r[:-1], du, solved, n_u)
             monitor(it + 1, res, jnp.abs(r[-1]), inc, alpha, converged, *field)
         # A residual that is NaN even at the smallest step (e.g. log det F of an inverted element
-        # all along the Newton direction) is a failure now, not one iteration later.
-        finite = jnp.all(jnp.isfinite(x_new)) & jnp.isfinite(m1)
+        # all along the Newton direction) is a failure now, not one iteration later; after a
+        # converged step the residual is not used, and not tested.
+        finite = jnp.all(jnp.isfinite(x_new)) & (converged | jnp.isfinite(merit(r1)))
         status = jnp.where(~finite, 2, jnp.where(converged, 0, 1))
-        return x_new, it + 1, status, finite
+        return x_new, r1, it + 1, status, finite
 
     def cond(state):
-        _, it, status, finite = state
+        _, _, it, status, finite = state
         return (status == 1) & (it < max_iter) & finite
 
-    x, it, status, _ = jax.lax.while_loop(cond, body, (x0, 0, 1, True))
+    x, _, it, status, _ = jax.lax.while_loop(cond, body, (x0, residual(x0), 0, 1, True))
     return x, it, status
 
 
