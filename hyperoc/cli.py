@@ -11,34 +11,39 @@ import json
 import sys
 from pathlib import Path
 
+from . import __version__
 from .errors import InputError, SolverError
 
 __all__ = ["main"]
 
+CONFIG_HELP = "TOML configuration file (sections [mesh], [material], [dynamics], ...; see examples/)"
+OUT_HELP = "output folder (created if missing)"
+
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="hyperoc", description="Optimal control of hyperelastic bodies under a volume constraint")
+    p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
     s = sub.add_parser("simulate", help="forward solve with a prescribed control")
-    s.add_argument("config")
-    s.add_argument("--out", required=True)
+    s.add_argument("config", help=CONFIG_HELP)
+    s.add_argument("--out", required=True, metavar="DIR", help=OUT_HELP)
     s.add_argument("--log-steps", action="store_true",
                    help="one line per time step on stderr (Newton iterations, min det F, volume drift, pressure) "
                         "instead of the progress bar, for output going to a file")
     o = sub.add_parser("optimize", help="optimize the control and the time tau")
-    o.add_argument("config", nargs="?")
-    o.add_argument("--out")
+    o.add_argument("config", nargs="?", help=CONFIG_HELP)
+    o.add_argument("--out", metavar="DIR", help=OUT_HELP)
     o.add_argument("--resume", metavar="DIR", help="continue an interrupted run in DIR (its config.toml is reused)")
     o.add_argument("--method", choices=["bb", "lbfgsb"], help="override [optimize] method")
     o.add_argument("--scheduler", metavar="ADDRESS", help="Dask scheduler for multi-start (default: local processes)")
     o.add_argument("--workers", type=int, default=2)
     g = sub.add_parser("check-gradient", help="Taylor tests of the exact gradient")
-    g.add_argument("config")
+    g.add_argument("config", help=CONFIG_HELP)
     g.add_argument("--json", action="store_true", help="print the results as JSON")
     g.add_argument("--seed", type=int, default=0)
     r = sub.add_parser("reproduce", help="reproduce a paper experiment")
     r.add_argument("experiment", choices=["paper-1d"])
-    r.add_argument("--out", required=True)
+    r.add_argument("--out", required=True, metavar="DIR", help=OUT_HELP)
     r.add_argument("--quick", action="store_true", help="skip the resolution and well-posedness studies")
     r.add_argument("--workers", type=int, default=None,
                    help="processes running the independent studies in parallel (default: min(2, CPUs))")

@@ -103,6 +103,17 @@ def test_bad_input_exit_2(tmp_path, change, message):
     assert not (tmp_path / "o").exists()  # checked before anything is written
 
 
+def test_version_and_help(capsys):
+    import hyperoc
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--version"])
+    assert exit_info.value.code == 0 and capsys.readouterr().out.strip() == f"hyperoc {hyperoc.__version__}"
+    with pytest.raises(SystemExit):
+        main(["simulate", "--help"])
+    assert "TOML configuration file" in capsys.readouterr().out
+
+
 def test_missing_config_exit_2(tmp_path):
     assert main(["simulate", str(tmp_path / "nope.toml"), "--out", str(tmp_path / "o")]) == 2
 
