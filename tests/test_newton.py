@@ -49,6 +49,47 @@ def test_bordered_solve_converges_to_the_root():
     np.testing.assert_allclose(np.asarray(x), [2.0, -0.5 - np.log(2.0)], rtol=1e-14)
 
 
+def counted(residual, calls):
+    """``residual`` that appends the point to ``calls`` each time it is evaluated (traced or not)."""
+    def wrapped(x):
+        jax.debug.callback(lambda v: calls.append(float(v[0])), x)
+        return residual(x)
+    return wrapped
+
+
+@pytest.mark.parametrize("line_search", [True, False])
+def test_the_residual_is_evaluated_once_per_iteration(line_search):
+    """Without backtracking, k iterations evaluate the residual k + 1 times: at the start and once
+    at each new iterate (the line search's evaluation at the accepted point is the next iteration's
+    residual). ``log(u) + 0.5`` from u = 1: full Newton steps decrease |r| all the way."""
+    calls = []
+    residual = counted(lambda x: jnp.array([jnp.log(x[0]) + 0.5, x[1]]), calls)
+    parts = lambda x: (jnp.array([[1.0 / x[0]]]), jnp.zeros(1), jnp.zeros(1))
+    x, it, status = newton(residual, parts, Decoupled(), jnp.array([1.0, 0.0]), rtol=1e-12, atol=0.0,
+                           max_iter=30, line_search=line_search)
+    jax.effects_barrier()
+    assert int(status) == 0 and int(it) >= 3
+    np.testing.assert_allclose(np.asarray(x)[0], np.exp(-0.5), rtol=1e-14)
+    assert len(calls) == int(it) + 1
+
+
+def test_backtracking_adds_one_evaluation_per_halving():
+    """c = 3 (below): the first iteration tries the full and the half step (NaN) before it takes the
+    quarter step, so the first points evaluated are u = 1, 1 - 3, 1 - 3/2, 1 - 3/4; over the solve
+    the evaluations are the iterations + 1 plus one per halving (step length 2^-k: k halvings)."""
+    calls, steps = [], []
+    residual = counted(lambda x: jnp.array([jnp.log(x[0]) + 3.0, x[1]]), calls)
+    parts = lambda x: (jnp.array([[1.0 / x[0]]]), jnp.zeros(1), jnp.zeros(1))
+    record = lambda *values: steps.append(float(values[4]))
+    x, it, status = newton(residual, parts, Decoupled(), jnp.array([1.0, 0.0]), rtol=1e-12, atol=0.0, max_iter=30,
+                           monitor=lambda *values: jax.debug.callback(record, *values))
+    jax.effects_barrier()
+    halvings = sum(round(-np.log2(step)) for step in steps)
+    assert int(status) == 0 and len(steps) == int(it) and halvings >= 2
+    assert calls[:4] == [1.0, -2.0, -0.5, 0.25]
+    assert len(calls) == int(it) + 1 + halvings
+
+
 def test_backtracks_from_nan_trials_into_the_domain_of_the_residual():
     """c = 3: the full step goes to u = 1 - 3 < 0 and the half step to -0.5 (NaN residuals); the
     quarter step to 0.25 decreases |r| from 3 to 1.61 and is taken; Newton then converges to e^-3."""
