@@ -1,0 +1,66 @@
+"""The bounded variant of the paper's problem with tau held fixed: does the control problem alone converge,
+and is J smooth where it stops?
+
+For each tau, L-BFGS-B on xi only (``fix_tau=True``, ``|xi| <= 0.05``) from xi = 0; printed: J, iterations,
+the stationarity measure ``||P(m + G) - m||`` at the start and the end, evaluations, seconds. With
+``--probe``, at the end point of the first tau: J along two directions that keep the active bounds (the
+derivative with its active-bound components removed, and a random one), scaled to a largest change of
+0.01 at h = 1: the Taylor remainder ``J(m + h dm) - J(m) - h dJ`` and ``remainder / h^2`` (constant for a
+smooth J: its curvature along dm).
+
+    taskset -c 1 python bench/probe_fixed_tau.py --taus 5 7.5 10 12.5 14.9 --max-iter 300
+    taskset -c 1 python bench/probe_fixed_tau.py --taus 7.5 --max-iter 150 --probe
+"""
+
+import argparse
+import json
+import time
+
+import numpy as np
+
+import hyperoc as ho
+from hyperoc.paper import XI_MAX, bounded_config
+from hyperoc.workflows import build_reduced
+
+
+def optimize_fixed_tau(tau, max_iter):
+    J = build_reduced(bounded_config(), tau)
+    started = time.perf_counter()
+    res = ho.lbfgsb(J, J.zero(tau), xi_bounds=(-XI_MAX, XI_MAX), fix_tau=True, max_iter=max_iter)
+    g = res.history["grad_norm"]
+    print(json.dumps({"tau": tau, "J": res.objective, "iterations": res.iterations, "converged": res.converged,
+                      "stationarity_first_last": [g[0], g[-1]], "evaluations": res.evaluations,
+                      "seconds": round(time.perf_counter() - started, 1)}), flush=True)
+    return J, res.point
+
+
+def probe_smoothness(J, m, seed=0):
+    J0, d = J.value_and_derivative(m)
+    active = np.abs(m.xi) >= XI_MAX * (1 - 1e-12)
+    outward = active & (np.sign(m.xi) == np.sign(d.xi))
+    free_derivative = np.where(outward, 0.0, d.xi)
+    random = np.where(active, 0.0, np.random.default_rng(seed).standard_normal(m.xi.shape))
+    print(f"J = {J0:.6g}; control values at a bound: {active.mean():.3f}")
+    for name, direction in (("derivative without its active-bound part", free_derivative), ("random, off the active set", random)):
+        dx = direction / np.abs(direction).max() * 0.01
+        dJ = float(np.sum(d.xi * dx))
+        print(f"{name}: dJ = {dJ:.4e}")
+        for h in (1.0, 0.1, 0.01, 1e-3, 1e-4):
+            rem = J(m + ho.ControlPoint(dx, 0.0) * h) - J0 - h * dJ
+            print(f"  h = {h:7.0e}   remainder {rem: .3e}   remainder / h^2 {rem / h**2: .4e}")
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--taus", type=float, nargs="+", default=[5.0, 7.5, 10.0, 12.5, 14.9])
+    parser.add_argument("--max-iter", type=int, default=300)
+    parser.add_argument("--probe", action="store_true", help="probe J's smoothness at the first tau's end point")
+    args = parser.parse_args()
+    for k, tau in enumerate(args.taus):
+        J, m = optimize_fixed_tau(tau, args.max_iter)
+        if args.probe and k == 0:
+            probe_smoothness(J, m)
+
+
+if __name__ == "__main__":
+    main()
