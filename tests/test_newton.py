@@ -29,15 +29,28 @@ class Decoupled:
         return jnp.linalg.solve(K, ru), rp
 
 
-def solve_log(c, *, max_iter=30):
-    """Newton on ``log(u) + c = 0, p = 0`` from (1, 0); returns (x, iterations, status, steps taken)."""
+def solve_log(c, *, max_iter=30, line_search=True, calls=None):
+    """Newton on ``log(u) + c = 0, p = 0`` from (1, 0); returns (x, iterations, status, steps taken).
+    With ``calls`` (a list), the u of every point where the residual is evaluated is appended to it."""
     residual = lambda x: jnp.array([jnp.log(x[0]) + c, x[1]])
+    if calls is not None:
+        residual = counted(residual, calls)
     parts = lambda x: (jnp.array([[1.0 / x[0]]]), jnp.zeros(1), jnp.zeros(1))
     steps = []
     record = lambda *values: steps.append(float(values[4]))  # the step length taken
     x, it, status = newton(residual, parts, Decoupled(), jnp.array([1.0, 0.0]), rtol=1e-12, atol=0.0,
-                           max_iter=max_iter, monitor=lambda *values: jax.debug.callback(record, *values))
+                           max_iter=max_iter, line_search=line_search,
+                           monitor=lambda *values: jax.debug.callback(record, *values))
+    jax.effects_barrier()
     return np.asarray(x), int(it), int(status), steps
+
+
+def counted(residual, calls):
+    """``residual`` that appends the point's u to ``calls`` each time it is evaluated (traced or not)."""
+    def wrapped(x):
+        jax.debug.callback(lambda v: calls.append(float(v[0])), x)
+        return residual(x)
+    return wrapped
 
 
 def test_bordered_solve_converges_to_the_root():
@@ -49,45 +62,28 @@ def test_bordered_solve_converges_to_the_root():
     np.testing.assert_allclose(np.asarray(x), [2.0, -0.5 - np.log(2.0)], rtol=1e-14)
 
 
-def counted(residual, calls):
-    """``residual`` that appends the point to ``calls`` each time it is evaluated (traced or not)."""
-    def wrapped(x):
-        jax.debug.callback(lambda v: calls.append(float(v[0])), x)
-        return residual(x)
-    return wrapped
-
-
 @pytest.mark.parametrize("line_search", [True, False])
 def test_the_residual_is_evaluated_once_per_iteration(line_search):
     """Without backtracking, k iterations evaluate the residual k + 1 times: at the start and once
     at each new iterate (the line search's evaluation at the accepted point is the next iteration's
     residual). ``log(u) + 0.5`` from u = 1: full Newton steps decrease |r| all the way."""
     calls = []
-    residual = counted(lambda x: jnp.array([jnp.log(x[0]) + 0.5, x[1]]), calls)
-    parts = lambda x: (jnp.array([[1.0 / x[0]]]), jnp.zeros(1), jnp.zeros(1))
-    x, it, status = newton(residual, parts, Decoupled(), jnp.array([1.0, 0.0]), rtol=1e-12, atol=0.0,
-                           max_iter=30, line_search=line_search)
-    jax.effects_barrier()
-    assert int(status) == 0 and int(it) >= 3
-    np.testing.assert_allclose(np.asarray(x)[0], np.exp(-0.5), rtol=1e-14)
-    assert len(calls) == int(it) + 1
+    x, it, status, steps = solve_log(0.5, line_search=line_search, calls=calls)
+    assert status == 0 and it >= 3 and steps == [1.0] * it
+    np.testing.assert_allclose(x[0], np.exp(-0.5), rtol=1e-14)
+    assert len(calls) == it + 1
 
 
 def test_backtracking_adds_one_evaluation_per_halving():
     """c = 3 (below): the first iteration tries the full and the half step (NaN) before it takes the
     quarter step, so the first points evaluated are u = 1, 1 - 3, 1 - 3/2, 1 - 3/4; over the solve
     the evaluations are the iterations + 1 plus one per halving (step length 2^-k: k halvings)."""
-    calls, steps = [], []
-    residual = counted(lambda x: jnp.array([jnp.log(x[0]) + 3.0, x[1]]), calls)
-    parts = lambda x: (jnp.array([[1.0 / x[0]]]), jnp.zeros(1), jnp.zeros(1))
-    record = lambda *values: steps.append(float(values[4]))
-    x, it, status = newton(residual, parts, Decoupled(), jnp.array([1.0, 0.0]), rtol=1e-12, atol=0.0, max_iter=30,
-                           monitor=lambda *values: jax.debug.callback(record, *values))
-    jax.effects_barrier()
+    calls = []
+    x, it, status, steps = solve_log(3.0, calls=calls)
     halvings = sum(round(-np.log2(step)) for step in steps)
-    assert int(status) == 0 and len(steps) == int(it) and halvings >= 2
+    assert status == 0 and len(steps) == it and halvings >= 2
     assert calls[:4] == [1.0, -2.0, -0.5, 0.25]
-    assert len(calls) == int(it) + 1 + halvings
+    assert len(calls) == it + 1 + halvings
 
 
 def test_backtracks_from_nan_trials_into_the_domain_of_the_residual():
