@@ -24,7 +24,8 @@ from .errors import HyperocError, InputError, SolverError
 from .io import read_npz, write_npz
 from .reduced import ControlPoint, ReducedFunctional
 
-__all__ = ["OptimizationResult", "EvaluationCache", "BBStepRule", "barzilai_borwein", "lbfgsb", "tau_scaling"]
+__all__ = ["OptimizationResult", "EvaluationCache", "BBStepRule", "LumpedMetric", "barzilai_borwein", "lbfgsb",
+           "stationarity", "tau_scaling"]
 
 
 @dataclass
@@ -93,6 +94,52 @@ class EvaluationCache:
         return out
 
 
+class LumpedMetric:
+    """The control space's inner product with the spatial mass lumped: ``<a, b>_L = sum_k w_k
+    a.xi_k . (D b.xi_k) + a.tau b.tau``, w the trapezoid weights in s, D = `ControlData.lumped_mass`.
+
+    Why: with pointwise bounds on xi, the nodal clip is the projection onto the box in this
+    metric, and it is not in the consistent-mass one of `ReducedFunctional.inner` (M^-1 couples
+    neighbouring nodes). So ``m = P(m + G_L)``, with ``G_L = D^-1 dJ/dm`` the gradient in this
+    metric, holds exactly at the KKT points of the discrete problem (dJ/dxi_i = 0 where xi_i is
+    free, of the sign pushing on the bound where it is active), while ``m = P(m + G)`` with the
+    consistent-mass gradient G does not: projected gradient steps along G have other fixed points,
+    and ``||P(m + G) - m||`` does not vanish at a KKT point with active bounds. The two metrics are
+    spectrally equivalent, so without bounds either gives mesh-independent iterations.
+    """
+
+    def __init__(self, J: ReducedFunctional):
+        self.J = J
+        self.weights = J.s_weights[:, None] * J.model.control.lumped_mass[None, :]  # (N+1, n_ctrl)
+
+    def inner(self, a: ControlPoint, b: ControlPoint) -> float:
+        return float(np.sum(a.xi * self.weights * b.xi) + a.tau * b.tau)
+
+    def norm(self, a: ControlPoint) -> float:
+        return float(np.sqrt(max(self.inner(a, a), 0.0)))
+
+    def gradient(self, g: ControlPoint) -> ControlPoint:
+        """``G_L`` from the consistent-mass gradient g (Riesz representative for `ReducedFunctional.inner`)."""
+        d = self.J.dual(g)
+        return ControlPoint(d.xi / self.weights, d.tau)
+
+
+class ConsistentMetric:
+    """`ReducedFunctional.inner` itself (the L2(0,2; L2(omega)) x R inner product); gradients as J gives them."""
+
+    def __init__(self, J: ReducedFunctional):
+        self.inner, self.norm = J.inner, J.norm
+
+    @staticmethod
+    def gradient(g: ControlPoint) -> ControlPoint:
+        return g
+
+
+def control_metric(J: ReducedFunctional, xi_bounds=(None, None)):
+    """`LumpedMetric` when xi has a bound (so that projections are nodal clips), else `ConsistentMetric`."""
+    return ConsistentMetric(J) if tuple(xi_bounds) == (None, None) else LumpedMetric(J)
+
+
 def _project(J: ReducedFunctional, m: ControlPoint, tau_range, xi_bounds=(None, None)) -> ControlPoint:
     """Projection onto the admissible set: tau in tau_range = (lo, hi), xi in xi_bounds."""
     lo, hi = tau_range
@@ -101,8 +148,15 @@ def _project(J: ReducedFunctional, m: ControlPoint, tau_range, xi_bounds=(None, 
 
 
 def stationarity(J: ReducedFunctional, m: ControlPoint, g: ControlPoint, tau_range, xi_bounds=(None, None)) -> float:
-    """``|| P(m + G) - m ||``: the projected gradient norm (equals ``||G||`` without active bounds)."""
-    return J.norm(_project(J, m + g, tau_range, xi_bounds) - m)
+    """``|| P(m + G) - m ||`` in `control_metric` (G its gradient, from J's gradient g): the projected
+    gradient norm, zero exactly at the KKT points; ``||G||`` when no bound is active."""
+    metric = control_metric(J, xi_bounds)
+    return _projected_norm(J, metric, m, metric.gradient(g), tau_range, xi_bounds)
+
+
+def _projected_norm(J, metric, m: ControlPoint, G: ControlPoint, tau_range, xi_bounds) -> float:
+    """``|| P(m + G) - m ||`` in ``metric``, G the gradient in ``metric``."""
+    return metric.norm(_project(J, m + G, tau_range, xi_bounds) - m)
 
 
 def _tau_range(J: ReducedFunctional, tau_margin: float | None, fix_tau: bool, tau0: float) -> tuple:
@@ -113,8 +167,7 @@ def _tau_range(J: ReducedFunctional, tau_margin: float | None, fix_tau: bool, ta
     return (margin, J.transform.T - J.transform.eps - margin)
 
 
-def _record(res: OptimizationResult, J: ReducedFunctional, value: float, g: ControlPoint, m: ControlPoint, step: float,
-            gnorm: float):
+def _record(res: OptimizationResult, value: float, m: ControlPoint, step: float, gnorm: float):
     res.history["objective"].append(float(value))
     res.history["grad_norm"].append(float(gnorm))
     res.history["tau"].append(float(m.tau))
@@ -137,7 +190,9 @@ def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e
 
     With ``xi_bounds`` the iterates are projected onto the box (projected BB, the paper's Remark
     ``rk-box`` as a pointwise bound); ``||G||`` is then the projected gradient norm
-    ``||P(m + G) - m||``. Stops when it is ``<= max(gtol ||G0||, gtol_abs)`` or after ``max_iter``
+    ``||P(m + G) - m||``, and G, the steps and the BB inner products are those of the lumped-mass
+    metric (`LumpedMetric`: the nodal clip is the projection there, so the iteration's fixed
+    points are the KKT points). Stops when it is ``<= max(gtol ||G0||, gtol_abs)`` or after ``max_iter``
     iterations. ``fix_tau`` optimizes the control only (tau stays at ``m0.tau``). The BB step
     is ``alpha = <s, s> / <s, -y>`` (s = m_k - m_{k-1}, y = G_k - G_{k-1}); when it is not positive
     (J locally not concave along s) the iteration takes an Armijo step from ``|s| / |y|``.
@@ -158,17 +213,23 @@ def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e
     rules = (BBStepRule(bb_step), BBStepRule(bb_step))
     start = time.perf_counter()
     tau_range = _tau_range(J, tau_margin, fix_tau, m0.tau)
-    evaluate = EvaluationCache(J, checkpoint)
+    metric = control_metric(J, xi_bounds)
+    cache = EvaluationCache(J, checkpoint)
+
+    def evaluate(m):  # (J, J's gradient, the gradient in the metric)
+        value, g = cache(m)
+        return value, g, metric.gradient(g)
+
     res = OptimizationResult(m0, np.nan, 0, False, "")
     m = _project(J, m0, tau_range, xi_bounds)
     first = _safe_eval(evaluate, m)
     if first is None:
         raise SolverError(0, 0.0, "initial point", "the state solver fails at the initial control")
-    value, g = first
-    gnorm = stationarity(J, m, g, tau_range, xi_bounds)
-    _record(res, J, value, g, m, 0.0, gnorm)
+    value, _, G = first
+    gnorm = _projected_norm(J, metric, m, G, tau_range, xi_bounds)
+    _record(res, value, m, 0.0, gnorm)
     target = max(gtol * gnorm, gtol_abs)
-    m_prev = g_prev = None
+    m_prev = G_prev = None
     alpha = (1.0, 1.0)
     for k in range(1, max_iter + 1):
         if gnorm <= target:
@@ -176,17 +237,17 @@ def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e
             break
         concave = False
         if m_prev is not None:
-            alpha, concave = _bb_steps(J, m - m_prev, g - g_prev, steps == "blockwise", alpha, rules)
-        step = _ascent_step(J, evaluate, m, value, g, alpha, tau_range, xi_bounds, armijo, max_backtracks,
+            alpha, concave = _bb_steps(metric, m - m_prev, G - G_prev, steps == "blockwise", alpha, rules)
+        step = _ascent_step(J, metric, evaluate, m, value, G, alpha, tau_range, xi_bounds, armijo, max_backtracks,
                             monotone=not concave, res=res)
         if step is None:
             res.message = "no admissible step (state solver fails or no ascent along G)"
             break
-        m_prev, g_prev = m, g
-        m, value, g, alpha = step
-        gnorm = stationarity(J, m, g, tau_range, xi_bounds)
+        m_prev, G_prev = m, G
+        m, (value, g, G), alpha = step
+        gnorm = _projected_norm(J, metric, m, G, tau_range, xi_bounds)
         res.iterations = k
-        _record(res, J, value, g, m, alpha[0], gnorm)
+        _record(res, value, m, alpha[0], gnorm)
         if callback is not None:
             callback(k, m, value, g)
     else:
@@ -194,7 +255,7 @@ def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e
     res.point, res.objective = m, value
     res.converged = res.converged or gnorm <= target
     res.wall_time = time.perf_counter() - start
-    res.evaluations = {"state_solves": J.counts["state"], "adjoint_solves": J.counts["adjoint"], "cache_hits": evaluate.hits}
+    res.evaluations = {"state_solves": J.counts["state"], "adjoint_solves": J.counts["adjoint"], "cache_hits": cache.hits}
     return res
 
 
@@ -231,9 +292,10 @@ class BBStepRule:
         return (short_step if self.rule == "bb2" else min(self.short_steps)), True
 
 
-def _bb_steps(J, s: ControlPoint, y: ControlPoint, blockwise: bool, previous: tuple,
+def _bb_steps(metric, s: ControlPoint, y: ControlPoint, blockwise: bool, previous: tuple,
               rules: tuple) -> tuple[tuple[float, float], bool]:
-    """Step sizes ``(alpha_xi, alpha_tau)`` from ``s = m_k - m_{k-1}``, ``y = G_k - G_{k-1}`` by the
+    """Step sizes ``(alpha_xi, alpha_tau)`` from ``s = m_k - m_{k-1}``, ``y = G_k - G_{k-1}`` (inner
+    products of ``metric``) by the
     `BBStepRule` pair ``rules`` (the first one alone for the joint step), and whether J is concave
     along s (every used curvature ``<s, -y>`` positive).
 
@@ -242,25 +304,27 @@ def _bb_steps(J, s: ControlPoint, y: ControlPoint, blockwise: bool, previous: tu
     ``previous`` step.
     """
     if not blockwise:
-        a, concave = rules[0](J.inner(s, s), J.inner(s, y), J.inner(y, y), previous[0])
+        a, concave = rules[0](metric.inner(s, s), metric.inner(s, y), metric.inner(y, y), previous[0])
         return (a, a), concave
     sx, yx = ControlPoint(s.xi, 0.0), ControlPoint(y.xi, 0.0)
-    a_xi, c_xi = rules[0](J.inner(sx, sx), J.inner(sx, yx), J.inner(yx, yx), previous[0])
+    a_xi, c_xi = rules[0](metric.inner(sx, sx), metric.inner(sx, yx), metric.inner(yx, yx), previous[0])
     a_tau, c_tau = rules[1](s.tau**2, s.tau * y.tau, y.tau**2, previous[1])
     return (a_xi, a_tau), c_xi and c_tau
 
 
-def _ascent_step(J, evaluate, m, value, g, alpha, tau_range, xi_bounds, armijo, max_backtracks, monotone, res):
-    """Trial ``P(m + (alpha_xi G_xi, alpha_tau G_tau))``; backtrack both steps on solver failure,
-    and on lack of ascent when ``monotone`` (Armijo: sufficient increase ``1e-4 <G, trial - m>``)."""
+def _ascent_step(J, metric, evaluate, m, value, G, alpha, tau_range, xi_bounds, armijo, max_backtracks, monotone,
+                 res):
+    """Trial ``P(m + (alpha_xi G_xi, alpha_tau G_tau))``, G the gradient in ``metric``; backtrack both
+    steps on solver failure, and on lack of ascent when ``monotone`` (Armijo: sufficient increase
+    ``1e-4 <G, trial - m>``). Returns ``(trial, evaluate(trial), alpha)`` or None."""
     a_xi, a_tau = alpha
     for _ in range(max_backtracks):
-        trial = _project(J, m + ControlPoint(a_xi * g.xi, a_tau * g.tau), tau_range, xi_bounds)
+        trial = _project(J, m + ControlPoint(a_xi * G.xi, a_tau * G.tau), tau_range, xi_bounds)
         out = _safe_eval(evaluate, trial)
         if out is None:
             res.failed_trials += 1
-        elif not monotone or out[0] >= value + 1e-4 * J.inner(g, trial - m):
-            return trial, out[0], out[1], (a_xi, a_tau)
+        elif not monotone or out[0] >= value + 1e-4 * metric.inner(G, trial - m):
+            return trial, out, (a_xi, a_tau)
         a_xi, a_tau = a_xi * armijo, a_tau * armijo
     return None
 
@@ -314,13 +378,13 @@ def lbfgsb(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gt
     tau_range = _tau_range(J, tau_margin, fix_tau, m0.tau)
     tau_scale = tau_scaling(J, tau_scale, tau_range, xi_bounds)
     evaluate = EvaluationCache(J, checkpoint)
-    scale = np.sqrt(J.s_weights[:, None] * J.model.control.lumped_mass[None, :])  # z = scale * xi
+    scale = np.sqrt(LumpedMetric(J).weights)  # z = scale * xi: Euclidean in z is the lumped metric
     shape = m0.xi.shape
     res = OptimizationResult(m0, np.nan, 0, False, "")
     state = {"target": None, "last": None, "best": -np.inf, "grad": None}
 
-    def to_point(z):
-        return ControlPoint(z[:-1].reshape(shape) / scale, float(z[-1]) / tau_scale)
+    def to_point(z):  # projected: unscaling a value on a bound can leave it one ulp outside
+        return _project(J, ControlPoint(z[:-1].reshape(shape) / scale, float(z[-1]) / tau_scale), tau_range, xi_bounds)
 
     def fun(z):
         m = to_point(z)
@@ -339,7 +403,7 @@ def lbfgsb(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gt
         m, value, g = state["last"]
         gnorm = stationarity(J, m, g, tau_range, xi_bounds)
         res.iterations += 1
-        _record(res, J, value, g, m, 0.0, gnorm)
+        _record(res, value, m, 0.0, gnorm)
         if callback is not None:
             callback(res.iterations, m, value, g)
         if gnorm <= state["target"]:
@@ -356,7 +420,7 @@ def lbfgsb(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gt
     _, v_init, g_init = state["last"]
     g0 = stationarity(J, m_init, g_init, tau_range, xi_bounds)
     state["target"] = gtol * g0
-    _record(res, J, v_init, g_init, m_init, 0.0, g0)
+    _record(res, v_init, m_init, 0.0, g0)
     out = sopt.minimize(fun, z0, jac=True, method="L-BFGS-B", bounds=bounds, callback=cb,
                         options={"maxiter": max_iter, "maxcor": memory, "gtol": 0.0, "ftol": 1e-15})
     point = to_point(out.x)

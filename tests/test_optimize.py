@@ -8,7 +8,7 @@ from hyperoc import (BodyForce, ControlPoint, NeoHookean, Objective, ReducedFunc
                      SolverError, StateModel, TimeTransform, barzilai_borwein, interval, lbfgsb)
 from hyperoc.errors import InputError
 from hyperoc.objectives import ControlCost, PressureAt
-from hyperoc.optimize import BBStepRule, tau_scaling
+from hyperoc.optimize import BBStepRule, LumpedMetric, tau_scaling
 from hyperoc.problems import vibrating_bar
 
 
@@ -45,6 +45,56 @@ def test_optimizers_converge_on_a_well_posed_case(method, bar_reference):
     G0 = hist["grad_norm"][0]
     assert J.norm(res.point - ref.point) <= 1.1e-6 * G0 / lam
     assert abs(res.objective - ref.objective) <= 4 * (1e-6 * G0) ** 2 / lam
+
+
+def test_bounded_optimizers_reach_the_same_kkt_point(bar_reference):
+    """Bounds ``|xi| <= b`` at half the unconstrained maximizer's largest value, so that they are
+    active: projected BB and L-BFGS-B must both reach a projected gradient ``||P(m + G) - m||`` <=
+    1e-6 of its start, in the lumped metric where the nodal clip is the projection
+    (`LumpedMetric`; with the consistent-mass gradient, projected BB stopped at a point that is not
+    a KKT point, and L-BFGS-B's KKT point did not pass the test), and they must agree.
+
+    Why they agree to this tolerance: with the same active set (strict complementarity), the
+    active values are both the bound and J restricted to the free coordinates F has a
+    nondegenerate maximizer there, so as in the unconstrained test ``|m - m*| <= eps / lambda_F``
+    for each (eps its final projected gradient, lambda_F the least curvature of -J on F in the
+    lumped metric, from forward differences of the exact gradient), and J within ``eps^2 / lambda_F``
+    of J* up to a factor 2 each."""
+    _, _, J = bar_reference
+    ref = bar_reference[0]
+    b = 0.5 * np.max(np.abs(ref.point.xi))
+    runs = [lbfgsb(J, J.zero(2.0), max_iter=200, gtol=1e-6, xi_bounds=(-b, b)),
+            barzilai_borwein(J, J.zero(2.0), max_iter=400, gtol=1e-6, xi_bounds=(-b, b))]
+    for res in runs:
+        assert res.converged and res.history["grad_norm"][-1] <= 1e-6 * res.history["grad_norm"][0]
+        assert np.max(np.abs(res.point.xi)) <= b
+    # L-BFGS-B works on scaled values ``z = c xi``: a value on the bound comes back within an ulp or two
+    active = [np.abs(res.point.xi) >= b * (1 - 4 * np.finfo(float).eps) for res in runs]
+    assert active[0].any() and np.array_equal(*active)
+    metric = LumpedMetric(J)
+    lam = _least_curvature_on(J, metric, runs[0].point, free=~active[0])
+    eps = [res.history["grad_norm"][-1] for res in runs]
+    assert metric.norm(runs[0].point - runs[1].point) <= sum(eps) / lam
+    assert abs(runs[0].objective - runs[1].objective) <= 4 * max(eps) ** 2 / lam
+
+
+def _least_curvature_on(J, metric, m, free, h=1e-6):
+    """Least eigenvalue of ``-H v = lambda W v`` on the free xi values and tau (H by forward
+    differences of the exact derivative, W the metric's weights)."""
+    cols = np.flatnonzero(np.append(free.ravel(), True))
+    size = m.xi.size + 1
+
+    def derivative(z):
+        point = ControlPoint(z[:-1].reshape(m.xi.shape), float(z[-1]))
+        return J.dual(J.value_and_gradient(point)[1]).flat()[cols]
+
+    z0 = m.flat()
+    d0 = derivative(z0)
+    H = np.column_stack([(derivative(z0 + h * np.eye(size)[c]) - d0) / h for c in cols])
+    W = np.append(metric.weights.ravel(), 1.0)[cols]
+    lam = scipy.linalg.eigh(-(H + H.T) / 2, np.diag(W), eigvals_only=True)[0]
+    assert lam > 0, "the bounded maximizer must be nondegenerate on its free coordinates"
+    return lam
 
 
 def test_bb_step_rules_on_a_quadratic():
