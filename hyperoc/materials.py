@@ -62,12 +62,6 @@ class Material:
         """Raise `InputError` on unphysical parameters; return self."""
         return self
 
-    def strain_derivatives(self, E, frame=None):
-        """``(dW/dE (d*d,), d2W/dE2 (d*d, d*d))`` in closed form, in the entries of E row by row, or
-        None: then `hyperoc.model.StateModel` differentiates `energy` by JAX. Only evaluated at a
-        symmetric E; a law overrides it where the closed form is much cheaper than autodiff."""
-        return None
-
     def energy_of_F(self, F, frame=None):
         """``W(E(F))`` with ``E = (F^T F - I) / 2``."""
         E = 0.5 * (F.T @ F - jnp.eye(F.shape[0]))
@@ -268,31 +262,6 @@ class Guccione(Material):
         PEf, PEP = P @ Ef, P @ E @ P
         Q = self.bf * (f @ Ef) ** 2 + self.bt * jnp.sum(PEP * PEP) + 2.0 * self.bfs * (PEf @ PEf)
         return 0.5 * self.C * jnp.expm1(Q) + volumetric
-
-    def strain_derivatives(self, E, frame=None):
-        """Closed form for ``isochoric=False`` (None otherwise): Q is the quadratic form
-        ``Q = x . A x`` of ``x = E.ravel()`` with ``A = bf (f f)(f f)^T + bt P (x) P + 2 bfs (f f^T) (x) P``
-        ((x) the Kronecker product; for symmetric E, ``|P E P|^2 = x . (P (x) P) x`` and
-        ``|P E f|^2 = x . (f f^T (x) P) x``), so with ``g = 2 A x``:
-        ``dW/dx = C/2 e^Q g``, ``d2W/dx2 = C/2 e^Q (2 A + g g^T)``; the penalty by JAX. Why: the
-        autodiff Voigt Hessian of the exponential was ~70% of the 3D element tangent's time."""
-        if self.isochoric:
-            return None
-        f = _frame_rows(frame, 1, "Guccione")[0]
-        d = E.shape[0]
-        ff = jnp.outer(f, f)
-        P = jnp.eye(d) - ff
-        A = self.bf * jnp.outer(ff.ravel(), ff.ravel()) + self.bt * jnp.kron(P, P) + 2.0 * self.bfs * jnp.kron(ff, P)
-        x = E.ravel()
-        g = 2.0 * A @ x
-        scale = 0.5 * self.C * jnp.exp(x @ A @ x)
-        grad, hess = scale * g, scale * (2.0 * A + jnp.outer(g, g))
-        if self.kappa:
-            def U(x):
-                return _volumetric(self.kappa, 2.0 * x.reshape(d, d) + jnp.eye(d))
-
-            grad, hess = grad + jax.grad(U)(x), hess + jax.hessian(U)(x)
-        return grad, hess
 
     volumetric_split = _split_penalty
 

@@ -94,8 +94,6 @@ def _isostatic_pins(rigid: np.ndarray, constrained: np.ndarray, candidates: np.n
 
 
 _VOIGT = {d: _voigt(d) for d in (1, 2, 3)}
-# (d*d, nv): E.ravel() = V e for the independent strains e (`_voigt`): V[k, alpha] = 1 where sym.ravel()[k] = alpha
-_VOIGT_EXPANSION = {d: np.eye(d * (d + 1) // 2)[_VOIGT[d][2].ravel()] for d in (1, 2, 3)}
 _EPS2 = np.array([[0.0, 1.0], [-1.0, 0.0]])
 _EPS3 = np.zeros((3, 3, 3))
 for _i, _j, _k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
@@ -462,10 +460,6 @@ class StateModel:
         """``(d2W/de2 (nv, nv), dW/de (nv,))`` at one point, W as a function of the nv = d(d+1)/2
         independent strains ``e_alpha = E_{I_alpha J_alpha}`` (`_VOIGT`: E = e[sym])."""
         sym = _VOIGT[self.dim][2]
-        closed = self._point_material.strain_derivatives(e[sym], frame)
-        if closed is not None:  # E.ravel() = V e: chain rule
-            V = _VOIGT_EXPANSION[self.dim]
-            return V.T @ closed[1] @ V, V.T @ closed[0]
         g = jax.grad(lambda e: self._point_material.energy(e[sym], frame))
         return jax.jacfwd(lambda e: (g(e), g(e)), has_aux=True)(e)
 
