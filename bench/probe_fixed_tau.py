@@ -10,6 +10,9 @@ smooth J: its curvature along dm).
 
     taskset -c 1 python bench/probe_fixed_tau.py --taus 5 7.5 10 12.5 14.9 --max-iter 300
     taskset -c 1 python bench/probe_fixed_tau.py --taus 7.5 --max-iter 150 --probe
+    taskset -c 1 python bench/probe_fixed_tau.py --taus 7.5 --max-iter 150 --residual
+
+``--residual``: where the projected gradient of the end point lies (`residual_structure`).
 """
 
 import argparse
@@ -19,6 +22,7 @@ import time
 import numpy as np
 
 import hyperoc as ho
+from hyperoc.optimize import LumpedMetric, _project
 from hyperoc.paper import XI_MAX, bounded_config
 from hyperoc.workflows import build_reduced
 
@@ -50,16 +54,42 @@ def probe_smoothness(J, m, seed=0):
             print(f"  h = {h:7.0e}   remainder {rem: .3e}   remainder / h^2 {rem / h**2: .4e}")
 
 
+def residual_structure(J, m, windows=10):
+    """Where the projected gradient ``r = P(m + G) - m`` (lumped metric, `hyperoc.optimize.LumpedMetric`) of
+    the end point lies: per window of s in (0, 1) (s = 1 is tau), its share of ``||r||^2``, the largest |xi| and
+    |G| there and the share of values on a bound; then the share of ``||r||^2`` carried by the free values
+    with ``|G|`` larger than the box's half-width (values the gradient still pushes hard)."""
+    metric = LumpedMetric(J)
+    G = metric.gradient(J.value_and_gradient(m)[1])
+    r = _project(J, m + G, (m.tau, m.tau), (-XI_MAX, XI_MAX)) - m
+    share = metric.weights * r.xi**2
+    total = share.sum()
+    s = np.concatenate([[0.0], np.cumsum(J.transform.ds())])
+    on_bound = np.abs(m.xi) >= XI_MAX * (1 - 4 * np.finfo(float).eps)
+    print(f"projected gradient {np.sqrt(total):.4g}; by window of s (s = 1 is tau):")
+    for lo, hi in zip(np.linspace(0, 1, windows + 1)[:-1], np.linspace(0, 1, windows + 1)[1:]):
+        k = (s >= lo) & (s < hi)
+        print(f"  s in [{lo:.1f}, {hi:.1f}): share {share[k].sum() / total:.3f}  max|xi| {np.abs(m.xi[k]).max():.4f}  "
+              f"max|G| {np.abs(G.xi[k]).max():.3g}  on a bound {on_bound[k].mean():.2f}")
+    print(f"  s >= 1: share {share[s >= 1].sum() / total:.3f}")
+    pushed = ~on_bound & (np.abs(G.xi) > XI_MAX)
+    print(f"free values with |G| > {XI_MAX}: {pushed.mean():.3f} of all values, share {share[pushed].sum() / total:.3f}")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--taus", type=float, nargs="+", default=[5.0, 7.5, 10.0, 12.5, 14.9])
     parser.add_argument("--max-iter", type=int, default=300)
     parser.add_argument("--probe", action="store_true", help="probe J's smoothness at the first tau's end point")
+    parser.add_argument("--residual", action="store_true",
+                        help="where the projected gradient lies at the first tau's end point")
     args = parser.parse_args()
     for k, tau in enumerate(args.taus):
         J, m = optimize_fixed_tau(tau, args.max_iter)
         if args.probe and k == 0:
             probe_smoothness(J, m)
+        if args.residual and k == 0:
+            residual_structure(J, m)
 
 
 if __name__ == "__main__":
