@@ -70,6 +70,7 @@ SCHEMA = {
     "optimize": {"method": (str, "bb"), "tau0": (NUMBER, ...), "tau_starts": (list, ...), "max_iter": (int, 100),
                  "gtol": (NUMBER, 1e-6), "xi_bounds": (list, ...), "tau_margin": (NUMBER, ...),
                  "gradient": (str, "exact"), "steps": (str, "joint"), "bb_step": (str, "bb1"),
+                 "nonmonotone": (int, 0),  # bb: 0 = the paper's Algorithm 1, M > 0 = SPG's window
                  "tau_scale": ((str, NUMBER), "range"),  # L-BFGS-B's scaling of tau (`hyperoc.optimize.tau_scaling`)
                  # checkpointed adjoint: every k-th level state, or a binomial schedule with s snapshots
                  "checkpoint_every": (int, ...), "checkpoint_snapshots": (int, ...)},

@@ -185,7 +185,8 @@ def _safe_eval(evaluate, m):
 def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e-6, gtol_abs: float = 0.0,
                      max_iter: int = 200, tau_margin: float | None = None, armijo: float = 0.5,
                      max_backtracks: int = 30, xi_bounds=(None, None), fix_tau: bool = False,
-                     steps: str = "joint", bb_step: str = "bb1", checkpoint=None, callback=None) -> OptimizationResult:
+                     steps: str = "joint", bb_step: str = "bb1", nonmonotone: int = 0, checkpoint=None,
+                     callback=None) -> OptimizationResult:
     """The paper's Algorithm 1 (maximization): one Armijo step along G0, then Barzilai-Borwein steps.
 
     With ``xi_bounds`` the iterates are projected onto the box (projected BB, the paper's Remark
@@ -207,10 +208,19 @@ def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e
     ``bb_step`` chooses between the two step lengths of Barzilai and Borwein (1988) (`BBStepRule`):
     ``"bb1"`` (the long step above, default), ``"bb2"`` (the short step ``<s, -y> / <y, y>``) or
     ``"abbmin"``, the adaptive alternation of Frassoldati, Zanni and Zanghirati (2008).
+
+    ``nonmonotone = M > 0`` makes it the spectral projected gradient method of Birgin, Martinez and
+    Raydan (SIAM J. Optim. 10, 2000): every BB step must pass the nonmonotone Armijo test of Grippo,
+    Lampariello and Lucidi, ``J(trial) >= min(J_k, ..., J_{k-M+1}) + 1e-4 <G, trial - m>``, else it
+    is halved. The paper's Algorithm 1 (``M = 0``) accepts every BB step where J is concave along s,
+    so J can fall far below its best value; SPG bounds that fall by the window and converges
+    globally to stationary points (for bounded or convex admissible sets, as here).
     """
     if steps not in ("joint", "blockwise"):
         raise InputError(f"steps must be 'joint' or 'blockwise', got {steps!r}")
     rules = (BBStepRule(bb_step), BBStepRule(bb_step))
+    if isinstance(nonmonotone, bool) or not isinstance(nonmonotone, int) or nonmonotone < 0:
+        raise InputError(f"nonmonotone must be an integer >= 0 (0: the paper's Algorithm 1), got {nonmonotone!r}")
     start = time.perf_counter()
     tau_range = _tau_range(J, tau_margin, fix_tau, m0.tau)
     metric = control_metric(J, xi_bounds)
@@ -238,8 +248,10 @@ def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e
         concave = False
         if m_prev is not None:
             alpha, concave = _bb_steps(metric, m - m_prev, G - G_prev, steps == "blockwise", alpha, rules)
-        step = _ascent_step(J, metric, evaluate, m, value, G, alpha, tau_range, xi_bounds, armijo, max_backtracks,
-                            monotone=not concave, res=res)
+        window = res.history["objective"][-nonmonotone:] if nonmonotone else [value]
+        reference = min(window) if nonmonotone or not concave else None
+        step = _ascent_step(J, metric, evaluate, m, G, alpha, tau_range, xi_bounds, armijo, max_backtracks,
+                            reference=reference, res=res)
         if step is None:
             res.message = "no admissible step (state solver fails or no ascent along G)"
             break
@@ -312,18 +324,18 @@ def _bb_steps(metric, s: ControlPoint, y: ControlPoint, blockwise: bool, previou
     return (a_xi, a_tau), c_xi and c_tau
 
 
-def _ascent_step(J, metric, evaluate, m, value, G, alpha, tau_range, xi_bounds, armijo, max_backtracks, monotone,
-                 res):
+def _ascent_step(J, metric, evaluate, m, G, alpha, tau_range, xi_bounds, armijo, max_backtracks, reference, res):
     """Trial ``P(m + (alpha_xi G_xi, alpha_tau G_tau))``, G the gradient in ``metric``; backtrack both
-    steps on solver failure, and on lack of ascent when ``monotone`` (Armijo: sufficient increase
-    ``1e-4 <G, trial - m>``). Returns ``(trial, evaluate(trial), alpha)`` or None."""
+    steps on solver failure, and, unless ``reference`` is None, on lack of ascent over it (Armijo:
+    ``J(trial) >= reference + 1e-4 <G, trial - m>``; reference = J(m) is the monotone test). Returns
+    ``(trial, evaluate(trial), alpha)`` or None."""
     a_xi, a_tau = alpha
     for _ in range(max_backtracks):
         trial = _project(J, m + ControlPoint(a_xi * G.xi, a_tau * G.tau), tau_range, xi_bounds)
         out = _safe_eval(evaluate, trial)
         if out is None:
             res.failed_trials += 1
-        elif not monotone or out[0] >= value + 1e-4 * metric.inner(G, trial - m):
+        elif reference is None or out[0] >= reference + 1e-4 * metric.inner(G, trial - m):
             return trial, out, (a_xi, a_tau)
         a_xi, a_tau = a_xi * armijo, a_tau * armijo
     return None

@@ -87,7 +87,7 @@ def optimize_single(cfg: Config, tau0: float, *, checkpoint=None, method: str | 
     _check_optimizer_options({**o, "method": method})
     if method == "bb":
         res = barzilai_borwein(J, J.zero(tau0), xi_bounds=cfg.xi_bounds(), steps=o["steps"], bb_step=o["bb_step"],
-                               **kwargs)
+                               nonmonotone=o["nonmonotone"], **kwargs)
     else:
         res = lbfgsb(J, J.zero(tau0), xi_bounds=cfg.xi_bounds(), tau_scale=o["tau_scale"], **kwargs)
     if bar is not None:
@@ -96,13 +96,15 @@ def optimize_single(cfg: Config, tau0: float, *, checkpoint=None, method: str | 
 
 
 def _check_optimizer_options(o: dict) -> None:
-    """The ``[optimize]`` entries that only the optimizer reads: method, steps, bb_step, tau_scale."""
+    """The ``[optimize]`` entries that only the optimizer reads: method, steps, bb_step, nonmonotone, tau_scale."""
     if o["method"] not in ("bb", "lbfgsb"):
         raise InputError(f"config: [optimize] method {o['method']!r} unknown (bb, lbfgsb)")
     if o["steps"] not in ("joint", "blockwise"):
         raise InputError(f"config: [optimize] steps must be 'joint' or 'blockwise', got {o['steps']!r}")
     if o["bb_step"] not in BBStepRule.RULES:
         raise InputError(f"config: [optimize] bb_step must be one of {', '.join(BBStepRule.RULES)}, got {o['bb_step']!r}")
+    if o["nonmonotone"] < 0:
+        raise InputError(f"config: [optimize] nonmonotone must be >= 0 (0: the paper's Algorithm 1), got {o['nonmonotone']}")
     check_tau_scale(o["tau_scale"])  # used by L-BFGS-B only, checked for every method
 
 

@@ -81,6 +81,8 @@ def test_check_gradient_json(tmp_path, capsys):
         (("tau0 = 1.0", 'tau0 = 1.0\nsteps = "diagonal"'), "steps must be 'joint' or 'blockwise'"),
         (("tau0 = 1.0", 'tau0 = 1.0\ntau_scale = "auto"'), "tau_scale must be 'range' or a positive number"),
         (("tau0 = 1.0", "tau0 = 1.0\ntau_scale = -2.0"), "tau_scale must be 'range' or a positive number"),
+        (("tau0 = 1.0", "tau0 = 1.0\nnonmonotone = -1"), "nonmonotone must be >= 0"),
+        (("tau0 = 1.0", "tau0 = 1.0\nnonmonotone = 2.5"), "nonmonotone must be"),
         (("n = 20", "n = 20\nfixed_components = [1]"), "fixed_components"),
         (('kind = "interval"', 'kind = "file"\nfile = "missing.msh"'), "mesh file not found"),
         (("[objective]", "[objektive]"), "unknown section"),

@@ -18,8 +18,8 @@ def _J(tau=1.0, T=3.0, dt=0.05, n=20, alpha=2e-2, omega=(0.75, 1.0), material=Sa
     return ReducedFunctional(model, TimeTransform.for_step(T, dt, tau), Objective(running=(ControlCost(alpha),), at_tau=PressureAt()))
 
 
-@pytest.mark.parametrize("method", ["bb", "bb-abbmin", "bb-blockwise", "lbfgsb", "lbfgsb-tau-x10", "lbfgsb-tau-x0.1",
-                                    "lbfgsb-inactive-bounds"])
+@pytest.mark.parametrize("method", ["bb", "bb-abbmin", "bb-blockwise", "bb-spg", "lbfgsb", "lbfgsb-tau-x10",
+                                    "lbfgsb-tau-x0.1", "lbfgsb-inactive-bounds"])
 def test_optimizers_converge_on_a_well_posed_case(method, bar_reference):
     """`vibrating_bar` has an interior, nondegenerate maximizer. Every method must reach
     ||G|| <= 1e-6 ||G0|| with J increasing at the first step, and all must agree on the maximizer.
@@ -38,7 +38,8 @@ def test_optimizers_converge_on_a_well_posed_case(method, bar_reference):
     else:
         res = barzilai_borwein(J, J.zero(2.0), max_iter=300, gtol=1e-6,
                                steps="blockwise" if method == "bb-blockwise" else "joint",
-                               bb_step="abbmin" if method == "bb-abbmin" else "bb1")
+                               bb_step="abbmin" if method == "bb-abbmin" else "bb1",
+                               nonmonotone=10 if method == "bb-spg" else 0)
     hist = res.history
     assert hist["objective"][1] > hist["objective"][0]
     assert res.converged and hist["grad_norm"][-1] <= 1e-6 * hist["grad_norm"][0]
@@ -59,23 +60,36 @@ def test_bounded_optimizers_reach_the_same_kkt_point(bar_reference):
     nondegenerate maximizer there, so as in the unconstrained test ``|m - m*| <= eps / lambda_F``
     for each (eps its final projected gradient, lambda_F the least curvature of -J on F in the
     lumped metric, from forward differences of the exact gradient), and J within ``eps^2 / lambda_F``
-    of J* up to a factor 2 each."""
+    of J* up to a factor 2 each.
+
+    The spectral projected gradient method (``nonmonotone = 10``) reaches the same point and, by its
+    line search, never falls below the least J of its last 10 iterates, which projected BB (the
+    paper's Algorithm 1, unguarded) does here."""
     _, _, J = bar_reference
     ref = bar_reference[0]
     b = 0.5 * np.max(np.abs(ref.point.xi))
     runs = [lbfgsb(J, J.zero(2.0), max_iter=200, gtol=1e-6, xi_bounds=(-b, b)),
-            barzilai_borwein(J, J.zero(2.0), max_iter=400, gtol=1e-6, xi_bounds=(-b, b))]
+            barzilai_borwein(J, J.zero(2.0), max_iter=400, gtol=1e-6, xi_bounds=(-b, b)),
+            barzilai_borwein(J, J.zero(2.0), max_iter=400, gtol=1e-6, xi_bounds=(-b, b), nonmonotone=10)]
     for res in runs:
         assert res.converged and res.history["grad_norm"][-1] <= 1e-6 * res.history["grad_norm"][0]
         assert np.max(np.abs(res.point.xi)) <= b
     # L-BFGS-B works on scaled values ``z = c xi``: a value on the bound comes back within an ulp or two
     active = [np.abs(res.point.xi) >= b * (1 - 4 * np.finfo(float).eps) for res in runs]
-    assert active[0].any() and np.array_equal(*active)
+    assert active[0].any() and all(np.array_equal(active[0], a) for a in active[1:])
     metric = LumpedMetric(J)
     lam = _least_curvature_on(J, metric, runs[0].point, free=~active[0])
     eps = [res.history["grad_norm"][-1] for res in runs]
-    assert metric.norm(runs[0].point - runs[1].point) <= sum(eps) / lam
-    assert abs(runs[0].objective - runs[1].objective) <= 4 * max(eps) ** 2 / lam
+    for other, e in zip(runs[1:], eps[1:]):
+        assert metric.norm(runs[0].point - other.point) <= (eps[0] + e) / lam
+        assert abs(runs[0].objective - other.objective) <= 4 * max(eps[0], e) ** 2 / lam
+    falls = [_falls_below_window(res.history["objective"], 10) for res in runs[1:]]
+    assert falls[0] > 0 and falls[1] == 0
+
+
+def _falls_below_window(values, M):
+    """How many iterates have J below the least of the M before them."""
+    return sum(values[k] < min(values[max(0, k - M):k]) for k in range(1, len(values)))
 
 
 def _least_curvature_on(J, metric, m, free, h=1e-6):
@@ -119,6 +133,9 @@ def test_bb_step_rules_on_a_quadratic():
     assert nonconcave == (0.5, False)  # |s| / |y|, flagged for a monotone search
     with pytest.raises(InputError):
         BBStepRule("bb3")
+    for bad in (-1, 2.5, True):
+        with pytest.raises(InputError, match="nonmonotone"):
+            barzilai_borwein(None, None, nonmonotone=bad)
 
 
 @pytest.fixture(scope="module")

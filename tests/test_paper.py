@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from hyperoc.cli import main
-from hyperoc.paper import XI_MAX, reproduce_paper_1d
+from hyperoc.paper import SPG_WINDOW, XI_MAX, reproduce_paper_1d
 
 SMALL = {"mesh__n": 20, "dynamics__dt": 0.1, "optimize__max_iter": 3}
 
@@ -39,6 +39,8 @@ def test_studies_use_the_stated_variants(parallel):
     assert runs["algorithm1"]["xi_bounds"] is None
     assert runs["bounded"]["xi_bounds"] == [-XI_MAX, XI_MAX]
     assert runs["bounded"]["max_abs_xi"] <= XI_MAX
+    assert runs["algorithm1"]["nonmonotone"] == 0  # the paper's Algorithm 1; the bounded runs by SPG
+    assert all(r["nonmonotone"] == SPG_WINDOW for r in [runs["bounded"], *summary["resolution"]])
     by_label = {r["label"]: r for r in summary["resolution"]}
     assert by_label["bounded, dt/2"]["dt"] == pytest.approx(runs["bounded"]["dt"] / 2)
     assert by_label["bounded, h/2"]["h"] == pytest.approx(runs["bounded"]["h"] / 2)
