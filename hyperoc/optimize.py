@@ -213,8 +213,9 @@ def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e
     Raydan (SIAM J. Optim. 10, 2000): every BB step must pass the nonmonotone Armijo test of Grippo,
     Lampariello and Lucidi, ``J(trial) >= min(J_k, ..., J_{k-M+1}) + 1e-4 <G, trial - m>``, else it
     is halved. The paper's Algorithm 1 (``M = 0``) accepts every BB step where J is concave along s,
-    so J can fall far below its best value; SPG bounds that fall by the window and converges
-    globally to stationary points (for bounded or convex admissible sets, as here).
+    so J can fall far below its best value; with SPG the least J over a window never decreases.
+    (Birgin et al. prove convergence to stationary points on convex sets for BB steps kept in a
+    fixed interval ``[a_min, a_max]``; the steps here are not clipped.)
     """
     if steps not in ("joint", "blockwise"):
         raise InputError(f"steps must be 'joint' or 'blockwise', got {steps!r}")
