@@ -14,7 +14,7 @@ The curated API (see the README for a tour)::
     time        uniform_grid, TimeGrid, TimeTransform
     objectives  Objective, ControlCost, PressureAt, PressureRise
     gradients   ReducedFunctional, ControlPoint, taylor_test
-    optimizers  barzilai_borwein (the paper's Algorithm 1), lbfgsb
+    optimizers  barzilai_borwein (the paper's Algorithm 1), lbfgsb, newton_cg
     config      load_config
 
 Importing hyperoc enables JAX's float64 mode (``jax_enable_x64``), which the solvers need, and,
@@ -36,7 +36,7 @@ from .mixed import TaylorHoodModel
 from .model import StateModel
 from .newton import NewtonLog
 from .objectives import ControlCost, Objective, PressureAt, PressureRise
-from .optimize import barzilai_borwein, lbfgsb
+from .optimize import barzilai_borwein, lbfgsb, newton_cg
 from .reduced import ControlPoint, ReducedFunctional
 from .statics import solve_static
 from .timegrid import TimeGrid, TimeTransform, uniform_grid
@@ -49,6 +49,7 @@ __all__ = [
     "HyperocError", "InputError", "SolverError", "annulus", "from_file", "thick_shell", "ventricle", "Fung",
     "NeoHookean", "Ogden", "SaintVenantKirchhoff", "Guccione", "HolzapfelOgden", "rule_based_fibres", "prolate_fibres",
     "transmural_coordinate", "Mesh", "box", "interval", "rectangle", "refine", "StateModel", "TaylorHoodModel",
-    "ControlCost", "Objective", "PressureAt", "PressureRise", "barzilai_borwein", "lbfgsb", "ControlPoint",
+    "ControlCost", "Objective", "PressureAt", "PressureRise", "barzilai_borwein", "lbfgsb", "newton_cg",
+    "ControlPoint",
     "ReducedFunctional", "solve_static", "NewtonLog", "FollowerPressure", "FibreTension", "TimeGrid", "TimeTransform", "uniform_grid", "taylor_test",
 ]

@@ -34,7 +34,7 @@ def _parser() -> argparse.ArgumentParser:
     o.add_argument("config", nargs="?", help=CONFIG_HELP)
     o.add_argument("--out", metavar="DIR", help=OUT_HELP)
     o.add_argument("--resume", metavar="DIR", help="continue an interrupted run in DIR (its config.toml is reused)")
-    o.add_argument("--method", choices=["bb", "lbfgsb"], help="override [optimize] method")
+    o.add_argument("--method", choices=["bb", "lbfgsb", "newton"], help="override [optimize] method")
     o.add_argument("--scheduler", metavar="ADDRESS", help="Dask scheduler for multi-start (default: local processes)")
     o.add_argument("--workers", type=int, default=2)
     g = sub.add_parser("check-gradient", help="Taylor tests of the exact gradient")

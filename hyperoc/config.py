@@ -72,6 +72,7 @@ SCHEMA = {
                  "gradient": (str, "exact"), "steps": (str, "joint"), "bb_step": (str, "bb1"),
                  "nonmonotone": (int, 0),  # bb: 0 = the paper's Algorithm 1, M > 0 = SPG's window
                  "tau_scale": ((str, NUMBER), "range"),  # L-BFGS-B's scaling of tau (`hyperoc.optimize.tau_scaling`)
+                 "max_cg": (int, 20),  # newton: Hessian-vector products per iteration (`hyperoc.optimize.newton_cg`)
                  # checkpointed adjoint: every k-th level state, or a binomial schedule with s snapshots
                  "checkpoint_every": (int, ...), "checkpoint_snapshots": (int, ...)},
     "output": {"snapshot_times": (list, ...), "series_every": (int, ...)},

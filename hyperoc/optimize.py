@@ -1,11 +1,12 @@
-"""Optimizers for ``max_{xi, tau} J(xi, tau)``: the paper's Algorithm 1, and L-BFGS-B with bounds.
+"""Optimizers for ``max_{xi, tau} J(xi, tau)``: the paper's Algorithm 1 (and its spectral projected
+gradient variant), L-BFGS-B, and projected Newton-CG, all with bounds.
 
-Both work on `ControlPoint` m = (xi~, tau) with the inner product of L2(0, 2; L2(omega)) x R, keep
+All work on `ControlPoint` m = (xi~, tau) with the inner product of L2(0, 2; L2(omega)) x R, keep
 tau inside ``[tau_margin, T - eps - tau_margin]``, and treat a trial point where the state solver
 fails as a rejected step (halved), never as a fatal error.
 
 Checkpoint and resume: `EvaluationCache` stores every evaluation ``(m, J, gradient)`` atomically
-in a folder. Both optimizers are deterministic, so a resumed run starts again from the first
+in a folder. The optimizers are deterministic, so a resumed run starts again from the first
 iterate and replays the cached evaluations (no PDE solve) up to where it stopped: it ends exactly
 where an uninterrupted run ends.
 """
@@ -25,7 +26,7 @@ from .io import read_npz, write_npz
 from .reduced import ControlPoint, ReducedFunctional
 
 __all__ = ["OptimizationResult", "EvaluationCache", "BBStepRule", "LumpedMetric", "barzilai_borwein", "lbfgsb",
-           "stationarity", "tau_scaling"]
+           "newton_cg", "stationarity", "tau_scaling"]
 
 
 @dataclass
@@ -174,6 +175,39 @@ def _record(res: OptimizationResult, value: float, m: ControlPoint, step: float,
     res.history["step"].append(float(step))
 
 
+def _in_metric(cache: EvaluationCache, metric):
+    """``evaluate(m) -> (J, J's gradient, the gradient in metric)`` through the cache."""
+    def evaluate(m):
+        value, g = cache(m)
+        return value, g, metric.gradient(g)
+    return evaluate
+
+
+def _first_iterate(J, metric, evaluate, m0, tau_range, xi_bounds, res):
+    """``(m, J(m), G, measure)`` at the projected start, recorded in res; `SolverError` if the state
+    solver fails there."""
+    m = _project(J, m0, tau_range, xi_bounds)
+    first = _safe_eval(evaluate, m)
+    if first is None:
+        raise SolverError(0, 0.0, "initial point", "the state solver fails at the initial control")
+    value, _, G = first
+    gnorm = _projected_norm(J, metric, m, G, tau_range, xi_bounds)
+    _record(res, value, m, 0.0, gnorm)
+    return m, value, G, gnorm
+
+
+def _take(J, metric, res, k, step, tau_range, xi_bounds, callback):
+    """Move to an accepted ``step = (m, (J, g, G), alpha)``: record iteration k and call back.
+    Returns ``(m, J(m), G, alpha, measure)``."""
+    m, (value, _, G), alpha = step
+    gnorm = _projected_norm(J, metric, m, G, tau_range, xi_bounds)
+    res.iterations = k
+    _record(res, value, m, alpha[0], gnorm)
+    if callback is not None:
+        callback(k, m, value, gnorm)
+    return m, value, G, alpha, gnorm
+
+
 def _safe_eval(evaluate, m):
     """Evaluation, or None when the state solver fails at m (the step is then rejected)."""
     try:
@@ -198,6 +232,8 @@ def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e
     is ``alpha = <s, s> / <s, -y>`` (s = m_k - m_{k-1}, y = G_k - G_{k-1}); when it is not positive
     (J locally not concave along s) the iteration takes an Armijo step from ``|s| / |y|``.
     A trial point where the state solver fails is rejected and its step halved.
+    ``callback(k, m, J(m), measure)`` after iteration k, with the stopping test's measure (as recorded in
+    ``history["grad_norm"]``).
 
     ``steps = "joint"`` is the paper's single step for (xi, tau). ``steps = "blockwise"`` takes one
     BB step for xi and one for tau (``<s_xi, s_xi> / <s_xi, -y_xi>`` and ``s_tau / -y_tau``): a
@@ -226,19 +262,9 @@ def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e
     tau_range = _tau_range(J, tau_margin, fix_tau, m0.tau)
     metric = control_metric(J, xi_bounds)
     cache = EvaluationCache(J, checkpoint)
-
-    def evaluate(m):  # (J, J's gradient, the gradient in the metric)
-        value, g = cache(m)
-        return value, g, metric.gradient(g)
-
+    evaluate = _in_metric(cache, metric)
     res = OptimizationResult(m0, np.nan, 0, False, "")
-    m = _project(J, m0, tau_range, xi_bounds)
-    first = _safe_eval(evaluate, m)
-    if first is None:
-        raise SolverError(0, 0.0, "initial point", "the state solver fails at the initial control")
-    value, _, G = first
-    gnorm = _projected_norm(J, metric, m, G, tau_range, xi_bounds)
-    _record(res, value, m, 0.0, gnorm)
+    m, value, G, gnorm = _first_iterate(J, metric, evaluate, m0, tau_range, xi_bounds, res)
     target = max(gtol * gnorm, gtol_abs)
     m_prev = G_prev = None
     alpha = (1.0, 1.0)
@@ -257,12 +283,7 @@ def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e
             res.message = "no admissible step (state solver fails or no ascent along G)"
             break
         m_prev, G_prev = m, G
-        m, (value, g, G), alpha = step
-        gnorm = _projected_norm(J, metric, m, G, tau_range, xi_bounds)
-        res.iterations = k
-        _record(res, value, m, alpha[0], gnorm)
-        if callback is not None:
-            callback(k, m, value, g)
+        m, value, G, alpha, gnorm = _take(J, metric, res, k, step, tau_range, xi_bounds, callback)
     else:
         res.message = f"maximum number of iterations ({max_iter}) reached"
     res.point, res.objective = m, value
@@ -325,14 +346,16 @@ def _bb_steps(metric, s: ControlPoint, y: ControlPoint, blockwise: bool, previou
     return (a_xi, a_tau), c_xi and c_tau
 
 
-def _ascent_step(J, metric, evaluate, m, G, alpha, tau_range, xi_bounds, armijo, max_backtracks, reference, res):
-    """Trial ``P(m + (alpha_xi G_xi, alpha_tau G_tau))``, G the gradient in ``metric``; backtrack both
-    steps on solver failure, and, unless ``reference`` is None, on lack of ascent over it (Armijo:
-    ``J(trial) >= reference + 1e-4 <G, trial - m>``; reference = J(m) is the monotone test). Returns
-    ``(trial, evaluate(trial), alpha)`` or None."""
+def _ascent_step(J, metric, evaluate, m, G, alpha, tau_range, xi_bounds, armijo, max_backtracks, reference, res,
+                 direction=None):
+    """Trial ``P(m + (alpha_xi d_xi, alpha_tau d_tau))``, d = ``direction`` (default G, the gradient in
+    ``metric``); backtrack both steps on solver failure, and, unless ``reference`` is None, on lack of
+    ascent over it (Armijo: ``J(trial) >= reference + 1e-4 <G, trial - m>``; reference = J(m) is the
+    monotone test). Returns ``(trial, evaluate(trial), alpha)`` or None."""
     a_xi, a_tau = alpha
+    d = G if direction is None else direction
     for _ in range(max_backtracks):
-        trial = _project(J, m + ControlPoint(a_xi * G.xi, a_tau * G.tau), tau_range, xi_bounds)
+        trial = _project(J, m + ControlPoint(a_xi * d.xi, a_tau * d.tau), tau_range, xi_bounds)
         out = _safe_eval(evaluate, trial)
         if out is None:
             res.failed_trials += 1
@@ -386,6 +409,7 @@ def lbfgsb(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gt
     normalized to their admissible ranges). A trial point where the state solver fails gets the
     value ``-J_best + |J_best| + 1`` (worse than any point seen) and the last gradient, so the line
     search backtracks. Stops when the projected gradient norm is ``<= gtol`` times its initial value.
+    ``callback(k, m, J(m), measure)`` after iteration k, with that norm (as in ``history["grad_norm"]``).
     """
     start = time.perf_counter()
     tau_range = _tau_range(J, tau_margin, fix_tau, m0.tau)
@@ -418,7 +442,7 @@ def lbfgsb(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gt
         res.iterations += 1
         _record(res, value, m, 0.0, gnorm)
         if callback is not None:
-            callback(res.iterations, m, value, g)
+            callback(res.iterations, m, value, gnorm)
         if gnorm <= state["target"]:
             raise StopIteration
 
@@ -445,3 +469,140 @@ def lbfgsb(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gt
     res.wall_time = time.perf_counter() - start
     res.evaluations = {"state_solves": J.counts["state"], "adjoint_solves": J.counts["adjoint"], "cache_hits": evaluate.hits}
     return res
+
+
+def newton_cg(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gtol: float = 1e-6,
+              max_iter: int = 100, max_cg: int = 20, tau_margin: float | None = None, fix_tau: bool = False,
+              armijo: float = 0.5, max_backtracks: int = 30, checkpoint=None, callback=None) -> OptimizationResult:
+    """Projected truncated Newton-CG (the projected Newton method of Bertsekas, SIAM J. Control Optim.
+    20, 1982, with CG stopped at nonconcavity as in Steihaug's method): second-order steps from
+    Hessian-vector products.
+
+    Each iteration splits the values into binding ones (within ``w`` of a bound that G pushes against,
+    ``w`` the largest component of the projected step ``P(m + G) - m`` per block: Bertsekas's
+    epsilon-active set, which shrinks to the active set at a KKT point) and free ones. On the free ones
+    it solves ``-H d = G`` (H the Hessian of J, G the gradient, both in the metric of `control_metric`)
+    by conjugate gradients to the relative residual ``min(0.5, sqrt(||P(m + G) - m|| / ||.||_0))``
+    (superlinear local convergence) or ``max_cg`` products; the binding values take the gradient step.
+    The step ``P(m + alpha d)`` is searched by Armijo backtracking from alpha = 1, as in `barzilai_borwein`.
+
+    Why: the bounded paper problem is not concave on its free values (J grows along some directions,
+    so the maximizer sits on the bounds there) and ill-conditioned, where first-order steps make slow
+    progress. When CG meets a direction p along which J is not concave (``<p, -H p> <= 0``) the
+    direction is the CG iterate plus p, and a full step accepted by the search is doubled while J keeps
+    increasing and the projection still moves the trial point.
+
+    Hessian-vector products are forward differences of the exact gradient, ``H v ~ (G(m + h v) - G(m)) / h``
+    with ``h = sqrt(eps_mach) (1 + |m|_inf) / |v|_inf`` (relative error ~1e-8, which limits the local
+    rate to linear with that factor); each costs one state and one adjoint solve, and is not cached
+    (a resumed run recomputes them; the iterates, trial points and their evaluations are cached as in
+    `barzilai_borwein`, so it ends where an uninterrupted run ends). Stops when the projected gradient
+    norm is ``<= gtol`` times its initial value. ``callback(k, m, J(m), measure)`` as in `barzilai_borwein`.
+    ``evaluations`` counts the Hessian-vector products and the iterations where CG met nonconcavity.
+    """
+    start = time.perf_counter()
+    tau_range = _tau_range(J, tau_margin, fix_tau, m0.tau)
+    metric = control_metric(J, xi_bounds)
+    cache = EvaluationCache(J, checkpoint)
+    evaluate = _in_metric(cache, metric)
+    counts = {"hessian_products": 0, "nonconcave_iterations": 0}
+    res = OptimizationResult(m0, np.nan, 0, False, "")
+    m, value, G, gnorm = _first_iterate(J, metric, evaluate, m0, tau_range, xi_bounds, res)
+    g0 = gnorm
+    for k in range(1, max_iter + 1):
+        if gnorm <= gtol * g0:
+            break
+        free = _free_values(J, m, G, tau_range, xi_bounds)
+        d, nonconcave = _newton_direction(J, metric, m, G, free, min(0.5, np.sqrt(gnorm / g0)), max_cg, counts)
+        step = _ascent_step(J, metric, evaluate, m, G, (1.0, 1.0), tau_range, xi_bounds, armijo, max_backtracks,
+                            reference=value, res=res, direction=d)
+        if step is None:
+            res.message = "no admissible step (state solver fails or no ascent along the Newton direction)"
+            break
+        if nonconcave:
+            counts["nonconcave_iterations"] += 1
+            if step[2][0] == 1.0:
+                step = _extend(J, evaluate, m, d, step, tau_range, xi_bounds)
+        m, value, G, _, gnorm = _take(J, metric, res, k, step, tau_range, xi_bounds, callback)
+    res.converged = gnorm <= gtol * g0
+    res.message = ("projected ||G|| <= gtol ||G0||" if res.converged
+                   else res.message or f"maximum number of iterations ({max_iter}) reached")
+    res.point, res.objective = m, value
+    res.wall_time = time.perf_counter() - start
+    res.evaluations = {"state_solves": J.counts["state"], "adjoint_solves": J.counts["adjoint"], "cache_hits": cache.hits,
+                       **counts}
+    return res
+
+
+def _free_values(J, m: ControlPoint, G: ControlPoint, tau_range, xi_bounds, width: float = 0.01) -> ControlPoint:
+    """1.0 where a value is free, 0.0 where it is binding: within ``eps`` of a bound that G pushes
+    against, ``eps = min(w, width (hi - lo))`` per block (xi, tau), w the largest projected step
+    ``|P(m + G) - m|`` of the block (Bertsekas's rule; without the cap, a first step as wide as the
+    box would make every pushed value binding); tau is binding when it is fixed (empty range)."""
+    w = _project(J, m + G, tau_range, xi_bounds) - m
+    lo, hi = (b if b is not None else sign * np.inf for b, sign in zip(xi_bounds, (-1, 1)))
+
+    def free(x, g, lo, hi, step):
+        eps = min(step, width * (hi - lo))
+        return np.where(((x <= lo + eps) & (g < 0)) | ((x >= hi - eps) & (g > 0)), 0.0, 1.0)
+
+    tau_free = 0.0 if tau_range[0] == tau_range[1] else float(free(m.tau, G.tau, *tau_range, abs(w.tau)))
+    return ControlPoint(free(m.xi, G.xi, lo, hi, np.abs(w.xi).max(initial=0.0)), tau_free)
+
+
+def _masked(v: ControlPoint, mask: ControlPoint) -> ControlPoint:
+    return ControlPoint(v.xi * mask.xi, v.tau * mask.tau)
+
+
+def _newton_direction(J, metric, m, G, free, forcing, max_cg, counts) -> tuple[ControlPoint, bool]:
+    """``(d, nonconcave)``: d solves ``-H d = G`` on the free values by CG in ``metric`` (relative residual
+    ``forcing``, at most ``max_cg`` products) and is G on the binding ones; ``nonconcave`` when CG met a
+    direction p with ``<p, -H p> <= 0`` (d is then the CG iterate plus p, an ascent direction since
+    ``<G, p> = |r|^2 > 0`` in CG)."""
+    r = _masked(G, free)
+    x, p, rr = r * 0.0, r, metric.inner(r, r)
+    stop, nonconcave = forcing * np.sqrt(rr), False
+    for _ in range(max_cg if rr > 0 else 0):
+        Hp = _hessian_product(J, metric, m, G, p, counts)
+        if Hp is None:  # the state solver fails at m + h p
+            break
+        Hp = _masked(Hp, free)
+        curvature = metric.inner(p, Hp)
+        if curvature <= 0:
+            x, nonconcave = x + p, True
+            break
+        a = rr / curvature
+        x, r = x + p * a, r - Hp * a
+        rr_next = metric.inner(r, r)
+        if np.sqrt(rr_next) <= stop:
+            break
+        p, rr = r + p * (rr_next / rr), rr_next
+    if metric.norm(x) == 0.0:
+        x = _masked(G, free)
+    return x + _masked(G, ControlPoint(1.0 - free.xi, 1.0 - free.tau)), nonconcave
+
+
+def _hessian_product(J, metric, m: ControlPoint, G: ControlPoint, v: ControlPoint, counts) -> ControlPoint | None:
+    """``-H v`` (H the Hessian of J in ``metric``) by a forward difference of the gradient; None where
+    the state solver fails at the difference point."""
+    size = max(np.abs(v.xi).max(initial=0.0), abs(v.tau))
+    h = np.sqrt(np.finfo(float).eps) * (1.0 + max(np.abs(m.xi).max(initial=0.0), abs(m.tau))) / size
+    out = _safe_eval(J.value_and_gradient, m + v * h)
+    counts["hessian_products"] += 1
+    if out is None:
+        return None
+    return (metric.gradient(out[1]) - G) * (-1.0 / h)
+
+
+def _extend(J, evaluate, m, d, step, tau_range, xi_bounds, max_doublings: int = 20):
+    """Double a full step along a direction of nonconcavity while J increases and the projected point moves."""
+    trial, out, alpha = step
+    for _ in range(max_doublings):
+        wider = _project(J, m + d * (2.0 * alpha[0]), tau_range, xi_bounds)
+        if np.array_equal(wider.xi, trial.xi) and wider.tau == trial.tau:
+            break
+        wider_out = _safe_eval(evaluate, wider)
+        if wider_out is None or wider_out[0] <= out[0]:
+            break
+        trial, out, alpha = wider, wider_out, (2.0 * alpha[0], 2.0 * alpha[1])
+    return trial, out, alpha

@@ -16,7 +16,7 @@ from .config import Config
 from .dynamics import TimeStepper, detect_regimes
 from .errors import InputError
 from .io import read_json, write_json
-from .optimize import BBStepRule, OptimizationResult, barzilai_borwein, check_tau_scale, lbfgsb
+from .optimize import BBStepRule, OptimizationResult, barzilai_borwein, check_tau_scale, lbfgsb, newton_cg
 from .reduced import ControlPoint, ReducedFunctional
 from .report import write_state_outputs
 from .verification import random_directions, taylor_test
@@ -77,10 +77,10 @@ def optimize_single(cfg: Config, tau0: float, *, checkpoint=None, method: str | 
     method = method or o["method"]
     bar = _progress_bar(progress, o["max_iter"], f"optimize (tau0={tau0:g})")
 
-    def callback(k, m, value, g):
+    def callback(k, m, value, measure):  # measure: the stopping test's (projected, with bounds) ||G||
         if bar is not None:
             bar.update(1)
-            bar.set_postfix(J=f"{value:.5g}", tau=f"{m.tau:.4f}", G=f"{J.norm(g):.2e}")
+            bar.set_postfix(J=f"{value:.5g}", tau=f"{m.tau:.4f}", G=f"{measure:.2e}")
 
     kwargs = dict(gtol=float(o["gtol"]), max_iter=int(o["max_iter"]), checkpoint=checkpoint, callback=callback,
                   tau_margin=o.get("tau_margin"))
@@ -88,6 +88,8 @@ def optimize_single(cfg: Config, tau0: float, *, checkpoint=None, method: str | 
     if method == "bb":
         res = barzilai_borwein(J, J.zero(tau0), xi_bounds=cfg.xi_bounds(), steps=o["steps"], bb_step=o["bb_step"],
                                nonmonotone=o["nonmonotone"], **kwargs)
+    elif method == "newton":
+        res = newton_cg(J, J.zero(tau0), xi_bounds=cfg.xi_bounds(), max_cg=o["max_cg"], **kwargs)
     else:
         res = lbfgsb(J, J.zero(tau0), xi_bounds=cfg.xi_bounds(), tau_scale=o["tau_scale"], **kwargs)
     if bar is not None:
@@ -96,13 +98,15 @@ def optimize_single(cfg: Config, tau0: float, *, checkpoint=None, method: str | 
 
 
 def _check_optimizer_options(o: dict) -> None:
-    """The ``[optimize]`` entries that only the optimizer reads: method, steps, bb_step, nonmonotone, tau_scale."""
-    if o["method"] not in ("bb", "lbfgsb"):
-        raise InputError(f"config: [optimize] method {o['method']!r} unknown (bb, lbfgsb)")
+    """The ``[optimize]`` entries that only the optimizer reads: method, steps, bb_step, nonmonotone, max_cg, tau_scale."""
+    if o["method"] not in ("bb", "lbfgsb", "newton"):
+        raise InputError(f"config: [optimize] method {o['method']!r} unknown (bb, lbfgsb, newton)")
     if o["steps"] not in ("joint", "blockwise"):
         raise InputError(f"config: [optimize] steps must be 'joint' or 'blockwise', got {o['steps']!r}")
     if o["bb_step"] not in BBStepRule.RULES:
         raise InputError(f"config: [optimize] bb_step must be one of {', '.join(BBStepRule.RULES)}, got {o['bb_step']!r}")
+    if o["max_cg"] < 1:
+        raise InputError(f"config: [optimize] max_cg must be >= 1, got {o['max_cg']}")
     if o["nonmonotone"] < 0:
         raise InputError(f"config: [optimize] nonmonotone must be >= 0 (0: the paper's Algorithm 1), got {o['nonmonotone']}")
     check_tau_scale(o["tau_scale"])  # used by L-BFGS-B only, checked for every method

@@ -83,6 +83,8 @@ def test_check_gradient_json(tmp_path, capsys):
         (("tau0 = 1.0", "tau0 = 1.0\ntau_scale = -2.0"), "tau_scale must be 'range' or a positive number"),
         (("tau0 = 1.0", "tau0 = 1.0\nnonmonotone = -1"), "nonmonotone must be >= 0"),
         (("tau0 = 1.0", "tau0 = 1.0\nnonmonotone = 2.5"), "nonmonotone must be"),
+        (("tau0 = 1.0", 'tau0 = 1.0\nmethod = "newton"\nmax_cg = 0'), "max_cg must be >= 1"),
+        (("tau0 = 1.0", 'tau0 = 1.0\nmethod = "newton-cg"'), "method 'newton-cg' unknown (bb, lbfgsb, newton)"),
         (("n = 20", "n = 20\nfixed_components = [1]"), "fixed_components"),
         (('kind = "interval"', 'kind = "file"\nfile = "missing.msh"'), "mesh file not found"),
         (("[objective]", "[objektive]"), "unknown section"),
@@ -202,21 +204,25 @@ def test_config_cell_mean_volumetric(tmp_path):
     assert abs(float(model.strain_energy(u)) - expected) <= 1e-13 * abs(expected)
 
 
-def test_set_overrides_config_entries_and_optimize_records_what_ran(tmp_path, capsys):
+@pytest.mark.parametrize("method", ["lbfgsb", "newton"])
+def test_set_overrides_config_entries_and_optimize_records_what_ran(tmp_path, capsys, method):
     """``--set`` and ``--method`` change the run (here a bound |xi| <= 0.01 that the optimizer hits,
-    and L-BFGS-B); the output folder's config.toml is the configuration that ran, so reloading it
-    gives the same sections, and ``--resume`` refuses new overrides."""
+    and L-BFGS-B or Newton-CG with at most 3 Hessian products per iteration); the output folder's
+    config.toml is the configuration that ran, so reloading it gives the same sections, and
+    ``--resume`` refuses new overrides."""
     from hyperoc.config import load_config
 
     cfg, out = _write(tmp_path, SMALL_1D), tmp_path / "o"
-    overrides = ["--set", "optimize.xi_bounds=[-0.01, 0.01]", "--set", "optimize.max_iter=2", "--method", "lbfgsb"]
+    sets = ["optimize.xi_bounds=[-0.01, 0.01]", "optimize.max_iter=2", "optimize.max_cg=3"]
+    overrides = [a for s in sets for a in ("--set", s)] + ["--method", method]
     assert main(["optimize", str(cfg), "--out", str(out), "--no-progress", *overrides]) == 0
     ran = load_config(out / "config.toml")
-    assert ran.sections == load_config(cfg, ["optimize.xi_bounds=[-0.01, 0.01]", "optimize.max_iter=2",
-                                             "optimize.method=lbfgsb"]).sections
-    assert ran["optimize"]["method"] == "lbfgsb" and ran["optimize"]["xi_bounds"] == [-0.01, 0.01]
+    assert ran.sections == load_config(cfg, [*sets, f"optimize.method={method}"]).sections
+    assert ran["optimize"]["method"] == method and ran["optimize"]["xi_bounds"] == [-0.01, 0.01]
     summary = json.loads((out / "summary.json").read_text())
     assert summary["iterations"] <= 2 and np.max(np.abs(np.load(out / "results.npz")["xi"])) == pytest.approx(0.01)
+    products = summary["optimization"]["evaluations"].get("hessian_products", 0)
+    assert (0 < products <= 3 * summary["iterations"]) if method == "newton" else products == 0
     capsys.readouterr()
     assert main(["optimize", "--resume", str(out), "--set", "optimize.max_iter=5"]) == 2
     assert "--resume continues the run" in capsys.readouterr().err
