@@ -13,6 +13,11 @@ smooth J: its curvature along dm).
     taskset -c 1 python bench/probe_fixed_tau.py --taus 7.5 --max-iter 150 --residual
 
 ``--residual``: where the projected gradient of the end point lies (`residual_structure`).
+``--hessian``: the curvature ``<v, H v>`` there along the free gradient and a random free direction, by forward
+and central differences of the exact gradient at 1 to 10^4 times `hyperoc.optimize.newton_cg`'s step
+(`hessian_accuracy`):
+
+    taskset -c 1 python bench/probe_fixed_tau.py --taus 7.5 --max-iter 150 --hessian
 """
 
 import argparse
@@ -22,7 +27,7 @@ import time
 import numpy as np
 
 import hyperoc as ho
-from hyperoc.optimize import LumpedMetric, _project
+from hyperoc.optimize import LumpedMetric, _free_values, _masked, _project
 from hyperoc.paper import XI_MAX, bounded_config
 from hyperoc.workflows import build_reduced
 
@@ -76,6 +81,25 @@ def residual_structure(J, m, windows=10):
     print(f"free values with |G| > {XI_MAX}: {pushed.mean():.3f} of all values, share {share[pushed].sum() / total:.3f}")
 
 
+def hessian_accuracy(J, m):
+    """Curvatures along unit directions (lumped metric) on the free values: forward against central differences."""
+    metric = LumpedMetric(J)
+    G = metric.gradient(J.value_and_gradient(m)[1])
+    free = _free_values(J, m, G, (m.tau, m.tau), (-XI_MAX, XI_MAX))
+    random = ho.ControlPoint(np.random.default_rng(0).standard_normal(m.xi.shape), 0.0)
+    for name, v in (("free gradient", _masked(G, free)), ("random free direction", _masked(random, free))):
+        v = v * (1.0 / metric.norm(v))
+        h0 = np.sqrt(np.finfo(float).eps) * (1 + max(np.abs(m.xi).max(), m.tau)) / np.abs(v.xi).max()
+        print(f"{name}: newton_cg's step h0 = {h0:.3g}")
+        for factor in (1, 10, 100, 1000, 1e4):
+            h = h0 * factor
+            plus, minus = (metric.gradient(J.value_and_gradient(m + v * (sign * h))[1]) for sign in (1, -1))
+            forward, central = (plus - G) * (1 / h), (plus - minus) * (0.5 / h)
+            print(f"  h = {factor:g} h0: <v, Hv> forward {metric.inner(v, forward): .6e}, central "
+                  f"{metric.inner(v, central): .6e}, |forward - central| / |central| "
+                  f"{metric.norm(forward - central) / metric.norm(central):.2e}")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--taus", type=float, nargs="+", default=[5.0, 7.5, 10.0, 12.5, 14.9])
@@ -83,6 +107,8 @@ def main():
     parser.add_argument("--probe", action="store_true", help="probe J's smoothness at the first tau's end point")
     parser.add_argument("--residual", action="store_true",
                         help="where the projected gradient lies at the first tau's end point")
+    parser.add_argument("--hessian", action="store_true",
+                        help="forward against central Hessian-vector products at the first tau's end point")
     args = parser.parse_args()
     for k, tau in enumerate(args.taus):
         J, m = optimize_fixed_tau(tau, args.max_iter)
@@ -90,6 +116,8 @@ def main():
             probe_smoothness(J, m)
         if args.residual and k == 0:
             residual_structure(J, m)
+        if args.hessian and k == 0:
+            hessian_accuracy(J, m)
 
 
 if __name__ == "__main__":
