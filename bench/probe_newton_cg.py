@@ -5,12 +5,24 @@ in tests/test_optimize.py), all to ``gtol = 1e-8`` from (0, 2). Printed per run:
 and at its least, J, tau, and the last steps.
 
     python bench/probe_newton_cg.py
+
+``--paper N``: instead, N Newton-CG iterations on the paper's bounded variant from (0, 7.5) (as
+``hyperoc optimize examples/paper-1d.toml --method newton --set "optimize.xi_bounds=[-0.05, 0.05]"``), then the
+structure of the end point: the share of control values on a bound, per sixth control node the number of
+switches of its bound status along s, and where the projected gradient lies (`probe_fixed_tau.residual_structure`):
+
+    taskset -c 1 python bench/probe_newton_cg.py --paper 300
 """
 
+import argparse
+
 import numpy as np
+from probe_fixed_tau import residual_structure
 
 import hyperoc as ho
+from hyperoc.paper import XI_MAX, bounded_config
 from hyperoc.problems import vibrating_bar
+from hyperoc.workflows import build_reduced
 
 
 def report(name, res):
@@ -21,7 +33,18 @@ def report(name, res):
           f"{res.point.tau:.7f} | {', '.join(f'{s:.2g}' for s in res.history['step'][-3:])} |")
 
 
-def main():
+def paper_end_point(iterations):
+    J = build_reduced(bounded_config(), 7.5)
+    res = ho.newton_cg(J, J.zero(7.5), xi_bounds=(-XI_MAX, XI_MAX), max_iter=iterations)
+    print(f"J = {res.objective:.8g}, tau = {res.point.tau:.6g}, {res.evaluations}")
+    status = np.sign(res.point.xi) * (np.abs(res.point.xi) >= XI_MAX * (1 - 1e-12))  # +-1 on a bound, 0 free
+    print(f"values on a bound: {np.abs(status).mean():.3f} (upper {(status > 0).mean():.3f}, lower {(status < 0).mean():.3f})")
+    for node in range(0, status.shape[1], 5):
+        print(f"  control node {node}: {np.count_nonzero(np.diff(status[:, node]))} switches of bound status along s")
+    residual_structure(J, res.point)
+
+
+def vibrating_bar_table():
     runs = {"Newton-CG": lambda J, **k: ho.newton_cg(J, J.zero(2.0), max_iter=100, **k),
             "L-BFGS-B": lambda J, **k: ho.lbfgsb(J, J.zero(2.0), max_iter=200, **k),
             "SPG (M = 10)": lambda J, **k: ho.barzilai_borwein(J, J.zero(2.0), max_iter=400, nonmonotone=10, **k)}
@@ -39,6 +62,16 @@ def main():
                 ref = res.point if name == "Newton-CG" else ref  # the one that converges to 1e-8
             print("| active " if bounded else "| none ", end="")
             report(name, res)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--paper", type=int, metavar="N", help="N iterations on the paper's bounded variant instead")
+    args = parser.parse_args()
+    if args.paper:
+        paper_end_point(args.paper)
+    else:
+        vibrating_bar_table()
 
 
 if __name__ == "__main__":
