@@ -484,7 +484,8 @@ def newton_cg(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None),
     it solves ``-H d = G`` (H the Hessian of J, G the gradient, both in the metric of `control_metric`)
     by conjugate gradients to the relative residual ``min(0.5, sqrt(||P(m + G) - m|| / ||.||_0))``
     (superlinear local convergence) or ``max_cg`` products; the binding values take the gradient step.
-    The step ``P(m + alpha d)`` is searched by Armijo backtracking from alpha = 1, as in `barzilai_borwein`.
+    The step ``P(m + alpha d)`` is searched by Armijo backtracking from alpha = 1, as in `barzilai_borwein`;
+    where that fails (a poor curvature model: no ascent in ``max_backtracks`` halvings), the same search along G.
 
     Why: the bounded paper problem is not concave on its free values (J grows along some directions,
     so the maximizer sits on the bounds there) and ill-conditioned, where first-order steps make slow
@@ -498,14 +499,15 @@ def newton_cg(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None),
     (a resumed run recomputes them; the iterates, trial points and their evaluations are cached as in
     `barzilai_borwein`, so it ends where an uninterrupted run ends). Stops when the projected gradient
     norm is ``<= gtol`` times its initial value. ``callback(k, m, J(m), measure)`` as in `barzilai_borwein`.
-    ``evaluations`` counts the Hessian-vector products and the iterations where CG met nonconcavity.
+    ``evaluations`` counts the Hessian-vector products, the iterations where CG met nonconcavity and the
+    gradient steps taken where the Newton direction's search failed.
     """
     start = time.perf_counter()
     tau_range = _tau_range(J, tau_margin, fix_tau, m0.tau)
     metric = control_metric(J, xi_bounds)
     cache = EvaluationCache(J, checkpoint)
     evaluate = _in_metric(cache, metric)
-    counts = {"hessian_products": 0, "nonconcave_iterations": 0}
+    counts = {"hessian_products": 0, "nonconcave_iterations": 0, "gradient_steps": 0}
     res = OptimizationResult(m0, np.nan, 0, False, "")
     m, value, G, gnorm = _first_iterate(J, metric, evaluate, m0, tau_range, xi_bounds, res)
     g0 = gnorm
@@ -514,10 +516,15 @@ def newton_cg(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None),
             break
         free = _free_values(J, m, G, tau_range, xi_bounds)
         d, nonconcave = _newton_direction(J, metric, m, G, free, min(0.5, np.sqrt(gnorm / g0)), max_cg, counts)
+        search = dict(reference=value, res=res)
         step = _ascent_step(J, metric, evaluate, m, G, (1.0, 1.0), tau_range, xi_bounds, armijo, max_backtracks,
-                            reference=value, res=res, direction=d)
+                            direction=d, **search)
+        if step is None:  # the gradient is an ascent direction whatever the curvature model says
+            counts["gradient_steps"] += 1
+            step = _ascent_step(J, metric, evaluate, m, G, (1.0, 1.0), tau_range, xi_bounds, armijo, max_backtracks,
+                                **search)
         if step is None:
-            res.message = "no admissible step (state solver fails or no ascent along the Newton direction)"
+            res.message = "no admissible step (state solver fails or no ascent along the Newton direction nor G)"
             break
         if nonconcave:
             counts["nonconcave_iterations"] += 1

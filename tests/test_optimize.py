@@ -144,6 +144,20 @@ def test_newton_cg_converges_superlinearly(bar_reference):
     assert res.history["step"][-3:] == [1.0, 1.0, 1.0]
 
 
+def test_newton_cg_falls_back_to_the_gradient(monkeypatch):
+    """Where the search along the Newton direction finds no ascent, Newton-CG steps along G instead of
+    stopping (it stopped on the paper's bounded variant after 10 iterations from a restart). Here the
+    direction is made a descent direction (-G), so every iteration must take the gradient step and J
+    must still rise at each."""
+    import hyperoc.optimize as opt
+
+    monkeypatch.setattr(opt, "_newton_direction", lambda J, metric, m, G, *args: (G * -1.0, False))
+    J = _J()
+    res = newton_cg(J, J.zero(1.0), max_iter=3, max_backtracks=4)
+    assert res.iterations == 3 and res.evaluations["gradient_steps"] == 3
+    assert np.all(np.diff(res.history["objective"]) > 0)
+
+
 def test_bb_step_rules_on_a_quadratic():
     """For J = -1/2 m.A m (A SPD) the curvature along s is ``<s, -y> = s.A s``, so BB1 = ss / sAs and
     BB2 = sAs / sAAs, both in [1/lambda_max, 1/lambda_min], BB2 <= BB1 (Cauchy-Schwarz), equal
