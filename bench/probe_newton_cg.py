@@ -11,7 +11,9 @@ and at its least, J, tau, and the last steps.
 structure of the end point: the share of control values on a bound, per sixth control node the number of
 switches of its bound status along s, and where the projected gradient lies (`probe_fixed_tau.residual_structure`):
 
-    taskset -c 1 python bench/probe_newton_cg.py --paper 300
+    taskset -c 1 python bench/probe_newton_cg.py --paper 300 [--restart 40]
+
+``--restart K``: then K more iterations started afresh from that end point (J, measure, message, counts).
 """
 
 import argparse
@@ -33,7 +35,7 @@ def report(name, res):
           f"{res.point.tau:.7f} | {', '.join(f'{s:.2g}' for s in res.history['step'][-3:])} |")
 
 
-def paper_end_point(iterations):
+def paper_end_point(iterations, restart=0):
     J = build_reduced(bounded_config(), 7.5)
     res = ho.newton_cg(J, J.zero(7.5), xi_bounds=(-XI_MAX, XI_MAX), max_iter=iterations)
     print(f"J = {res.objective:.8g}, tau = {res.point.tau:.6g}, {res.evaluations}")
@@ -42,6 +44,11 @@ def paper_end_point(iterations):
     for node in range(0, status.shape[1], 5):
         print(f"  control node {node}: {np.count_nonzero(np.diff(status[:, node]))} switches of bound status along s")
     residual_structure(J, res.point)
+    if restart:
+        again = ho.newton_cg(J, res.point, xi_bounds=(-XI_MAX, XI_MAX), max_iter=restart)
+        print(f"restart: {again.iterations} iterations, J = {again.objective:.9g}, tau = {again.point.tau:.6g}, "
+              f"projected gradient {again.history['grad_norm'][0]:.3g} -> {again.history['grad_norm'][-1]:.3g} "
+              f"(least {min(again.history['grad_norm']):.3g}); {again.message}; {again.evaluations}")
 
 
 def vibrating_bar_table():
@@ -67,9 +74,10 @@ def vibrating_bar_table():
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--paper", type=int, metavar="N", help="N iterations on the paper's bounded variant instead")
+    parser.add_argument("--restart", type=int, default=0, metavar="K", help="with --paper: K more from the end point")
     args = parser.parse_args()
     if args.paper:
-        paper_end_point(args.paper)
+        paper_end_point(args.paper, args.restart)
     else:
         vibrating_bar_table()
 
