@@ -208,6 +208,11 @@ def _take(J, metric, res, k, step, tau_range, xi_bounds, callback):
     return m, value, G, alpha, gnorm
 
 
+def _evaluations(J: ReducedFunctional, cache_hits: int, **counts) -> dict:
+    """``OptimizationResult.evaluations``: J's state and adjoint solves, the cache's hits, method counts."""
+    return {"state_solves": J.counts["state"], "adjoint_solves": J.counts["adjoint"], "cache_hits": cache_hits, **counts}
+
+
 def _safe_eval(evaluate, m):
     """Evaluation, or None when the state solver fails at m (the step is then rejected)."""
     try:
@@ -289,7 +294,7 @@ def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e
     res.point, res.objective = m, value
     res.converged = res.converged or gnorm <= target
     res.wall_time = time.perf_counter() - start
-    res.evaluations = {"state_solves": J.counts["state"], "adjoint_solves": J.counts["adjoint"], "cache_hits": cache.hits}
+    res.evaluations = _evaluations(J, cache.hits)
     return res
 
 
@@ -467,7 +472,7 @@ def lbfgsb(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gt
     res.converged = gnorm <= state["target"]
     res.message = "projected ||G|| <= gtol ||G0||" if res.converged else str(out.message)
     res.wall_time = time.perf_counter() - start
-    res.evaluations = {"state_solves": J.counts["state"], "adjoint_solves": J.counts["adjoint"], "cache_hits": evaluate.hits}
+    res.evaluations = _evaluations(J, evaluate.hits)
     return res
 
 
@@ -536,8 +541,7 @@ def newton_cg(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None),
                    else res.message or f"maximum number of iterations ({max_iter}) reached")
     res.point, res.objective = m, value
     res.wall_time = time.perf_counter() - start
-    res.evaluations = {"state_solves": J.counts["state"], "adjoint_solves": J.counts["adjoint"], "cache_hits": cache.hits,
-                       **counts}
+    res.evaluations = _evaluations(J, cache.hits, **counts)
     return res
 
 
