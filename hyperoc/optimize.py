@@ -495,8 +495,8 @@ def newton_cg(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None),
     Why: the bounded paper problem is not concave on its free values (J grows along some directions,
     so the maximizer sits on the bounds there) and ill-conditioned, where first-order steps make slow
     progress. When CG meets a direction p along which J is not concave (``<p, -H p> <= 0``) the
-    direction is the CG iterate plus p, and a full step accepted by the search is doubled while J keeps
-    increasing and the projection still moves the trial point.
+    direction is the CG iterate plus p, and a full step along it accepted by the search is doubled while
+    J keeps increasing and the projection still moves the trial point (not a step of the fallback along G).
 
     Hessian-vector products are forward differences of the exact gradient, ``H v ~ (G(m + h v) - G(m)) / h``
     with ``h = sqrt(eps_mach) (1 + |m|_inf) / |v|_inf`` (relative error ~1e-8, which limits the local
@@ -524,17 +524,16 @@ def newton_cg(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None),
         search = dict(reference=value, res=res)
         step = _ascent_step(J, metric, evaluate, m, G, (1.0, 1.0), tau_range, xi_bounds, armijo, max_backtracks,
                             direction=d, **search)
+        counts["nonconcave_iterations"] += nonconcave
         if step is None:  # the gradient is an ascent direction whatever the curvature model says
             counts["gradient_steps"] += 1
             step = _ascent_step(J, metric, evaluate, m, G, (1.0, 1.0), tau_range, xi_bounds, armijo, max_backtracks,
                                 **search)
+        elif nonconcave and step[2][0] == 1.0:  # only along d: nonconcavity says nothing about G
+            step = _extend(J, evaluate, m, d, step, tau_range, xi_bounds)
         if step is None:
             res.message = "no admissible step (state solver fails or no ascent along the Newton direction nor G)"
             break
-        if nonconcave:
-            counts["nonconcave_iterations"] += 1
-            if step[2][0] == 1.0:
-                step = _extend(J, evaluate, m, d, step, tau_range, xi_bounds)
         m, value, G, _, gnorm = _take(J, metric, res, k, step, tau_range, xi_bounds, callback)
     res.converged = gnorm <= gtol * g0
     res.message = ("projected ||G|| <= gtol ||G0||" if res.converged

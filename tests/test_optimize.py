@@ -151,11 +151,18 @@ def test_newton_cg_falls_back_to_the_gradient(monkeypatch):
     must still rise at each."""
     import hyperoc.optimize as opt
 
-    monkeypatch.setattr(opt, "_newton_direction", lambda J, metric, m, G, *args: (G * -1.0, False))
-    J = _J()
-    res = newton_cg(J, J.zero(1.0), max_iter=3, max_backtracks=4)
-    assert res.iterations == 3 and res.evaluations["gradient_steps"] == 3
-    assert np.all(np.diff(res.history["objective"]) > 0)
+    runs, bounds = {}, (-0.01, 0.01)
+    for nonconcave in (False, True):
+        monkeypatch.setattr(opt, "_newton_direction", lambda J, metric, m, G, *args: (G * -1.0, nonconcave))
+        J = _J()
+        runs[nonconcave] = res = newton_cg(J, J.zero(1.0), max_iter=3, max_backtracks=4, xi_bounds=bounds)
+        assert res.iterations == 3 and res.evaluations["gradient_steps"] == 3
+        assert np.all(np.diff(res.history["objective"]) > 0)
+    # a direction of nonconcavity extends full steps along itself only, never the fallback's full step
+    # along G (full in the box here): the same iterates, and no solve more
+    assert runs[True].history["objective"] == runs[False].history["objective"]
+    assert runs[True].evaluations["state_solves"] == runs[False].evaluations["state_solves"]
+    assert runs[True].evaluations["nonconcave_iterations"] == 3
 
 
 def test_bb_step_rules_on_a_quadratic():
