@@ -51,7 +51,7 @@ import sys
 from pathlib import Path
 
 
-from hyperoc.benchmarks import FORMULATIONS, beam_deflection, load_state, save_state, ventricle_apex
+from hyperoc.benchmarks import FORMULATIONS, PUBLISHED, beam_deflection, load_state, save_state, ventricle_apex
 from hyperoc.errors import SolverError
 from hyperoc.linsolve import SparseSolver
 from hyperoc.newton import NewtonLog
@@ -102,6 +102,26 @@ def _table(title: str, rows: list[dict], level_key: str, value_keys: list[str]) 
         cells += [work, str(len(its)), f"{r['seconds']:.1f}"]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+def _published(problem: int, rows: list[dict], value_keys: list[str]) -> str:
+    """The distance of the finest level and of the Richardson limit to the published value
+    (`hyperoc.benchmarks.PUBLISHED`), for the benchmark as posed only (base clamped, tension not
+    tapered; a finite kappa adds its own O(1/kappa) distance); "" otherwise."""
+    params = rows[-1]["params"]
+    if params.get("base", "clamped") != "clamped" or params.get("taper"):
+        return ""
+    cells = []
+    for key in value_keys:
+        ref, z = PUBLISHED[problem][key], [row["values"].get(key, math.nan) for row in rows]
+        cell = f"{key} {ref:g}: finest level {z[-1] - ref:+.4f}"
+        if len(rows) >= 3:
+            p, lim = _order([_scale(row) for row in rows[-3:]], z[-3:])
+            cell += f", limit {lim - ref:+.4f}" if math.isfinite(lim) else ", no limit"
+        cells.append(cell)
+    return ("\n\nPublished (S. Pezzuto's FEniCS submission to Land et al. 2015; `hyperoc.benchmarks.PUBLISHED`), "
+            f"distance to it: {'; '.join(cells)}" + ("" if params["kappa"] == math.inf else
+                                                      f" (kappa = {params['kappa']:g} kPa, not incompressible)"))
 
 
 def _scale(row: dict) -> float:
@@ -162,7 +182,8 @@ def render(paths: list[str]):
         for kappa, variant in sorted({(r["params"]["kappa"], label(r)) for r in mine}):
             group = sorted((r for r in mine if (r["params"]["kappa"], label(r)) == (kappa, variant)), key=lambda r: -r["h"])
             key = level_key if problem == 1 else _level_key(group[0]["params"])
-            print(_table(f"{name}, P2{variant}, kappa = {kappa:g} kPa", group, key, keys) + "\n")
+            print(_table(f"{name}, P2{variant}, kappa = {kappa:g} kPa", group, key, keys)
+                  + _published(problem, group, keys) + "\n")
 
 
 def solved_or_reported(run, level, kappa: float, failures: list):
@@ -279,7 +300,8 @@ def main():
                     continue
                 variant = f", {_variant(rows[0]['params'])}" if number > 1 else _formulation(rows[0]["params"])
                 key = level_key or _level_key(rows[0]["params"])
-                tables.append(_table(f"{name}, P2{variant}, kappa = {kappa:g} kPa", rows, key, keys))
+                tables.append(_table(f"{name}, P2{variant}, kappa = {kappa:g} kPa", rows, key, keys)
+                              + _published(number, rows, keys))
                 finest[kappa] = rows[-1]["values"]
         if len(finest) >= 2:
             extrap += [f"{name}, finest level: " + _extrapolate({k: v[key] for k, v in finest.items()}, key)
