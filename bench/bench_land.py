@@ -116,7 +116,7 @@ def _published(problem: int, rows: list[dict], value_keys: list[str]) -> str:
         ref, z = PUBLISHED[problem][key], [row["values"].get(key, math.nan) for row in rows]
         cell = f"{key} {ref:g}: finest level {z[-1] - ref:+.4f}"
         if len(rows) >= 3:
-            p, lim = _order([_scale(row) for row in rows[-3:]], z[-3:])
+            _, lim = _order([_scale(row) for row in rows[-3:]], z[-3:])
             cell += f", limit {lim - ref:+.4f}" if math.isfinite(lim) else ", no limit"
         cells.append(cell)
     return ("\n\nPublished (S. Pezzuto's FEniCS submission to Land et al. 2015; `hyperoc.benchmarks.PUBLISHED`), "
