@@ -91,10 +91,10 @@ def _table(title: str, rows: list[dict], level_key: str, value_keys: list[str]) 
     for i, r in enumerate(rows):
         cells = [str(r["params"][level_key]), f"{r['h']:.3g}", str(r["dofs"])]
         for key in value_keys:
-            z = [row["values"].get(key, math.nan) for row in rows[: i + 1]]
+            z = _values(rows[: i + 1], key)
             order = extrap = ""
             if i >= 2:
-                p, lim = _order([_scale(row) for row in rows[i - 2 : i + 1]], z[-3:])
+                p, lim = _richardson(rows[: i + 1], key)
                 order, extrap = f"{p:.2f}", f"{lim:.4f}"
             cells += [f"{z[-1]:.5f}", f"{z[-1] - z[-2]:+.2e}" if i else "", order, extrap]
         its, rejected = r["newton_iterations"], r.get("rejected_iterations")  # absent in older runs' files
@@ -113,15 +113,25 @@ def _published(problem: int, rows: list[dict], value_keys: list[str]) -> str:
         return ""
     cells = []
     for key in value_keys:
-        ref, z = PUBLISHED[problem][key], [row["values"].get(key, math.nan) for row in rows]
-        cell = f"{key} {ref:g}: finest level {z[-1] - ref:+.4f}"
+        ref = PUBLISHED[problem][key]
+        cell = f"{key} {ref:g}: finest level {_values(rows, key)[-1] - ref:+.4f}"
         if len(rows) >= 3:
-            _, lim = _order([_scale(row) for row in rows[-3:]], z[-3:])
+            _, lim = _richardson(rows, key)
             cell += f", limit {lim - ref:+.4f}" if math.isfinite(lim) else ", no limit"
         cells.append(cell)
     return ("\n\nPublished (S. Pezzuto's FEniCS submission to Land et al. 2015; `hyperoc.benchmarks.PUBLISHED`), "
             f"distance to it: {'; '.join(cells)}" + ("" if params["kappa"] == math.inf else
                                                       f" (kappa = {params['kappa']:g} kPa, not incompressible)"))
+
+
+def _values(rows: list[dict], key: str) -> list[float]:
+    """One reported value per row (NaN where a row lacks it: files from before the value existed)."""
+    return [row["values"].get(key, math.nan) for row in rows]
+
+
+def _richardson(rows: list[dict], key: str) -> tuple[float, float]:
+    """Observed order and Richardson limit of ``key`` from the last three rows (`_order`)."""
+    return _order([_scale(row) for row in rows[-3:]], _values(rows[-3:], key))
 
 
 def _scale(row: dict) -> float:
