@@ -12,7 +12,7 @@ The curated API (see the README for a tour)::
                 deformed boundary), FibreTension (active stress), and NewtonLog, a monitor that
                 prints or keeps every Newton iteration
     time        uniform_grid, TimeGrid, TimeTransform
-    objectives  Objective, ControlCost, PressureAt, PressureRise
+    objectives  Objective, ControlCost, ControlRateCost, PressureAt, PressureRise
     gradients   ReducedFunctional, ControlPoint, taylor_test
     optimizers  barzilai_borwein (the paper's Algorithm 1), lbfgsb, newton_cg
     config      load_config
@@ -35,7 +35,7 @@ from .mesh import Mesh, box, interval, rectangle, refine
 from .mixed import TaylorHoodModel
 from .model import StateModel
 from .newton import NewtonLog
-from .objectives import ControlCost, Objective, PressureAt, PressureRise
+from .objectives import ControlCost, ControlRateCost, Objective, PressureAt, PressureRise
 from .optimize import barzilai_borwein, lbfgsb, newton_cg
 from .reduced import ControlPoint, ReducedFunctional
 from .statics import solve_static
@@ -49,7 +49,7 @@ __all__ = [
     "HyperocError", "InputError", "SolverError", "annulus", "from_file", "thick_shell", "ventricle", "Fung",
     "NeoHookean", "Ogden", "SaintVenantKirchhoff", "Guccione", "HolzapfelOgden", "rule_based_fibres", "prolate_fibres",
     "transmural_coordinate", "Mesh", "box", "interval", "rectangle", "refine", "StateModel", "TaylorHoodModel",
-    "ControlCost", "Objective", "PressureAt", "PressureRise", "barzilai_borwein", "lbfgsb", "newton_cg",
+    "ControlCost", "ControlRateCost", "Objective", "PressureAt", "PressureRise", "barzilai_borwein", "lbfgsb", "newton_cg",
     "ControlPoint",
     "ReducedFunctional", "solve_static", "NewtonLog", "FollowerPressure", "FibreTension", "TimeGrid", "TimeTransform", "uniform_grid", "taylor_test",
 ]

@@ -66,7 +66,7 @@ SCHEMA = {
                  "newton_rtol": (NUMBER, 1e-11), "newton_max_iter": (int, 30), "traction": (list, ...)},
     "control": {"kind": (str, "body_force"), "region": (dict, ...), "value": ((str, list, NUMBER), ...),
                 "file": (str, ...)},
-    "objective": {"phi1": (str, "pressure"), "alpha": (NUMBER, 2e-3), "eps": (NUMBER, 0.0)},
+    "objective": {"phi1": (str, "pressure"), "alpha": (NUMBER, 2e-3), "beta": (NUMBER, 0.0), "eps": (NUMBER, 0.0)},
     "optimize": {"method": (str, "bb"), "tau0": (NUMBER, ...), "tau_starts": (list, ...), "max_iter": (int, 100),
                  "gtol": (NUMBER, 1e-6), "xi_bounds": (list, ...), "tau_margin": (NUMBER, ...),
                  "gradient": (str, "exact"), "steps": (str, "joint"), "bb_step": (str, "bb1"),

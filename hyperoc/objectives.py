@@ -15,6 +15,7 @@ levels are the second-order level values of `hyperoc.dynamics.level_pressure`.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -23,7 +24,7 @@ import jax.numpy as jnp
 from .dynamics import level_pressure
 from .errors import InputError
 
-__all__ = ["Trajectory", "Objective", "ControlCost", "PressureAt", "PressureRise", "Terminal", "objective_from_config"]
+__all__ = ["Trajectory", "Objective", "ControlCost", "ControlRateCost", "PressureAt", "PressureRise", "Terminal", "objective_from_config"]
 
 
 @dataclass(frozen=True)
@@ -87,6 +88,26 @@ class ControlCost(Running):
 
 
 @dataclass(frozen=True)
+class ControlRateCost(Term):
+    """``-beta/2 int_0^T ||d xi/dt||^2_{L2(omega)} dt``, discretized as
+    ``-beta/2 sum_n (xi_{n+1} - xi_n) . M (xi_{n+1} - xi_n) / dt_n`` (difference quotients on the
+    t-grid, M the L2(omega) Gram matrix; exact for xi piecewise linear in time).
+
+    On the transformed grid ``dt_n = mu_dot(s_n, tau) ds_n``, so the cost depends on tau; its
+    tau-derivative comes with the rest of ``dJ/d(dt_n)``. Why it is there: it makes the controls
+    H^1 in time, on which the observation ``p(tau)`` is continuous, so that the problem has a
+    maximizer (the paper's L2 cost alone does not give one).
+    """
+
+    beta: float = 0.0
+
+    def value(self, traj):
+        dxi = traj.xi[1:] - traj.xi[:-1]
+        Mdxi = (traj.control_mass @ dxi.T).T
+        return -0.5 * self.beta * jnp.sum(jnp.sum(dxi * Mdxi, axis=1) / traj.dt)
+
+
+@dataclass(frozen=True)
 class PressureAt(AtTau):
     """``phi1 = p(tau)`` (the paper's 1D experiment)."""
 
@@ -117,6 +138,13 @@ class Objective:
     def eps(self) -> float:
         return getattr(self.at_tau, "eps", 0.0)
 
+    @property
+    def control_weights(self) -> tuple[float, float]:
+        """``(alpha, beta)``: the summed weights of the `ControlCost` and `ControlRateCost` terms."""
+        terms = self.running + self.terminal
+        return (float(sum(t.alpha for t in terms if isinstance(t, ControlCost))),
+                float(sum(t.beta for t in terms if isinstance(t, ControlRateCost))))
+
     def value(self, traj: Trajectory):
         total = self.at_tau.value(traj)
         for term in self.running + self.terminal:
@@ -132,24 +160,28 @@ class Objective:
 
 
 def objective_from_config(cfg: dict) -> Objective:
-    """``{"phi1": "pressure" | "pressure_rise", "eps": 0.1, "alpha": 2e-3}`` -> Objective."""
+    """``{"phi1": "pressure" | "pressure_rise", "eps": 0.1, "alpha": 2e-3, "beta": 0.0}`` -> Objective;
+    beta > 0 adds the `ControlRateCost` (controls H^1 in time)."""
     cfg = dict(cfg or {})
     phi1 = cfg.pop("phi1", "pressure")
     alpha = cfg.pop("alpha", 2e-3)
+    beta = cfg.pop("beta", 0.0)
     eps = cfg.pop("eps", 0.0)
     if cfg:
         raise InputError(f"objective: unknown key(s) {sorted(cfg)}")
-    for name, v in (("alpha", alpha), ("eps", eps)):
-        if not isinstance(v, (int, float)) or isinstance(v, bool):
-            raise InputError(f"objective: {name} must be a number, got {type(v).__name__}")
-    if alpha < 0:
-        raise InputError(f"objective: alpha must be >= 0, got {alpha}")
+    for name, v in (("alpha", alpha), ("beta", beta), ("eps", eps)):
+        if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
+            raise InputError(f"objective: {name} must be a finite number, got {v!r}")
+    for name, v in (("alpha", alpha), ("beta", beta)):
+        if v < 0:
+            raise InputError(f"objective: {name} must be >= 0, got {v}")
+    running = (ControlCost(float(alpha)),) + ((ControlRateCost(float(beta)),) if beta > 0 else ())
     if phi1 == "pressure":
         if eps:
             raise InputError("objective: eps is only used with phi1 = 'pressure_rise'")
-        return Objective(running=(ControlCost(float(alpha)),), at_tau=PressureAt())
+        return Objective(running=running, at_tau=PressureAt())
     if phi1 == "pressure_rise":
         if not eps > 0:
             raise InputError("objective: phi1 = 'pressure_rise' needs eps > 0")
-        return Objective(running=(ControlCost(float(alpha)),), at_tau=PressureRise(float(eps)))
+        return Objective(running=running, at_tau=PressureRise(float(eps)))
     raise InputError(f"objective: unknown phi1 {phi1!r} (pressure, pressure_rise)")

@@ -1,7 +1,8 @@
 """Optimizers for ``max_{xi, tau} J(xi, tau)``: the paper's Algorithm 1 (and its spectral projected
 gradient variant), L-BFGS-B, and projected Newton-CG, all with bounds.
 
-All work on `ControlPoint` m = (xi~, tau) with the inner product of L2(0, 2; L2(omega)) x R, keep
+All work on `ControlPoint` m = (xi~, tau) with the inner product of the control space
+(`hyperoc.control_space.ControlSpace`: L2 or H^1 in time, times L2(omega), plus tau^2), keep
 tau inside ``[tau_margin, T - eps - tau_margin]``, and treat a trial point where the state solver
 fails as a rejected step (halved), never as a fatal error.
 
@@ -23,6 +24,7 @@ import scipy.optimize as sopt
 
 from .errors import HyperocError, InputError, SolverError
 from .io import read_npz, write_npz
+from .control_space import ControlSpace
 from .reduced import ControlPoint, ReducedFunctional
 
 __all__ = ["OptimizationResult", "EvaluationCache", "BBStepRule", "LumpedMetric", "barzilai_borwein", "lbfgsb",
@@ -126,7 +128,7 @@ class LumpedMetric:
 
 
 class ConsistentMetric:
-    """`ReducedFunctional.inner` itself (the L2(0,2; L2(omega)) x R inner product); gradients as J gives them."""
+    """`ReducedFunctional.inner` itself (the control space's inner product); gradients as J gives them."""
 
     def __init__(self, J: ReducedFunctional):
         self.inner, self.norm = J.inner, J.norm
@@ -407,10 +409,12 @@ def lbfgsb(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gt
     """L-BFGS-B (scipy) on ``-J`` with bounds ``xi_bounds`` on every control value and tau in
     ``[tau_margin, T - eps - tau_margin]``.
 
-    Variables are scaled by the square roots of the lumped L2(0,2; L2(omega)) weights (trapezoid in
-    s times `hyperoc.controls.ControlData.lumped_mass`, positive also for P2), so that the
-    Euclidean geometry scipy uses approximates the function-space one (mesh-independent
-    iterations), and tau by ``tau_scale`` (`tau_scaling`: by default, with bounds on xi, both blocks
+    Variables are the coordinates of `ControlSpace.to_coordinates` (``z = U xi D^(1/2)``, U the Cholesky
+    factor of the time part of the metric, D the lumped L2(omega) weights, positive also for P2), so
+    that the Euclidean geometry scipy uses is the function-space one with the spatial mass lumped
+    (mesh-independent iterations): H^1 in time when the objective penalizes ``d xi/dt`` and xi has no
+    bounds, else L2 in time (bounds on xi are bounds on z only when the time factor is diagonal).
+    tau is scaled by ``tau_scale`` (`tau_scaling`: by default, with bounds on xi, both blocks
     normalized to their admissible ranges). A trial point where the state solver fails gets the
     value ``-J_best + |J_best| + 1`` (worse than any point seen) and the last gradient, so the line
     search backtracks. Stops when the projected gradient norm is ``<= gtol`` times its initial value.
@@ -420,13 +424,14 @@ def lbfgsb(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gt
     tau_range = _tau_range(J, tau_margin, fix_tau, m0.tau)
     tau_scale = tau_scaling(J, tau_scale, tau_range, xi_bounds)
     evaluate = EvaluationCache(J, checkpoint)
-    scale = np.sqrt(LumpedMetric(J).weights)  # z = scale * xi: Euclidean in z is the lumped metric
+    coords = _coordinates(J, xi_bounds)
     shape = m0.xi.shape
     res = OptimizationResult(m0, np.nan, 0, False, "")
     state = {"target": None, "last": None, "best": -np.inf, "grad": None}
 
     def to_point(z):  # projected: unscaling a value on a bound can leave it one ulp outside
-        return _project(J, ControlPoint(z[:-1].reshape(shape) / scale, float(z[-1]) / tau_scale), tau_range, xi_bounds)
+        return _project(J, ControlPoint(coords.from_coordinates(z[:-1].reshape(shape)), float(z[-1]) / tau_scale),
+                        tau_range, xi_bounds)
 
     def fun(z):
         m = to_point(z)
@@ -436,7 +441,7 @@ def lbfgsb(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gt
             return -state["best"] + abs(state["best"]) + 1.0, state["grad"]
         value, g = out
         dual = J.dual(g)  # dJ/dxi as a dual vector
-        grad_z = -np.concatenate([(dual.xi / scale).ravel(), [dual.tau / tau_scale]])
+        grad_z = -np.concatenate([coords.coordinate_gradient(dual.xi).ravel(), [dual.tau / tau_scale]])
         state["last"] = (m, value, g)
         state["best"], state["grad"] = max(state["best"], value), grad_z
         return -value, grad_z
@@ -452,10 +457,11 @@ def lbfgsb(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gt
             raise StopIteration
 
     lo, hi = xi_bounds
-    bounds = [(None if lo is None else lo * s, None if hi is None else hi * s) for s in scale.ravel()]
+    scale = coords.to_coordinates(np.ones(shape)).ravel()  # diagonal whenever there are bounds
+    bounds = [(None if lo is None else lo * s, None if hi is None else hi * s) for s in scale]
     bounds.append((tau_range[0] * tau_scale, tau_range[1] * tau_scale))
     m_init = _project(J, m0, tau_range, xi_bounds)
-    z0 = np.concatenate([(m_init.xi * scale).ravel(), [m_init.tau * tau_scale]])
+    z0 = np.concatenate([coords.to_coordinates(m_init.xi).ravel(), [m_init.tau * tau_scale]])
     if _safe_eval(evaluate, m_init) is None:
         raise SolverError(0, 0.0, "initial point", "the state solver fails at the initial control")
     fun(z0)
@@ -474,6 +480,13 @@ def lbfgsb(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gt
     res.wall_time = time.perf_counter() - start
     res.evaluations = _evaluations(J, evaluate.hits)
     return res
+
+
+def _coordinates(J: ReducedFunctional, xi_bounds) -> ControlSpace:
+    """L-BFGS-B's coordinates: J's control space, or its L2-in-time version when xi has bounds."""
+    if tuple(xi_bounds) == (None, None) or not J.space.regular_in_time:
+        return J.space
+    return ControlSpace(J.transform.ds(), J.model.control.mass, J.model.control.lumped_mass)
 
 
 def newton_cg(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gtol: float = 1e-6,

@@ -3,8 +3,9 @@
 The control ``xi~`` lives on the fixed s-grid of a `TimeTransform` (nodal values on the control
 nodes at every s-level, shape (N+1, n_ctrl)); tau sets the t-grid through the step sizes. The
 gradient is the exact gradient of the discrete J (`hyperoc.adjoint`), its xi-part returned as the
-Riesz representative in ``L2(0, 2; L2(omega))`` (trapezoid weights in s times the L2(omega) Gram
-matrix), so that optimizers see mesh- and step-independent quantities.
+Riesz representative in the control space (`hyperoc.control_space.ControlSpace`): L2(0, 2; L2(omega))
+for the paper's cost, H^1(0, 2; L2(omega)) when the objective penalizes ``d xi/dt`` (``beta > 0``),
+so that optimizers see mesh- and step-independent quantities.
 
 With ``checkpoint_every=k`` the value and the gradient never hold the whole trajectory: the forward
 pass keeps every k-th level state, the levels the objective reads and the step multipliers, and the
@@ -21,15 +22,15 @@ from functools import cached_property
 import jax
 import jax.numpy as jnp
 import numpy as np
-import scipy.sparse.linalg as spla
 
 from . import _jax  # noqa: F401
 from .adjoint import Adjoint, Checkpoints, RevolveRecord
+from .control_space import ControlSpace, s_time_scale
 from .dynamics import Scheme, StateSolution, TimeStepper
 from .errors import InputError
 from .model import StateModel
 from .objectives import Objective, Trajectory
-from .timegrid import TimeTransform, trapezoid_weights
+from .timegrid import TimeTransform
 
 __all__ = ["ControlPoint", "ReducedFunctional", "LevelStates", "checkpoint_options"]
 
@@ -133,6 +134,8 @@ class ReducedFunctional:
         gradient equals the stored one to round-off (same compiled step, same Newton warm start).
         The objective's terms must read ``traj.y0`` / ``traj.y1`` by static levels (see
         `LevelStates`); exact gradient only. `state` still returns the whole trajectory (for reports).
+    space : the control space (`ControlSpace`); by default L2 in time, or H^1 in time with the time
+        scale ``(2/T) sqrt(beta/alpha)`` of the objective's `hyperoc.objectives.ControlRateCost`.
     checkpoint_snapshots : None (default) or an int s >= 1: binomial checkpointing (`hyperoc.revolve`,
         Griewank's revolve): the forward pass keeps s snapshots, the state at level N-1, ``y0_N``, the
         levels the objective reads and the step multipliers; the adjoint restores, advances and reverses
@@ -145,7 +148,8 @@ class ReducedFunctional:
 
     def __init__(self, model: StateModel, transform: TimeTransform, objective: Objective, *,
                  scheme: Scheme = Scheme(), solver="auto", u0=None, v0=None, gradient: str = "exact",
-                 checkpoint_every: int | None = None, checkpoint_snapshots: int | None = None):
+                 checkpoint_every: int | None = None, checkpoint_snapshots: int | None = None,
+                 space: ControlSpace | None = None):
         if gradient not in ("exact", "continuous"):
             raise InputError(f"gradient must be 'exact' or 'continuous', got {gradient!r}")
         self.gradient_method = gradient
@@ -154,6 +158,13 @@ class ReducedFunctional:
         if objective.eps and abs(transform.eps - objective.eps) > 1e-14:
             raise InputError(f"time transform eps = {transform.eps} differs from the objective's eps = {objective.eps}")
         self.model, self.transform, self.objective = model, transform, objective
+        if space is None:
+            alpha, beta = objective.control_weights
+            space = ControlSpace(transform.ds(), model.control.mass, model.control.lumped_mass,
+                                 s_time_scale(alpha, beta, transform.T))
+        if gradient == "continuous" and objective.control_weights[1] > 0:
+            raise InputError("gradient = 'continuous' does not include the cost of d xi/dt: use 'exact' with beta > 0")
+        self.space = space
         self.stepper = TimeStepper(model, scheme, solver)
         self.adjoint = Adjoint(self.stepper)
         self.u0 = np.zeros(model.n) if u0 is None else np.asarray(u0, float)
@@ -199,34 +210,28 @@ class ReducedFunctional:
         self._record_key, self._record = None, None
 
     # --- geometry of the control space -----------------------------------------------------------
-    @cached_property
+    @property
     def s_weights(self) -> np.ndarray:
         """Trapezoid weights of the s-levels, (N+1,)."""
-        return trapezoid_weights(self.transform.ds())
-
-    @cached_property
-    def _control_mass_lu(self):
-        return spla.splu(self.model.control.mass.tocsc())
+        return self.space.weights
 
     def zero(self, tau: float) -> ControlPoint:
         return ControlPoint(np.zeros((self.N + 1, self.model.control.size)), float(tau))
 
     def inner(self, a: ControlPoint, b: ControlPoint) -> float:
-        """``<a, b> = int_0^2 (a.xi, b.xi)_{L2(omega)} ds + a.tau b.tau`` (trapezoid in s)."""
-        return float(np.sum(a.xi * self.dual(b).xi) + a.tau * b.tau)
+        """The inner product of `space` (L2 or H^1 in s, times L2(omega), plus ``a.tau b.tau``)."""
+        return self.space.inner(a, b)
 
     def norm(self, a: ControlPoint) -> float:
-        return float(np.sqrt(max(self.inner(a, a), 0.0)))
+        return self.space.norm(a)
 
     def riesz(self, dual: ControlPoint) -> ControlPoint:
         """Riesz representative of a derivative (dual vector) for `inner`."""
-        xi = self._control_mass_lu.solve(np.ascontiguousarray(dual.xi.T)).T / self.s_weights[:, None]
-        return ControlPoint(xi, dual.tau)
+        return self.space.riesz(dual)
 
     def dual(self, g: ControlPoint) -> ControlPoint:
         """Inverse of `riesz`: the dual vector ``d`` with ``d.xi . v.xi + d.tau v.tau = <g, v>``."""
-        Mx = (self.model.control.mass @ g.xi.T).T
-        return ControlPoint(self.s_weights[:, None] * Mx, g.tau)
+        return self.space.dual(g)
 
     # --- evaluation ------------------------------------------------------------------------------
     def _check(self, m: ControlPoint) -> None:
