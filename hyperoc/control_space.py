@@ -117,30 +117,30 @@ class ControlSpace:
         return float(np.sqrt(max(self.inner(a, a), 0.0)))
 
     # --- coordinates in which the Euclidean geometry is the (lumped) control metric --------------
+    @cached_property
+    def _diagonal_scale(self) -> np.ndarray:
+        """``sqrt(w_k D_i)`` (N+1, n_ctrl): the coordinate scale when the metric is L2 in time."""
+        return np.sqrt(self.weights[:, None] * self.lumped_mass[None, :])
+
     def to_coordinates(self, xi: np.ndarray) -> np.ndarray:
         """``z = U xi D^(1/2)`` (U the Cholesky factor of A_t; ``sqrt(w) xi sqrt(D)`` in L2): Euclidean
         inner products of z are those of the metric with the spatial mass lumped."""
-        return self._apply_factor(xi) * np.sqrt(self.lumped_mass)
-
-    def from_coordinates(self, z: np.ndarray) -> np.ndarray:
-        """Inverse of `to_coordinates`."""
-        x = z / np.sqrt(self.lumped_mass)
         if not self.regular_in_time:
-            return x / np.sqrt(self.weights)[:, None]
-        return sla.solve_banded((0, 1), self.time_cholesky, x)
-
-    def coordinate_gradient(self, dual_xi: np.ndarray) -> np.ndarray:
-        """dJ/dz from the dual vector dJ/dxi: ``U^{-T} dJ/dxi D^(-1/2)``."""
-        x = dual_xi / np.sqrt(self.lumped_mass)
-        if not self.regular_in_time:
-            return x / np.sqrt(self.weights)[:, None]
-        lower = np.vstack([self.time_cholesky[1], np.concatenate([self.time_cholesky[0, 1:], [0.0]])])
-        return sla.solve_banded((1, 0), lower, x)
-
-    def _apply_factor(self, xi: np.ndarray) -> np.ndarray:
-        if not self.regular_in_time:
-            return np.sqrt(self.weights)[:, None] * xi
+            return xi * self._diagonal_scale
         upper, diag = self.time_cholesky
         out = diag[:, None] * xi
         out[:-1] += upper[1:, None] * xi[1:]
-        return out
+        return out * np.sqrt(self.lumped_mass)
+
+    def from_coordinates(self, z: np.ndarray) -> np.ndarray:
+        """Inverse of `to_coordinates`."""
+        if not self.regular_in_time:
+            return z / self._diagonal_scale
+        return sla.solve_banded((0, 1), self.time_cholesky, z / np.sqrt(self.lumped_mass))
+
+    def coordinate_gradient(self, dual_xi: np.ndarray) -> np.ndarray:
+        """dJ/dz from the dual vector dJ/dxi: ``U^{-T} dJ/dxi D^(-1/2)``."""
+        if not self.regular_in_time:
+            return dual_xi / self._diagonal_scale
+        lower = np.vstack([self.time_cholesky[1], np.concatenate([self.time_cholesky[0, 1:], [0.0]])])
+        return sla.solve_banded((1, 0), lower, dual_xi / np.sqrt(self.lumped_mass))

@@ -19,12 +19,14 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+import jax
 import jax.numpy as jnp
 
 from .dynamics import level_pressure
+from .materials import det
 from .errors import InputError
 
-__all__ = ["Trajectory", "Objective", "ControlCost", "ControlRateCost", "PressureAt", "PressureRise", "Terminal", "objective_from_config"]
+__all__ = ["Trajectory", "Objective", "ControlCost", "ControlRateCost", "PressureAt", "PressureMean", "PressureRise", "Terminal", "objective_from_config"]
 
 
 @dataclass(frozen=True)
@@ -33,7 +35,8 @@ class Trajectory:
 
     y0, y1 : (N+1, n) displacement and velocity at the levels; p_steps : (N,) step multipliers;
     xi : (N+1, n_ctrl) control; dt : (N,) steps; tau_index / eps_index : level indices of tau and
-    tau + eps; control_mass : (n_ctrl, n_ctrl) L2(omega) Gram matrix (JAX sparse); mass : state mass.
+    tau + eps; control_mass : (n_ctrl, n_ctrl) L2(omega) Gram matrix (JAX sparse); mass : state mass;
+    model : the `hyperoc.model.StateModel` (for terms that read strains, e.g. `InjectivityPenalty`).
     """
 
     y0: Any
@@ -45,6 +48,7 @@ class Trajectory:
     eps_index: int
     control_mass: Any = None
     mass: Any = None
+    model: Any = None
 
     @property
     def pressure(self):
@@ -108,11 +112,48 @@ class ControlRateCost(Term):
 
 
 @dataclass(frozen=True)
+class InjectivityPenalty(Running):
+    """``-gamma int_0^T int_Omega max(0, delta - det F)^3 dx dt``: keeps det F above delta.
+
+    A smooth (C^2) exterior penalty for the local injectivity condition ``det F >= delta``. Why: the
+    pressure, a boundary reaction, grows as the material next to the wall is compressed, so a
+    maximizer of p(tau) drives an element towards det F = 0, where the state ceases to exist (for
+    Saint Venant-Kirchhoff the compressive stress even softens below det F = 1/sqrt(3) in 1D). The
+    penalty makes the set of controls whose state exists on [0, T] a region the optimizer can see.
+    """
+
+    gamma: float = 1.0
+    delta: float = 0.6
+
+    def density(self, traj):
+        model = traj.model
+        excess = lambda u: jnp.sum(model._w * jnp.maximum(self.delta - det(model.deformation_gradient(u)), 0.0) ** 3)
+        return -self.gamma * jax.vmap(excess)(traj.y0)
+
+
+@dataclass(frozen=True)
 class PressureAt(AtTau):
     """``phi1 = p(tau)`` (the paper's 1D experiment)."""
 
     def value(self, traj):
         return traj.pressure[traj.tau_index]
+
+
+@dataclass(frozen=True)
+class PressureMean(AtTau):
+    """``phi1 = (1/eps) int_tau^{tau + eps} p dt``, the mean pressure over a window after tau.
+
+    Discretized as ``(1/eps) sum_n dt_n p_n`` over the steps of ``[tau, tau + eps]`` (p_n the step
+    multipliers, which are mid-step values: the midpoint rule). Why: the integral is the impulse of
+    the constraint's reaction, which depends continuously on the control in L2, while the pointwise
+    value p(tau) does not.
+    """
+
+    eps: float = 0.1
+
+    def value(self, traj):
+        window = slice(traj.tau_index, traj.eps_index)
+        return jnp.sum(traj.dt[window] * traj.p_steps[window]) / self.eps
 
 
 @dataclass(frozen=True)
@@ -160,7 +201,7 @@ class Objective:
 
 
 def objective_from_config(cfg: dict) -> Objective:
-    """``{"phi1": "pressure" | "pressure_rise", "eps": 0.1, "alpha": 2e-3, "beta": 0.0}`` -> Objective;
+    """``{"phi1": "pressure" | "pressure_mean" | "pressure_rise", "eps": 0.1, "alpha": 2e-3, "beta": 0.0}`` -> Objective;
     beta > 0 adds the `ControlRateCost` (controls H^1 in time)."""
     cfg = dict(cfg or {})
     phi1 = cfg.pop("phi1", "pressure")
@@ -180,8 +221,9 @@ def objective_from_config(cfg: dict) -> Objective:
         if eps:
             raise InputError("objective: eps is only used with phi1 = 'pressure_rise'")
         return Objective(running=running, at_tau=PressureAt())
-    if phi1 == "pressure_rise":
+    windowed = {"pressure_rise": PressureRise, "pressure_mean": PressureMean}
+    if phi1 in windowed:
         if not eps > 0:
-            raise InputError("objective: phi1 = 'pressure_rise' needs eps > 0")
-        return Objective(running=running, at_tau=PressureRise(float(eps)))
-    raise InputError(f"objective: unknown phi1 {phi1!r} (pressure, pressure_rise)")
+            raise InputError(f"objective: phi1 = {phi1!r} needs eps > 0")
+        return Objective(running=running, at_tau=windowed[phi1](float(eps)))
+    raise InputError(f"objective: unknown phi1 {phi1!r} (pressure, pressure_mean, pressure_rise)")

@@ -83,7 +83,8 @@ def test_rate_cost_is_exact_for_controls_linear_in_time(bar):
     assert float(ControlRateCost(1.0).value(traj)) == pytest.approx(-0.5 * a**2 * bar.transform.T * omega, rel=1e-12)
 
 
-@pytest.mark.parametrize("direction", ["xi", "tau", "joint"])
+@pytest.mark.parametrize("direction", [pytest.param("xi", marks=pytest.mark.slow),
+                                       pytest.param("tau", marks=pytest.mark.slow), "joint"])
 def test_taylor_rates_with_the_rate_cost(bar, direction):
     """The exact gradient includes the rate cost's dependence on xi and, through dt_n = mu_dot ds_n, on tau."""
     rng = np.random.default_rng(3)
