@@ -11,6 +11,8 @@ kept here verbatim as a subclass).
     python bench/bench_2d3d.py --case 3d --steps 10             # fewer steps (per-step figures)
     python bench/bench_2d3d.py --case 2d --methods lu,lu_reuse --steps 500
 
+Writes ``bench/results/bench_2d3d_<case>.json`` (`bench/results.py`; not with ``--solver-only``).
+
 Variants: ``lu_colamd`` (baseline), ``minres_amg`` (previous MINRES: smoothed-aggregation AMG of
 |K| set up at every call), ``lu_mmd`` (``lu`` with the minimum-degree ordering it had before
 nested dissection), and the current ``SparseSolver`` methods ``lu``, ``lu_reuse``,
@@ -210,6 +212,19 @@ def main():
     if args.json:
         with open(args.json, "w") as f:
             json.dump(rows, f, indent=1)
+    from results import table, command_line, write_results
+
+    write_results(f"bench_2d3d_{args.case}", command_line(), [table(
+        f"Case {args.case}: {model.n} free dofs, {model.mesh.num_cells} cells, {steps} of {full_steps} steps "
+        f"(dt = {dt}), per linear-solver variant",
+        ["method", "s / step", "s / Newton iteration", "us / dof-step", "linear solve share (%)", "factorization (s)",
+         "solves (s)", "assembly (s)", "JAX (s)", "factorizations", f"wall / {base['method']}"],
+        [[r["method"], round(r["s_per_step"], 3), round(r["s_per_newton"], 3), round(r["us_per_dof_step"], 2),
+          round(100 * r["linear_frac"], 1), round(r["factor_s"], 1), round(r["solve_s"], 1), round(r["assembly_s"], 2),
+          round(r["jax_s"], 1), r["factorizations"], round(r["wall_s"] / base["wall_s"], 3)] for r in rows],
+        "lu_colamd: the baseline sparse LU (CSR to CSC conversion and a COLAMD ordering at every factorization); "
+        "minres_amg: MINRES with smoothed-aggregation AMG of |K| set up at every call; lu_mmd: lu with the "
+        "minimum-degree ordering instead of nested dissection.")])
 
 
 if __name__ == "__main__":
