@@ -5,7 +5,9 @@
 
 - every ``bench/results/<name>.json`` (written by `bench/results.py`'s `write_results`) becomes
   ``docs/results/<name>.md``: its tables, with the command that produced them;
-- a bench script that writes results but has none committed gets a page saying how to produce them;
+- every bench script that writes results gets ``docs/results/<script>.md``, which the docs pages
+  include: its results files (``<script>.json``, then ``<script>_*.json``) in one page, or, when none
+  is committed, how to produce them;
 - ``docs/results/verification.md``: one row per test function of ``tests/``, with the first line of
   its docstring (or its name), read from the source without importing or running anything.
 
@@ -108,14 +110,18 @@ def render_verification() -> str:
 
 
 def pages() -> dict[Path, str]:
-    out = {}
-    for path in sorted(RESULTS.glob("*.json")):
-        data = json.loads(path.read_text())
-        out[OUT / f"{path.stem}.md"] = render_results(data)
+    """Every page: one per results file, and one per bench script that writes results,
+    ``<script>.md``, gathering its results files (``<script>.json`` and ``<script>_*.json``) or saying
+    how to produce them. The docs include the per-script pages."""
+    rendered = {path.stem: render_results(json.loads(path.read_text())) for path in sorted(RESULTS.glob("*.json"))}
+    out = {OUT / f"{name}.md": text for name, text in rendered.items()}
     for script in sorted((ROOT / "bench").glob("bench_*.py")):
-        page = OUT / f"{script.stem}.md"
-        if page not in out and "write_results(" in script.read_text():
-            out[page] = render_missing(script)
+        if "write_results(" not in script.read_text():
+            continue
+        mine = [name for name in rendered if name == script.stem or name.startswith(script.stem + "_")]
+        out[OUT / f"{script.stem}.md"] = "\n".join(
+            [rendered[name].removeprefix(MARK + "\n") if i else rendered[name] for i, name in enumerate(mine)]
+        ) if mine else render_missing(script)
     out[OUT / "verification.md"] = render_verification()
     return out
 

@@ -198,8 +198,11 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
         prints them as they come). A host callback from the compiled loop: the solve is compiled once
         with it (for any monitor) and once without.
 
-    Raises `SolverError` naming the load step (index of the failed increment, and its load factor as
-    ``time``) when Newton fails or an element inverts (``det F <= 0``) and no cutback is left.
+    Raises
+    ------
+    SolverError
+        Naming the load step (index of the failed increment, and its load factor as ``time``) when
+        Newton fails or an element inverts (``det F <= 0``) and no cutback is left.
     """
     followers = (follower,) if not isinstance(follower, (tuple, list)) else tuple(follower)
     if predictor not in ("previous", "secant"):
