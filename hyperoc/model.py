@@ -161,7 +161,7 @@ class StateModel:
         3.6 kPa of 10); a rest that grows without bound as J -> 0 (`Guccione` ``isochoric=True``
         unless the point keeps its shape, neo-Hookean's ``-mu ln J``) resists it, and problem 2
         reaches 10 kPa. The pressure is one constant per cell, so on coarse meshes the solution
-        can be far softer than the limit (`bench/README.md`).
+        can be far softer than the limit.
 
     Attributes
     ----------
