@@ -3,9 +3,8 @@
 Per linear-solver variant: seconds per step, per Newton iteration and per dof-step, and the split
 between the host linear solve (`SparseSolver.stats`: blocks -> matrix, factorization, solves and
 refinement) and the rest of the step (JAX: element tangents, residuals, line search, callback).
-Ratios are against a baseline run in this same script: ``lu_colamd``, the sparse LU of hyperoc
-before the linsolve changes (CSR -> CSC conversion and a COLAMD ordering at every factorization,
-kept here verbatim as a subclass).
+Ratios are against a baseline run in this same script: ``lu_colamd``, a plain sparse LU (CSR -> CSC
+conversion and a COLAMD ordering at every factorization, a subclass defined here).
 
     python bench/bench_2d3d.py --case 2d                        # 500 steps, every variant
     python bench/bench_2d3d.py --case 3d --steps 10             # fewer steps (per-step figures)
@@ -14,7 +13,7 @@ kept here verbatim as a subclass).
 Writes ``bench/results/bench_2d3d_<case>.json`` (`bench/results.py`; not with ``--solver-only``).
 
 Variants: ``lu_colamd`` (baseline), ``minres_amg`` (previous MINRES: smoothed-aggregation AMG of
-|K| set up at every call), ``lu_mmd`` (``lu`` with the minimum-degree ordering it had before
+|K| set up at every call), ``lu_mmd`` (``lu`` with the minimum-degree ordering instead of
 nested dissection), and the current ``SparseSolver`` methods ``lu``, ``lu_reuse``,
 ``minres`` (see hyperoc/linsolve.py). All variants of one invocation run the same steps; the
 first step of each is run once before timing (JIT compilation), then the solver is reset.
@@ -97,7 +96,7 @@ def solver_for(model, name):
         return BaselineLU(model, "lu")
     if name == "minres_amg":
         return BaselineMinresAMG(model, "minres")
-    if name == "lu_mmd":  # the ordering of `lu` before 2026-11-30 (minimum degree), now nested dissection
+    if name == "lu_mmd":  # minimum degree instead of the default nested dissection
         return SparseSolver(model, "lu", ordering="mmd")
     return SparseSolver(model, name)
 

@@ -1,6 +1,6 @@
 """Closed-over constants in the jitted kernels: passed to XLA as arguments (JAX with
 ``JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS=1``, which `hyperoc._jax` sets when hyperoc is imported
-before JAX, since 2026-11-30) or embedded in the program as literals (JAX's default before that),
+before JAX) or embedded in the program as literals (JAX's default),
 on Land problem 2 (idealized LV, curved P2, kappa = 1000 kPa, clamped base) on a nested sequence
 of meshes.
 

@@ -2,7 +2,7 @@
 
 Problem 1: beam 10 x 1 x 1 mm, ``10 n x n x n`` cubes of six P2 tetrahedra; reported: z of the deformed
 point (10, 0.5, 1). Problem 2: idealized LV (Gmsh, target edge h mm), P2, isoparametric on the exact
-ellipsoids (``--faceted``: straight-sided cells, as before), base clamped (``--base sliding``: u_z = 0,
+ellipsoids (``--faceted``: straight-sided cells), base clamped (``--base sliding``: u_z = 0,
 rigid in-plane motions pinned); reported: z of the deformed endocardial and epicardial apex and the
 deformed cavity volume. Problem 3: the same ventricle, Guccione as in problem 1 with the analytic
 fibres of the benchmark (helix +90 to -90 degrees), endocardial pressure 15 kPa and active fibre tension
@@ -61,7 +61,7 @@ from hyperoc.linsolve import SparseSolver
 from hyperoc.newton import NewtonLog
 
 
-#: Problem 2 values: apex z (mm) and deformed cavity volume (mm^3; missing in rows from before it).
+#: Problem 2 values: apex z (mm) and deformed cavity volume (mm^3; missing in rows that lack it).
 LV_KEYS = ["z_endo", "z_epi", "V_cavity"]
 
 
@@ -154,7 +154,7 @@ def _published(problem: int, rows: list[dict], value_keys: list[str]) -> str:
 
 
 def _values(rows: list[dict], key: str) -> list[float]:
-    """One reported value per row (NaN where a row lacks it: files from before the value existed)."""
+    """One reported value per row (NaN where a row lacks it: older files)."""
     return [row["values"].get(key, math.nan) for row in rows]
 
 
@@ -179,7 +179,7 @@ def _extrapolate(by_kappa: dict, key: str) -> str:
 
 def _formulation(params: dict) -> str:
     """How the penalty enters (`hyperoc.model.StateModel` ``volumetric``) and whether Q uses the
-    isochoric strain, and the Newton predictor; rows from before those options: pointwise, full strain,
+    isochoric strain, and the Newton predictor; rows without those options: pointwise, full strain,
     previous equilibrium."""
     mixed = {"cell-mean": ", cell-mean J (P2-P0)", "taylor-hood": ", Taylor-Hood (P2-P1)"}.get(
         params.get("volumetric", "pointwise"), "")
@@ -188,7 +188,7 @@ def _formulation(params: dict) -> str:
 
 
 def _variant(params: dict) -> str:
-    """The problem 2 or 3 geometry, base and mesh sequence of a result row (rows from before those options:
+    """The problem 2 or 3 geometry, base and mesh sequence of a result row (rows without those options:
     faceted, clamped, Gmsh sizes)."""
     geometry = "curved" if params.get("curved", False) else "faceted"
     nested = f", nested: h0 = {params['mesh_size']:g} refined" if params.get("nested") else ""

@@ -7,7 +7,7 @@ ControlCost(alpha = 10), phi1 = p(tau), T = 4, start (xi = 0, tau = T/2).
 The free vibration makes p(t) peak near t = 1.3 (period ~5.2), so the optimal tau is interior; with
 zero initial data the optimal value does not decrease with tau (time-shift property) and tau drifts to
 the end of the interval, and with a small alpha the pressure grows faster than the control cost
-until elements invert: both were measured here before (bench/README.md) and do not measure solvers.
+until elements invert: neither setting measures the optimizers.
 
     python bench/bench_mesh_independence.py                    # full 3 x 3 table (h x dt), all methods
     python bench/bench_mesh_independence.py --diagonal         # only (h, dt) refined together

@@ -1,6 +1,6 @@
 """Fill-reducing ordering of the sparse LU (`hyperoc.linsolve.SparseSolver`, ``ordering=``): METIS
 nested dissection (``"nd"``, the default) against SuperLU's minimum degree on ``K + K^T``
-(``"mmd"``, the default before), on the step matrix of Land problem 2 (idealized LV, Guccione with
+(``"mmd"``), on the step matrix of Land problem 2 (idealized LV, Guccione with
 kappa = 1000 kPa, curved P2, clamped base) on a nested sequence of meshes.
 
 The matrix is the tangent at rest plus the follower-pressure stiffness at the full 10 kPa, the matrix

@@ -1,7 +1,7 @@
 """Pivot threshold of the sparse LU (`hyperoc.linsolve.SparseSolver`, ``pivot_thresh=``): SuperLU keeps
 the diagonal pivot while ``|K_jj| >= pivot_thresh * max_i |K_ij|``, else swaps a row in, which breaks
-the nested-dissection structure and adds fill. Compared: 0.1 (the default before 2026-12-01) and 0
-(the default now: the diagonal unless exactly zero, threshold pivoting only as the fallback when
+the nested-dissection structure and adds fill. Compared: 0.1 (threshold partial pivoting) and 0
+(the default: the diagonal unless exactly zero, threshold pivoting only as the fallback when
 refinement falls short), on the first Newton matrix of Land problem 2 (`bench_ordering.step_blocks`:
 tangent at rest plus the follower stiffness at 10 kPa; idealized LV, curved P2, clamped base, nested
 meshes of h0 = 6) in two formulations:

@@ -1,6 +1,6 @@
 """Element tangent on 3D meshes: the reference route (``jax.hessian`` of ``a W(F) + b det F`` at
-every quadrature point, then one einsum with the shape gradients; hyperoc before this change,
-kept here verbatim as the baseline) against `StateModel.tangent_blocks` (Voigt second derivatives
+every quadrature point, then one einsum with the shape gradients, defined here as the
+baseline) against `StateModel.tangent_blocks` (Voigt second derivatives
 of W(E), B^T H B per cell, stress and det F Hessian in closed form, cells in chunks).
 
 Per case, same process, variants interleaved (old, new, old, new, ...; best of ``--reps``):
