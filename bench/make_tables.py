@@ -8,8 +8,8 @@
 - every bench script that writes results gets ``docs/results/<script>.md``, which the docs pages
   include: its results files (``<script>.json``, then ``<script>_*.json``) in one page, or, when none
   is committed, how to produce them;
-- ``docs/results/verification.md``: one row per test function of ``tests/``, with the first line of
-  its docstring (or its name), read from the source without importing or running anything.
+- ``docs/results/verification.md``: one row per test function of ``tests/``, with the first sentence
+  of its docstring (or its name), read from the source without importing or running anything.
 
 The docs pages include these files; nothing in them is typed by hand.
 """
@@ -75,7 +75,9 @@ def _first_line(doc: str | None) -> str:
         return ""
     para = doc.strip().split("\n\n")[0]
     text = " ".join(line.strip() for line in para.splitlines())
+    text = re.split(r"(?<=[a-z0-9)\]`'])\.\s+(?=[A-Z(`])", text)[0].rstrip(".") + "."  # the first sentence
     text = re.sub(r"\s*\([^()]*DESIGN\.md[^()]*\)", "", text)  # internal design notes: not shipped
+    text = re.sub(r"\s*`?\b(?:tab|sec|rk|fig|eq|th|cor|algo)-[A-Za-z0-9-]+`?", "", text)  # LaTeX labels of the paper
     return text
 
 
