@@ -3,16 +3,17 @@
 Per linear-solver variant: seconds per step, per Newton iteration and per dof-step, and the split
 between the host linear solve (`SparseSolver.stats`: blocks -> matrix, factorization, solves and
 refinement) and the rest of the step (JAX: element tangents, residuals, line search, callback).
-Ratios are against a baseline run in this same script: ``lu_colamd``, the sparse LU of hyperoc
-before the linsolve changes (CSR -> CSC conversion and a COLAMD ordering at every factorization,
-kept here verbatim as a subclass).
+Ratios are against a baseline run in this same script: ``lu_colamd``, a plain sparse LU (CSR -> CSC
+conversion and a COLAMD ordering at every factorization, a subclass defined here).
 
     python bench/bench_2d3d.py --case 2d                        # 500 steps, every variant
     python bench/bench_2d3d.py --case 3d --steps 10             # fewer steps (per-step figures)
     python bench/bench_2d3d.py --case 2d --methods lu,lu_reuse --steps 500
 
+Writes ``bench/results/bench_2d3d_<case>.json`` (`bench/results.py`; not with ``--solver-only``).
+
 Variants: ``lu_colamd`` (baseline), ``minres_amg`` (previous MINRES: smoothed-aggregation AMG of
-|K| set up at every call), ``lu_mmd`` (``lu`` with the minimum-degree ordering it had before
+|K| set up at every call), ``lu_mmd`` (``lu`` with the minimum-degree ordering instead of
 nested dissection), and the current ``SparseSolver`` methods ``lu``, ``lu_reuse``,
 ``minres`` (see hyperoc/linsolve.py). All variants of one invocation run the same steps; the
 first step of each is run once before timing (JIT compilation), then the solver is reset.
@@ -95,7 +96,7 @@ def solver_for(model, name):
         return BaselineLU(model, "lu")
     if name == "minres_amg":
         return BaselineMinresAMG(model, "minres")
-    if name == "lu_mmd":  # the ordering of `lu` before 2026-11-30 (minimum degree), now nested dissection
+    if name == "lu_mmd":  # minimum degree instead of the default nested dissection
         return SparseSolver(model, "lu", ordering="mmd")
     return SparseSolver(model, name)
 
@@ -210,6 +211,19 @@ def main():
     if args.json:
         with open(args.json, "w") as f:
             json.dump(rows, f, indent=1)
+    from results import table, command_line, write_results
+
+    write_results(f"bench_2d3d_{args.case}", command_line(), [table(
+        f"Case {args.case}: {model.n} free dofs, {model.mesh.num_cells} cells, {steps} of {full_steps} steps "
+        f"(dt = {dt}), per linear-solver variant",
+        ["method", "s / step", "s / Newton iteration", "us / dof-step", "linear solve share (%)", "factorization (s)",
+         "solves (s)", "assembly (s)", "JAX (s)", "factorizations", f"wall / {base['method']}"],
+        [[r["method"], round(r["s_per_step"], 3), round(r["s_per_newton"], 3), round(r["us_per_dof_step"], 2),
+          round(100 * r["linear_frac"], 1), round(r["factor_s"], 1), round(r["solve_s"], 1), round(r["assembly_s"], 2),
+          round(r["jax_s"], 1), r["factorizations"], round(r["wall_s"] / base["wall_s"], 3)] for r in rows],
+        "lu_colamd: the baseline sparse LU (CSR to CSC conversion and a COLAMD ordering at every factorization); "
+        "minres_amg: MINRES with smoothed-aggregation AMG of |K| set up at every call; lu_mmd: lu with the "
+        "minimum-degree ordering instead of nested dissection.")])
 
 
 if __name__ == "__main__":

@@ -33,6 +33,8 @@ Cases:
     nice -n 10 python bench/bench_checkpoint.py            # all cases (~ minutes on 2 shared cores)
     python bench/bench_checkpoint.py --cases 1d            # one case
     python bench/bench_checkpoint.py --cases 1d --n1d 1000 --variants 55 s10 s20   # some variants (+ baseline)
+
+Writes ``bench/results/bench_checkpoint.json`` (`bench/results.py`).
 """
 
 from __future__ import annotations
@@ -46,11 +48,15 @@ import sys
 import time
 
 import numpy as np
+from results import Table, command_line, markdown_table, table, write_results
 
 CK_1D = (None, 10, 55, 300, 3000, "s10", "s20")  # k = 1: see the notes (per-segment overhead)
 CK_LV = (None, 4, "s4")  # 4 = sqrt(16 steps)
 LV_H = (4.0, 3.0, 2.5)
 LV_STEPS = dict(T=8.0, dt=0.5, tau=4.0, eps=1.0)
+NOTES = ("all (None): every level state stored (the baseline); every k: every k-th level state, segments "
+         "recomputed; revolve s: the binomial schedule with s snapshots. Interleaved: the variants alternated "
+         "in one process (same compiled code), best of three rounds.")
 
 
 def build_1d(n: int):
@@ -181,21 +187,24 @@ def run(case: str, size: float, k: int | str | None) -> dict:
     return _DONE[key]
 
 
-def table(rows: list, base: dict, inter: dict) -> str:
-    """Markdown rows; ``inter``: best seconds per k (str) from `interleaved_child`."""
-    head = ("| variant | dofs | steps | stored states (MB) | + segment (MB) | peak RSS (MB) | RSS / baseline | "
-            "step evaluations, / baseline | gradient (s) | time / baseline | interleaved: s, / baseline | "
-            "first incl. JIT (s) |\n|---|---|---|---|---|---|---|---|---|---|---|---|")
-    lines = [head]
+COLUMNS = ["variant", "dofs", "steps", "stored states (MB)", "+ segment (MB)", "peak RSS (MB)", "RSS / baseline",
+           "step evaluations", "step evaluations / baseline", "gradient (s)", "time / baseline",
+           "interleaved gradient (s)", "interleaved / baseline", "first call incl. JIT (s)"]
+
+
+def table_rows(rows: list, base: dict, inter: dict) -> list[list]:
+    """One row per variant; ``inter``: best seconds per k (str) from `interleaved_child`."""
+    out = []
     for r in rows:
         k = r["k"]
         name = "all (None)" if k is None else f"revolve s = {k[1:]}" if isinstance(k, str) else f"every k = {k}"
         t = inter[str(k)]
-        lines.append(f"| {name} | {r['dofs']} | {r['steps']} | {r['stored_bytes'] / 1e6:.2f} | {r['segment_bytes'] / 1e6:.2f} | "
-                     f"{r['peak_rss_mb']:.0f} | {r['peak_rss_mb'] / base['peak_rss_mb']:.3f} | "
-                     f"{r['step_evaluations']}, {r['step_evaluations'] / base['step_evaluations']:.2f} | {r['gradient_s']:.3f} | "
-                     f"{r['gradient_s'] / base['gradient_s']:.2f} | {t:.3f}, {t / inter['None']:.2f} | {r['first_s']:.1f} |")
-    return "\n".join(lines)
+        out.append([name, r["dofs"], r["steps"], round(r["stored_bytes"] / 1e6, 2), round(r["segment_bytes"] / 1e6, 2),
+                    round(r["peak_rss_mb"]), round(r["peak_rss_mb"] / base["peak_rss_mb"], 3), r["step_evaluations"],
+                    round(r["step_evaluations"] / base["step_evaluations"], 2), round(r["gradient_s"], 3),
+                    round(r["gradient_s"] / base["gradient_s"], 2), round(t, 3), round(t / inter["None"], 2),
+                    round(r["first_s"], 1)])
+    return out
 
 
 def interleaved(case: str, size: float, ks) -> dict:
@@ -222,7 +231,7 @@ def main():
             print(json.dumps(child(case, float(size), parse_variant(k))))
         return
     chosen = lambda variants: [k for k in variants if k is None or args.variants is None or k in args.variants]
-    rows = []
+    rows, tables = [], []
     for case in args.cases:
         if case == "1d":
             for n in args.n1d:
@@ -230,30 +239,34 @@ def main():
                 rs = [run("1d", n, k) for k in ks]
                 inter = interleaved("1d", n, ks[1:])
                 rows += rs + [{"case": "1d", "size": n, "interleaved": inter}]
-                print(f"\n### 1D, n = {n} elements (T = 15, dt = 0.005), sqrt(N) = {math.sqrt(rs[0]['steps']):.0f}\n")
-                print(table(rs, rs[0], inter), flush=True)
+                title = f"1D, n = {n} elements (T = 15, dt = 0.005), sqrt(N) = {math.sqrt(rs[0]['steps']):.0f}"
+                tables.append(table(title, COLUMNS, table_rows(rs, rs[0], inter), NOTES))
+                print(f"\n### {title}\n\n{markdown_table(COLUMNS, tables[-1]['rows'])}", flush=True)
         elif case == "lv":
             ks = chosen(CK_LV)
             rs = [run("lv", args.lv_h, k) for k in ks]
             inter = interleaved("lv", args.lv_h, ks[1:])
             rows += rs + [{"case": "lv", "size": args.lv_h, "interleaved": inter}]
-            print(f"\n### LV, h = {args.lv_h} mm\n")
-            print(table(rs, rs[0], inter), flush=True)
+            title = f"LV, h = {args.lv_h} mm"
+            tables.append(table(title, COLUMNS, table_rows(rs, rs[0], inter), NOTES))
+            print(f"\n### {title}\n\n{markdown_table(COLUMNS, tables[-1]['rows'])}", flush=True)
         else:
             hs = sorted({*LV_H, args.lv_h}, reverse=True)
             rs = [run("lv", h, None) for h in hs]
             inter = run("lv-sizes", 0, ",".join(str(h) for h in hs))
             rows += rs + [{"case": "lv-sizes", "interleaved": inter}]
-            print("\n### LV gradient vs mesh size (store everything)\n")
-            print("| h (mm) | dofs | steps | gradient (s) | interleaved (s) | us per dof-step (interleaved) | "
-                  "first incl. JIT (s) | peak RSS (MB) |\n|---|---|---|---|---|---|---|---|")
+            sizes = Table("LV gradient against mesh size (store everything)",
+                          ["h (mm)", "dofs", "steps", "gradient (s)", "interleaved (s)",
+                           "us per dof-step (interleaved)", "first call incl. JIT (s)", "peak RSS (MB)"])
             for r in rs:
                 t = inter[str(r["size"])]
-                print(f"| {r['size']} | {r['dofs']} | {r['steps']} | {r['gradient_s']:.2f} | {t:.2f} | "
-                      f"{1e6 * t / (r['dofs'] * r['steps']):.0f} | {r['first_s']:.1f} | {r['peak_rss_mb']:.0f} |", flush=True)
+                sizes.add(r["size"], r["dofs"], r["steps"], round(r["gradient_s"], 2), round(t, 2),
+                          round(1e6 * t / (r["dofs"] * r["steps"])), round(r["first_s"], 1), round(r["peak_rss_mb"]))
+            tables.append(sizes.as_dict())
     if args.json:
         with open(args.json, "w") as f:
             json.dump(rows, f, indent=1)
+    write_results("bench_checkpoint", command_line(), tables)
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
 """Closed-over constants in the jitted kernels: passed to XLA as arguments (JAX with
 ``JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS=1``, which `hyperoc._jax` sets when hyperoc is imported
-before JAX, since 2026-11-30) or embedded in the program as literals (JAX's default before that),
+before JAX) or embedded in the program as literals (JAX's default),
 on Land problem 2 (idealized LV, curved P2, kappa = 1000 kPa, clamped base) on a nested sequence
 of meshes.
 
@@ -16,6 +16,8 @@ ratios arguments / literals.
 
     nice taskset -c 0 python bench/bench_constants.py                  # levels 0, 1 of h0 = 6
     nice taskset -c 0 python bench/bench_constants.py --levels 0,1,2   # + 80k dofs
+
+Writes ``bench/results/bench_constants.json`` (`bench/results.py`).
 """
 
 from __future__ import annotations
@@ -84,21 +86,25 @@ def main():
     if args.child:
         print(json.dumps(child(args.h0, levels[0])))
         return
-    print("| level | dofs | constants | compile solve (s) | 1st eval (s) | later eval (s) | peak RSS (MB) | folding alarms |")
-    print("|---|---|---|---|---|---|---|---|")
-    ratios = []
+    from results import Table, command_line, write_results
+
+    runs = Table(f"Land problem 2 (curved P2 LV, h0 = {args.h0:g} mm, kappa = 1000 kPa): the Newton solve's "
+                 "compilation and the force and tangent kernels, each (level, mode) in a fresh process",
+                 ["level", "dofs", "constants", "compile solve (s)", "1st eval (s)", "later eval (s)",
+                  "peak RSS (MB)", "constant-folding alarms"],
+                 "arguments: JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS=1 (set when hyperoc is imported before JAX); "
+                 "literals: JAX's default.")
+    ratios = Table("Arguments / literals", ["level", "compile solve", "1st eval", "later eval", "peak RSS",
+                                            "force and tangents bitwise equal"])
     for level in levels:
         res = {mode: run_child(args.h0, level, mode) for mode in MODES}
         for mode, r in res.items():
-            print(f"| {level} | {r['dofs']} | {mode} | {r['compile_s']:.2f} | {r['first_s']:.2f} | {r['later_s']:.3f} "
-                  f"| {r['peak_mb']:.0f} | {r['folding_alarms']} |", flush=True)
+            runs.add(level, r["dofs"], mode, round(r["compile_s"], 2), round(r["first_s"], 2), round(r["later_s"], 3),
+                     round(r["peak_mb"]), r["folding_alarms"])
         a, b = res["arguments"], res["literals"]
-        ratios.append((level, a["compile_s"] / b["compile_s"], a["first_s"] / b["first_s"],
-                       a["later_s"] / b["later_s"], a["peak_mb"] / b["peak_mb"], a["digest"] == b["digest"]))
-    print("\n| level | compile solve | 1st eval | later eval | peak RSS | force and tangents bitwise equal |")
-    print("|---|---|---|---|---|---|")
-    for level, *r, same in ratios:
-        print(f"| {level} | " + " | ".join(f"{v:.2f}x" for v in r) + f" | {'yes' if same else 'NO'} |")
+        ratios.add(level, *(round(a[k] / b[k], 2) for k in ("compile_s", "first_s", "later_s", "peak_mb")),
+                   a["digest"] == b["digest"])
+    write_results("bench_constants", command_line(), [runs.as_dict(), ratios.as_dict()])
 
 
 if __name__ == "__main__":

@@ -5,6 +5,9 @@ size (the baseline, ``DIRECT_LIMIT`` raised). Each build runs in its own subproc
 (`resource.getrusage` of the child) is that build's alone; the ratio column is AMG / LU of the same level.
 
     nice taskset -c 0 python bench/bench_geometry.py --levels 1,2,3 --lu-levels 1,2
+    nice taskset -c 0 python bench/bench_geometry.py --levels 1,2              # small: under a minute
+
+Writes ``bench/results/bench_geometry.json`` (`bench/results.py`).
 """
 
 from __future__ import annotations
@@ -13,6 +16,8 @@ import argparse
 import json
 import subprocess
 import sys
+
+from results import Table, command_line, write_results
 
 CHILD = """
 import json, resource, sys, time
@@ -44,18 +49,21 @@ def main():
     ap.add_argument("--lu-levels", default="1,2", help="levels also built with the sparse LU baseline")
     args = ap.parse_args()
     lu_levels = {int(v) for v in args.lu_levels.split(",") if v}
-    print("| level | cells | method | s | peak RSS (GB) | s ratio AMG / LU | peak ratio | sum |curved points| |")
-    print("|---|---|---|---|---|---|---|---|")
+    out = Table(f"Building the nested curved ventricle (h0 = {args.h0:g} mm), each build in its own process",
+                ["level", "cells", "method", "wall time (s)", "peak RSS (GB)", "time AMG / LU", "peak AMG / LU",
+                 "sum of |curved points| (mm)"],
+                "The last column is a checksum: equal across methods means the same mesh.")
     for level in (int(v) for v in args.levels.split(",")):
         amg = build(args.h0, level, "amg")
         lu = build(args.h0, level, "lu") if level in lu_levels else None
         for name, row in (("LU", lu), ("AMG-CG", amg)):
             if row is None:
                 continue
-            ratios = f"{amg['seconds'] / lu['seconds']:.2f} | {amg['peak_gb'] / lu['peak_gb']:.2f}" \
-                if lu is not None and name == "AMG-CG" else " | "
-            print(f"| {level} | {row['cells']} | {name} | {row['seconds']:.1f} | {row['peak_gb']:.2f} | {ratios} "
-                  f"| {row['checksum']:.10g} |", flush=True)
+            ratios = [round(amg["seconds"] / lu["seconds"], 2), round(amg["peak_gb"] / lu["peak_gb"], 2)] \
+                if lu is not None and name == "AMG-CG" else [None, None]
+            out.add(level, row["cells"], name, round(row["seconds"], 1), round(row["peak_gb"], 2), *ratios,
+                    float(f"{row['checksum']:.10g}"))
+    write_results("bench_geometry", command_line(), [out.as_dict()])
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 
 Problem 1: beam 10 x 1 x 1 mm, ``10 n x n x n`` cubes of six P2 tetrahedra; reported: z of the deformed
 point (10, 0.5, 1). Problem 2: idealized LV (Gmsh, target edge h mm), P2, isoparametric on the exact
-ellipsoids (``--faceted``: straight-sided cells, as before), base clamped (``--base sliding``: u_z = 0,
+ellipsoids (``--faceted``: straight-sided cells), base clamped (``--base sliding``: u_z = 0,
 rigid in-plane motions pinned); reported: z of the deformed endocardial and epicardial apex and the
 deformed cavity volume. Problem 3: the same ventricle, Guccione as in problem 1 with the analytic
 fibres of the benchmark (helix +90 to -90 degrees), endocardial pressure 15 kPa and active fibre tension
@@ -38,6 +38,10 @@ largest kappa at the finest level.
     python bench/bench_land.py --render results/land-*.json                 # tables of saved runs
 
 Seconds are wall time per solve, JIT compilation included.
+
+Writes ``bench/results/bench_land.json`` (`bench/results.py`) for the docs; ``--results NAME`` writes
+``bench/results/NAME.json`` instead, so that several studies can be kept side by side (for example
+``--results bench_land_p2_taylor_hood``), and ``--results ""`` writes none.
 """
 
 from __future__ import annotations
@@ -57,7 +61,7 @@ from hyperoc.linsolve import SparseSolver
 from hyperoc.newton import NewtonLog
 
 
-#: Problem 2 values: apex z (mm) and deformed cavity volume (mm^3; missing in rows from before it).
+#: Problem 2 values: apex z (mm) and deformed cavity volume (mm^3; missing in rows that lack it).
 LV_KEYS = ["z_endo", "z_epi", "V_cavity"]
 
 
@@ -104,6 +108,31 @@ def _table(title: str, rows: list[dict], level_key: str, value_keys: list[str]) 
     return "\n".join(lines)
 
 
+def _table_dict(title: str, rows: list[dict], level_key: str, value_keys: list[str], notes: str) -> dict:
+    """The same table as `_table`, as a `bench/results.py` table (numbers, not text)."""
+    from results import table
+
+    unit = lambda k: "mm^3" if k.startswith("V_") else "mm"
+    columns = [level_key, "h (mm)", "dofs"]
+    for k in value_keys:
+        columns += [f"{k} ({unit(k)})", f"{k} diff ({unit(k)})", f"{k} order", f"{k} Richardson limit ({unit(k)})"]
+    columns += ["Newton iterations", "max per load step", "rejected iterations", "load steps", "wall time (s)"]
+    out = []
+    for i, r in enumerate(rows):
+        cells = [r["params"][level_key], float(f"{r['h']:.3g}"), r["dofs"]]
+        for key in value_keys:
+            z = _values(rows[: i + 1], key)
+            order = limit = None
+            if i >= 2:
+                p, lim = _richardson(rows[: i + 1], key)
+                order, limit = (round(p, 2) if math.isfinite(p) else None), (round(lim, 4) if math.isfinite(lim) else None)
+            cells += [round(z[-1], 5), float(f"{z[-1] - z[-2]:.2e}") if i else None, order, limit]
+        its = r["newton_iterations"]
+        cells += [sum(its), max(its), r.get("rejected_iterations") or 0, len(its), round(r["seconds"], 1)]
+        out.append(cells)
+    return table(title, columns, out, notes)
+
+
 def _published(problem: int, rows: list[dict], value_keys: list[str]) -> str:
     """The distance of the finest level and of the Richardson limit to the published value
     (`hyperoc.benchmarks.PUBLISHED`), for the benchmark as posed only (base clamped, tension not
@@ -125,7 +154,7 @@ def _published(problem: int, rows: list[dict], value_keys: list[str]) -> str:
 
 
 def _values(rows: list[dict], key: str) -> list[float]:
-    """One reported value per row (NaN where a row lacks it: files from before the value existed)."""
+    """One reported value per row (NaN where a row lacks it: older files)."""
     return [row["values"].get(key, math.nan) for row in rows]
 
 
@@ -150,7 +179,7 @@ def _extrapolate(by_kappa: dict, key: str) -> str:
 
 def _formulation(params: dict) -> str:
     """How the penalty enters (`hyperoc.model.StateModel` ``volumetric``) and whether Q uses the
-    isochoric strain, and the Newton predictor; rows from before those options: pointwise, full strain,
+    isochoric strain, and the Newton predictor; rows without those options: pointwise, full strain,
     previous equilibrium."""
     mixed = {"cell-mean": ", cell-mean J (P2-P0)", "taylor-hood": ", Taylor-Hood (P2-P1)"}.get(
         params.get("volumetric", "pointwise"), "")
@@ -159,7 +188,7 @@ def _formulation(params: dict) -> str:
 
 
 def _variant(params: dict) -> str:
-    """The problem 2 or 3 geometry, base and mesh sequence of a result row (rows from before those options:
+    """The problem 2 or 3 geometry, base and mesh sequence of a result row (rows without those options:
     faceted, clamped, Gmsh sizes)."""
     geometry = "curved" if params.get("curved", False) else "faceted"
     nested = f", nested: h0 = {params['mesh_size']:g} refined" if params.get("nested") else ""
@@ -247,6 +276,8 @@ def main():
     ap.add_argument("--newton-log", action="store_true",
                     help="print every Newton iteration to stderr as it ends (hyperoc.newton.NewtonLog)")
     ap.add_argument("--json", default=None, help="write all results here")
+    ap.add_argument("--results", default="bench_land", metavar="NAME",
+                    help="results file bench/results/NAME.json for the docs (bench/results.py); '' for none")
     ap.add_argument("--render", nargs="+", default=None, metavar="JSON",
                     help="only print the tables of earlier runs (their --json files or stdout logs)")
     args = ap.parse_args()
@@ -268,7 +299,7 @@ def main():
         print(json.dumps(row), flush=True)
         return row
 
-    tables, extrap, failures = [], [], []
+    tables, structured, extrap, failures = [], [], [], []
     problems = {int(v) for v in _floats(args.problems)}
     lv_sequences = [[(h, 0)] for h in _floats(args.lv_sizes)] if args.lv_refinements is None else \
         [[(h, int(k)) for k in _floats(args.lv_refinements)] for h in _floats(args.lv_sizes)]
@@ -312,6 +343,8 @@ def main():
                 key = level_key or _level_key(rows[0]["params"])
                 tables.append(_table(f"{name}, P2{variant}, kappa = {kappa:g} kPa", rows, key, keys)
                               + _published(number, rows, keys))
+                structured.append(_table_dict(f"{name}, P2{variant}, kappa = {kappa:g} kPa", rows, key, keys,
+                                              _published(number, rows, keys).strip()))
                 finest[kappa] = rows[-1]["values"]
         if len(finest) >= 2:
             extrap += [f"{name}, finest level: " + _extrapolate({k: v[key] for k, v in finest.items()}, key)
@@ -324,6 +357,12 @@ def main():
         with open(args.json, "w") as fh:
             json.dump({"results": results, "tables": tables, "kappa_extrapolation": extrap, "failures": failures},
                       fh, indent=1)
+    if structured and args.results:
+        from results import command_line, write_results
+
+        if extrap or failures:
+            structured[-1]["notes"] = " ".join([structured[-1]["notes"], *extrap, *failures]).strip()
+        write_results(args.results, command_line(), structured)
 
 
 if __name__ == "__main__":

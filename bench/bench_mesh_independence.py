@@ -7,13 +7,15 @@ ControlCost(alpha = 10), phi1 = p(tau), T = 4, start (xi = 0, tau = T/2).
 The free vibration makes p(t) peak near t = 1.3 (period ~5.2), so the optimal tau is interior; with
 zero initial data the optimal value does not decrease with tau (time-shift property) and tau drifts to
 the end of the interval, and with a small alpha the pressure grows faster than the control cost
-until elements invert: both were measured here before (bench/README.md) and do not measure solvers.
+until elements invert: neither setting measures the optimizers.
 
     python bench/bench_mesh_independence.py                    # full 3 x 3 table (h x dt), all methods
     python bench/bench_mesh_independence.py --diagonal         # only (h, dt) refined together
     python bench/bench_mesh_independence.py --json out.json    # also write the raw results
     python bench/bench_mesh_independence.py --starts 1.9,1.95,2.05,2.1   # same grid, other starts
     python bench/bench_mesh_independence.py --grid-starts 1.9,1.95,2,2.05,2.1   # every grid, every start
+
+Writes ``bench/results/bench_mesh_independence.json`` (`bench/results.py`).
 
 Methods: ``bb`` (Algorithm 1, the paper's joint BB step, BB1 length), ``bb-abbmin`` (joint step,
 ABBmin length: `hyperoc.optimize.BBStepRule`), ``bb-blockwise`` (separate BB1 steps for xi and
@@ -81,6 +83,8 @@ def main():
         tau0s = [float(t) for t in args.grid_starts.split(",")]
         pairs = [g for g in grids for _ in tau0s]
         starts = tau0s * len(grids)
+    from results import table, command_line, write_results
+
     rows = []
     print(f"{'method':12s} {'tau0':>5s} {'h':>6s} {'dt':>6s} {'iters':>6s} {'conv':>5s} {'tau':>9s} {'J':>12s} {'|G|/|G0|':>9s} "
           f"{'states':>7s} {'adjoints':>8s} {'failed':>6s} {'wall s':>7s}", flush=True)
@@ -102,6 +106,25 @@ def main():
     if args.json:
         with open(args.json, "w") as f:
             json.dump(rows, f, indent=1)
+    tables = [table(f"Iterations to ||G|| <= 1e-6 ||G0|| on vibrating_bar (alpha = {args.alpha:g}, at most "
+                    f"{args.max_iter} iterations) per method, start and grid",
+                    ["method", "tau0", "h", "dt", "iterations", "converged", "tau", "J", "|G| / |G0|",
+                     "state solves", "adjoint solves", "failed trials", "wall time (s)"],
+                    [[r["method"], tau0, h, dt, r["iterations"], bool(r["converged"]), round(r["tau"], 5),
+                      float(f"{r['J']:.6e}"), float(f"{r['G_final_rel']:.2e}"), r["state_solves"], r["adjoint_solves"],
+                      r["failed_trials"], round(r["wall_s"], 1)]
+                     for r, ((h, dt), tau0) in zip(rows, list(zip(pairs, starts)) * len(args.methods.split(",")))])]
+    if args.grid_starts:
+        tables.append(table("Median iterations over the starts, per grid",
+                            ["method", *(f"h = {h:g}, dt = {dt:g}" for h, dt in grids), "max / min of the medians"],
+                            [[m, *med, round(max(med) / min(med), 2)] for m, med in medians(rows, args.methods.split(","), grids)]))
+    write_results("bench_mesh_independence", command_line(), tables)
+
+
+def medians(rows: list, methods: list, grids: list) -> list:
+    """Per method: the median iteration count over the starts on each grid."""
+    return [(m, [float(np.median([r["iterations"] for r in rows if r["method"] == m and (r["h"], r["dt"]) == g]))
+                 for g in grids]) for m in methods]
 
 
 def print_medians(rows: list, methods: list, grids: list) -> None:

@@ -1,6 +1,6 @@
 """Fill-reducing ordering of the sparse LU (`hyperoc.linsolve.SparseSolver`, ``ordering=``): METIS
 nested dissection (``"nd"``, the default) against SuperLU's minimum degree on ``K + K^T``
-(``"mmd"``, the default before), on the step matrix of Land problem 2 (idealized LV, Guccione with
+(``"mmd"``), on the step matrix of Land problem 2 (idealized LV, Guccione with
 kappa = 1000 kPa, curved P2, clamped base) on a nested sequence of meshes.
 
 The matrix is the tangent at rest plus the follower-pressure stiffness at the full 10 kPa, the matrix
@@ -12,6 +12,8 @@ of the fill, measured in the same process.
 
     nice taskset -c 0 python bench/bench_ordering.py                   # levels 0, 1 of h0 = 6
     nice taskset -c 0 python bench/bench_ordering.py --levels 0,1,2    # + 80k dofs (about 4 min)
+
+Writes ``bench/results/bench_ordering.json`` (`bench/results.py`).
 """
 
 from __future__ import annotations
@@ -20,6 +22,8 @@ import argparse
 
 import jax.numpy as jnp
 import numpy as np
+
+from results import Table, command_line, write_results
 
 from hyperoc.benchmarks import ventricle_problem
 from hyperoc.linsolve import SparseSolver
@@ -55,21 +59,23 @@ def main():
     ap.add_argument("--h0", type=float, default=6.0, help="Gmsh size of the coarsest LV mesh (mm)")
     ap.add_argument("--levels", default="0,1", help="uniform refinements, comma separated")
     args = ap.parse_args()
-    print("| level | dofs | nnz(K) | ordering | order (s) | 1st factor (s) | refactor (s) | stored L+U | backward err |")
-    print("|---|---|---|---|---|---|---|---|---|")
-    ratios = []
+    runs = Table(f"Sparse LU of the first Newton matrix of Land problem 2 (curved P2 LV, h0 = {args.h0:g} mm, "
+                 "kappa = 1000 kPa, clamped base) with each ordering",
+                 ["level", "dofs", "nnz(K)", "ordering", "order (s)", "1st factor (s)", "refactor (s)",
+                  "stored L+U entries", "backward error"],
+                 "nd: METIS nested dissection (the default); mmd: SuperLU's minimum degree on K + K^T.")
+    ratios = Table("Nested dissection against minimum degree, same process",
+                   ["level", "dofs", "refactor time nd / mmd", "fill nd / mmd"])
     for level in (int(v) for v in args.levels.split(",")):
         model, follower = ventricle_problem(args.h0, kappa=1000.0, refinements=level)
         blocks = step_blocks(model, follower)
         rows = {o: measure(model, blocks, o) for o in ("mmd", "nd")}
         for o, r in rows.items():
-            print(f"| {level} | {model.n} | {model.pattern.nnz} | {o} | {r['order_s']:.2f} | {r['factor_s']:.2f} | "
-                  f"{r['refactor_s']:.2f} | {r['fill']:,} | {r['backward_error']:.1e} |", flush=True)
-        ratios.append((level, model.n, rows["nd"]["refactor_s"] / rows["mmd"]["refactor_s"],
-                       rows["nd"]["fill"] / rows["mmd"]["fill"]))
-    print("\n| level | dofs | refactor nd / mmd | fill nd / mmd |\n|---|---|---|---|")
-    for level, n, t, f in ratios:
-        print(f"| {level} | {n} | {t:.2f} | {f:.2f} |")
+            runs.add(level, model.n, model.pattern.nnz, o, round(r["order_s"], 2), round(r["factor_s"], 2),
+                     round(r["refactor_s"], 2), r["fill"], float(f"{r['backward_error']:.1e}"))
+        ratios.add(level, model.n, round(rows["nd"]["refactor_s"] / rows["mmd"]["refactor_s"], 2),
+                   round(rows["nd"]["fill"] / rows["mmd"]["fill"], 2))
+    write_results("bench_ordering", command_line(), [runs.as_dict(), ratios.as_dict()])
 
 
 if __name__ == "__main__":

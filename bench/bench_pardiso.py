@@ -13,6 +13,9 @@ levels 0-2, does not fit a 23 GB machine).
 
     nice taskset -c 1 python bench/bench_pardiso.py --levels 0,1,2            # one core
     nice python bench/bench_pardiso.py --levels 3 --lu-levels ""               # two cores, ~670k unknowns, PARDISO only
+    nice taskset -c 1 python bench/bench_pardiso.py --levels 0,1              # small: about a minute
+
+Writes ``bench/results/bench_pardiso.json`` (`bench/results.py`).
 """
 
 from __future__ import annotations
@@ -24,6 +27,8 @@ import os
 import resource
 import subprocess
 import sys
+
+from results import Table, command_line, write_results
 
 
 def rss_gb() -> float:
@@ -64,20 +69,23 @@ def main():
                                  text=True, check=True).stdout
             rows.append(json.loads(out.strip().splitlines()[-1]))
             print(json.dumps(rows[-1]), flush=True)
-    print(f"\n{rows[0]['cores']} core(s)\n")
-    print("| level | unknowns | nnz(K) | method | 1st factor (s) | refactor (s) | factor entries (M) | backward err | "
-          "RSS before (GB) | peak RSS (GB) |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    runs = Table(f"One factorization of the Taylor-Hood saddle point (Land problem 2, h0 = 6 mm nested, kappa = inf), "
+                 f"{rows[0]['cores']} core(s)",
+                 ["level", "unknowns", "nnz(K)", "method", "1st factor (s)", "refactor (s)", "factor entries (M)",
+                  "backward error", "RSS before (GB)", "peak RSS (GB)"],
+                 "lu: SuperLU (L and U, nested dissection, diagonal pivots); pardiso: MKL PARDISO's symmetric "
+                 "indefinite L D L^T. Each (level, method) in a fresh process.")
     for r in rows:
-        print(f"| {r['level']} | {r['n']} | {r['nnz']} | {r['method']} | {r['factor_s']:.2f} | {r['refactor_s']:.2f} | "
-              f"{r['fill'] / 1e6:.1f} | {r['backward_error']:.1e} | {r['rss_before']:.2f} | {r['peak_rss']:.2f} |")
-    print("\n| level | refactor pardiso / lu | entries pardiso / lu | peak RSS above the model, pardiso / lu |")
-    print("|---|---|---|---|")
+        runs.add(r["level"], r["n"], r["nnz"], r["method"], round(r["factor_s"], 2), round(r["refactor_s"], 2),
+                 round(r["fill"] / 1e6, 1), float(f"{r['backward_error']:.1e}"), round(r["rss_before"], 2),
+                 round(r["peak_rss"], 2))
+    ratios = Table("PARDISO / SuperLU", ["level", "refactor time", "factor entries", "peak RSS above the model"])
     for level in lu_levels:
         lu, pa = ([r for r in rows if r["level"] == level and r["method"] == m][0] for m in ("lu", "pardiso"))
         extra = lambda r: r["peak_rss"] - r["rss_before"]
-        print(f"| {level} | {pa['refactor_s'] / lu['refactor_s']:.2f} | {pa['fill'] / lu['fill']:.2f} | "
-              f"{extra(pa) / extra(lu):.2f} |")
+        ratios.add(level, round(pa["refactor_s"] / lu["refactor_s"], 2), round(pa["fill"] / lu["fill"], 2),
+                   round(extra(pa) / extra(lu), 2))
+    write_results("bench_pardiso", command_line(), [runs.as_dict()] + ([ratios.as_dict()] if ratios.rows else []))
 
 
 if __name__ == "__main__":

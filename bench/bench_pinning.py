@@ -7,6 +7,8 @@ and two such processes side by side slow each other down.
     python bench/bench_pinning.py              # 2 rounds, each variant in a fresh process
     python bench/bench_pinning.py --rounds 3
 
+Writes ``bench/results/bench_pinning.json`` (`bench/results.py`).
+
 Prints per run: wall seconds and CPU seconds (user + system) of the child, then the medians and
 their ratios against the all-CPU baseline of the same script.
 """
@@ -19,6 +21,8 @@ import statistics
 import subprocess
 import sys
 import tempfile
+
+from results import Table, command_line, write_results
 
 
 def child(pinned: bool) -> None:
@@ -59,10 +63,14 @@ def main() -> None:
             print(f"{variant:4s} CPUs: wall {r['wall']:6.2f} s, CPU {r['cpu']:6.2f} s, {r['iterations']} iterations, "
                   f"tau = {r['tau']:.6f}", flush=True)
     base = {k: statistics.median(r[k] for r in runs["all"]) for k in ("wall", "cpu")}
+    out = Table(f"Algorithm 1 on the paper's 1D problem with its outputs, medians of {args.rounds} runs per variant",
+                ["CPUs", "median wall time (s)", "wall / all CPUs", "median CPU time (s)", "CPU / all CPUs",
+                 "iterations"], "Each run is a fresh process; the variants alternate.")
     for variant, rs in runs.items():
         wall, cpu = (statistics.median(r[k] for r in rs) for k in ("wall", "cpu"))
-        print(f"{variant:4s} CPUs: median wall {wall:.2f} s ({wall / base['wall']:.2f}x), "
-              f"median CPU {cpu:.2f} s ({cpu / base['cpu']:.2f}x)")
+        out.add({"all": "all", "one": "one"}[variant], round(wall, 2), round(wall / base["wall"], 2), round(cpu, 2),
+                round(cpu / base["cpu"], 2), rs[-1]["iterations"])
+    write_results("bench_pinning", command_line(), [out.as_dict()])
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """Pivot threshold of the sparse LU (`hyperoc.linsolve.SparseSolver`, ``pivot_thresh=``): SuperLU keeps
 the diagonal pivot while ``|K_jj| >= pivot_thresh * max_i |K_ij|``, else swaps a row in, which breaks
-the nested-dissection structure and adds fill. Compared: 0.1 (the default before 2026-12-01) and 0
-(the default now: the diagonal unless exactly zero, threshold pivoting only as the fallback when
+the nested-dissection structure and adds fill. Compared: 0.1 (threshold partial pivoting) and 0
+(the default: the diagonal unless exactly zero, threshold pivoting only as the fallback when
 refinement falls short), on the first Newton matrix of Land problem 2 (`bench_ordering.step_blocks`:
 tangent at rest plus the follower stiffness at 10 kPa; idealized LV, curved P2, clamped base, nested
 meshes of h0 = 6) in two formulations:
@@ -19,6 +19,8 @@ factorization (the loaded state, where K_uu is indefinite too).
     nice taskset -c 0 python bench/bench_pivot.py                   # levels 0, 1
     nice taskset -c 0 python bench/bench_pivot.py --levels 0,1,2    # + 80k dofs (about 10 min)
     nice taskset -c 0 python bench/bench_pivot.py --levels 0 --solves 1   # + whole solves, 12k dofs
+
+Writes ``bench/results/bench_pivot.json`` (`bench/results.py`).
 """
 
 from __future__ import annotations
@@ -28,11 +30,13 @@ import math
 import time
 
 from bench_ordering import measure, step_blocks
+from results import Table, command_line, write_results
+
 from hyperoc.benchmarks import VENTRICLE, node_position, ventricle_problem
 from hyperoc.linsolve import SparseSolver
 from hyperoc.statics import solve_static
 
-THRESHOLDS = (0.1, 0.0)  # before, now
+THRESHOLDS = (0.1, 0.0)  # threshold partial pivoting; diagonal pivots (the default)
 FORMULATIONS = {"pointwise": {"kappa": 1000.0},
                 "taylor-hood": {"kappa": math.inf, "volumetric": "taylor-hood", "isochoric": True}}
 
@@ -48,18 +52,21 @@ def whole_solve(level: int, h0: float, thresh: float) -> dict:
             "z_endo": float(node_position(model, sol.u, VENTRICLE["endo_apex"])[2]), **solver.stats}
 
 
-def print_solves(levels, h0: float):
-    print("\n| level | dofs | pivot_thresh | Newton its | z_endo (mm) | solve (s) | factor (s, sum) | "
-          "last stored L+U | last off-diagonal pivots | fallbacks |\n|---|---|---|---|---|---|---|---|---|---|")
+def solves_table(levels, h0: float) -> Table:
+    out = Table("Whole Taylor-Hood solves of problem 2 (20 increments to 10 kPa) with each threshold",
+                ["level", "dofs", "pivot_thresh", "Newton iterations", "z_endo (mm)", "solve (s)",
+                 "factorizations (s, sum)", "last stored L+U entries", "last off-diagonal pivots", "fallbacks"],
+                "Rows 'ratio 0 / 0.1' divide the solve time, factorization time and fill of threshold 0 by "
+                "those of 0.1.")
     for level in levels:
         rows = {t: whole_solve(level, h0, t) for t in THRESHOLDS}
         for t, r in rows.items():
-            print(f"| {level} | {r['n']} | {t:g} | {r['newton']} | {r['z_endo']:.5f} | {r['seconds']:.1f} | "
-                  f"{r['factor_s']:.1f} | {r['fill']:,} | {r['off_diagonal_pivots']} | {r['pivoting_fallbacks']} |",
-                  flush=True)
+            out.add(level, r["n"], t, r["newton"], round(r["z_endo"], 5), round(r["seconds"], 1),
+                    round(r["factor_s"], 1), r["fill"], r["off_diagonal_pivots"], r["pivoting_fallbacks"])
         new, old = rows[THRESHOLDS[1]], rows[THRESHOLDS[0]]
-        print(f"| {level} | ratio 0 / 0.1 | | | | {new['seconds'] / old['seconds']:.2f} | "
-              f"{new['factor_s'] / old['factor_s']:.2f} | {new['fill'] / old['fill']:.2f} | | |", flush=True)
+        out.add(level, "ratio 0 / 0.1", None, None, None, round(new["seconds"] / old["seconds"], 2),
+                round(new["factor_s"] / old["factor_s"], 2), round(new["fill"] / old["fill"], 2), None, None)
+    return out
 
 
 def main():
@@ -68,26 +75,29 @@ def main():
     ap.add_argument("--levels", default="0,1", help="uniform refinements, comma separated")
     ap.add_argument("--solves", default="", help="levels of whole Taylor-Hood solves (none by default)")
     args = ap.parse_args()
-    print("| level | formulation | dofs | pivot_thresh | 1st factor (s) | refactor (s) | stored L+U | "
-          "off-diagonal pivots | fallbacks | backward err |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
-    ratios = []
+    runs = Table(f"Sparse LU of the first Newton matrix of Land problem 2 (curved P2 LV, h0 = {args.h0:g} mm, "
+                 "clamped base) with each pivot threshold",
+                 ["level", "formulation", "dofs", "pivot_thresh", "1st factor (s)", "refactor (s)",
+                  "stored L+U entries", "off-diagonal pivots", "fallbacks", "backward error"],
+                 "pointwise: P2 displacement, Guccione with kappa = 1000 kPa; taylor-hood: P2-P1, isochoric "
+                 "Guccione at kappa = inf (a saddle point with a zero pressure block).")
+    ratios = Table("Diagonal pivots (threshold 0) against threshold 0.1, same process",
+                   ["level", "formulation", "dofs", "refactor time 0 / 0.1", "fill 0 / 0.1"])
     for level in (int(v) for v in args.levels.split(",")):
         for name, options in FORMULATIONS.items():
             model, follower = ventricle_problem(args.h0, refinements=level, **options)
             blocks = step_blocks(model, follower)
             rows = {t: measure(model, blocks, pivot_thresh=t) for t in THRESHOLDS}
             for t, r in rows.items():
-                print(f"| {level} | {name} | {model.n} | {t:g} | {r['factor_s']:.2f} | {r['refactor_s']:.2f} | "
-                      f"{r['fill']:,} | {r['off_diagonal_pivots']} | {r['pivoting_fallbacks']} | "
-                      f"{r['backward_error']:.1e} |", flush=True)
+                runs.add(level, name, model.n, t, round(r["factor_s"], 2), round(r["refactor_s"], 2), r["fill"],
+                         r["off_diagonal_pivots"], r["pivoting_fallbacks"], float(f"{r['backward_error']:.1e}"))
             new, old = rows[THRESHOLDS[1]], rows[THRESHOLDS[0]]
-            ratios.append((level, name, model.n, new["refactor_s"] / old["refactor_s"], new["fill"] / old["fill"]))
-    print("\n| level | formulation | dofs | refactor 0 / 0.1 | fill 0 / 0.1 |\n|---|---|---|---|---|")
-    for level, name, n, t, f in ratios:
-        print(f"| {level} | {name} | {n} | {t:.2f} | {f:.2f} |")
+            ratios.add(level, name, model.n, round(new["refactor_s"] / old["refactor_s"], 2),
+                       round(new["fill"] / old["fill"], 2))
+    tables = [runs.as_dict(), ratios.as_dict()]
     if args.solves:
-        print_solves([int(v) for v in args.solves.split(",")], args.h0)
+        tables.append(solves_table([int(v) for v in args.solves.split(",")], args.h0).as_dict())
+    write_results("bench_pivot", command_line(), tables)
 
 
 if __name__ == "__main__":

@@ -15,6 +15,8 @@ The children inherit the CPU affinity (PARDISO runs one thread per allowed core;
     nice taskset -c 1 python bench/bench_reuse_memory.py              # level 1 (11,569 unknowns), ~4 min
     nice taskset -c 1 python bench/bench_reuse_memory.py --level 2    # 84,078 unknowns, ~1.5 h
     nice python bench/bench_reuse_memory.py --methods lu_reuse,pardiso_reuse --level 2
+
+Writes ``bench/results/bench_reuse_memory.json`` (`bench/results.py`).
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ import sys
 import time
 
 import numpy as np
+from results import Table, command_line, write_results
 
 
 def rss_gb() -> float:
@@ -82,18 +85,23 @@ def main():
         rows[method] = json.loads(out.strip().splitlines()[-1])
         print(json.dumps(rows[method]), flush=True)
     first = next(iter(rows.values()))
-    print(f"\nlevel {args.level}, {first['dofs']} unknowns, {args.steps} load increments, {first['cores']} core(s)\n")
-    print("| method | Newton its | factorizations | solve (s) | factorizations (s) | factor entries (M) | "
-          "RSS after 1st call (GB) | RSS at end (GB) | peak RSS (GB) | growth per factorization (MB) | z_endo | z_epi |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    out = Table(f"Whole Taylor-Hood solve of Land problem 2 (level {args.level}, {first['dofs']} unknowns, "
+                f"{args.steps} load increments, {first['cores']} core(s)) with each solver",
+                ["method", "Newton iterations", "factorizations", "solve (s)", "factorizations (s)",
+                 "factor entries (M)", "RSS after 1st call (GB)", "RSS at end (GB)", "peak RSS (GB)",
+                 "growth per factorization (MB)", "z_endo (mm)", "z_epi (mm)"],
+                "Ratio rows divide by the first method. A factorization that is not released shows as a growth "
+                "of about its size per factorization.")
     for r in rows.values():
-        print(f"| {r['method']} | {r['newton']} | {r['factorizations']} | {r['seconds']:.1f} | {r['factor_s']:.1f} | "
-              f"{r['fill'] / 1e6:.1f} | {r['rss_first']:.2f} | {r['rss_end']:.2f} | {r['peak_rss']:.2f} | "
-              f"{1e3 * r['growth_per_factor']:.1f} | {r['z_endo']:.6f} | {r['z_epi']:.6f} |")
+        out.add(r["method"], r["newton"], r["factorizations"], round(r["seconds"], 1), round(r["factor_s"], 1),
+                round(r["fill"] / 1e6, 1), round(r["rss_first"], 2), round(r["rss_end"], 2), round(r["peak_rss"], 2),
+                round(1e3 * r["growth_per_factor"], 1), round(r["z_endo"], 6), round(r["z_epi"], 6))
     for r in list(rows.values())[1:]:
-        ratio = lambda key: r[key] / first[key]
-        print(f"| ratio {r['method']} / {first['method']} | | {ratio('factorizations'):.2f} | {ratio('seconds'):.2f} | "
-              f"{ratio('factor_s'):.2f} | {ratio('fill'):.2f} | | | {ratio('peak_rss'):.2f} | | | |")
+        ratio = lambda key: round(r[key] / first[key], 2)
+        out.add(f"ratio {r['method']} / {first['method']}", None, ratio("factorizations"), ratio("seconds"),
+                ratio("factor_s"), ratio("fill"), None, None, ratio("peak_rss"), None, None, None)
+    write_results("bench_reuse_memory", command_line(), [out.as_dict()])
+
 
 if __name__ == "__main__":
     main()

@@ -10,6 +10,8 @@ part, max norm, and tau part) to SuperLU's, relative. Every method refines to th
 
     nice taskset -c 0 python bench/bench_solver_gradient.py                       # h = 3 mm
     nice taskset -c 0 python bench/bench_solver_gradient.py --h 2.5 --methods lu pardiso pardiso_single
+
+Writes ``bench/results/bench_solver_gradient.json`` (`bench/results.py`).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import time
 import numpy as np
 
 from bench_checkpoint import LV_STEPS, build_lv
+from results import Table, command_line, write_results
 
 METHODS = ("lu", "lu_reuse", "pardiso", "pardiso_reuse", "pardiso_single", "pardiso_single_reuse")
 
@@ -52,15 +55,18 @@ def main():
             if r == 3:
                 result[method] = (value, grad)
     model = runs["lu"][0].model
-    print(f"LV h = {args.h} mm: {model.n} unknowns, {runs['lu'][0].N} steps\n")
-    print("| solver | first incl. JIT (s) | gradient (s) | time / lu | J rel. diff | grad xi rel. diff (max) | grad tau rel. diff |")
-    print("|---|---|---|---|---|---|---|")
+    out = Table(f"One gradient of the ventricle example (h = {args.h:g} mm: {model.n} unknowns, {runs['lu'][0].N} "
+                "steps) with each linear solver; best of 3 after a first call",
+                ["solver", "first call incl. JIT (s)", "gradient (s)", "time / lu", "J rel. diff to lu",
+                 "grad xi rel. diff (max)", "grad tau rel. diff"])
     J0, g0 = result["lu"]
+    sig = lambda v: float(f"{v:.1e}")
     for method in methods:
         J, g = result[method]
-        print(f"| {method} | {first[method]:.1f} | {best[method]:.3f} | {best[method] / best['lu']:.2f} | "
-              f"{abs(J - J0) / abs(J0):.1e} | {np.max(np.abs(g.xi - g0.xi)) / np.max(np.abs(g0.xi)):.1e} | "
-              f"{abs(g.tau - g0.tau) / abs(g0.tau):.1e} |", flush=True)
+        out.add(method, round(first[method], 1), round(best[method], 3), round(best[method] / best["lu"], 2),
+                sig(abs(J - J0) / abs(J0)), sig(np.max(np.abs(g.xi - g0.xi)) / np.max(np.abs(g0.xi))),
+                sig(abs(g.tau - g0.tau) / abs(g0.tau)))
+    write_results("bench_solver_gradient", command_line(), [out.as_dict()])
 
 
 if __name__ == "__main__":

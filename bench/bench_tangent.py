@@ -1,6 +1,6 @@
 """Element tangent on 3D meshes: the reference route (``jax.hessian`` of ``a W(F) + b det F`` at
-every quadrature point, then one einsum with the shape gradients; hyperoc before this change,
-kept here verbatim as the baseline) against `StateModel.tangent_blocks` (Voigt second derivatives
+every quadrature point, then one einsum with the shape gradients, defined here as the
+baseline) against `StateModel.tangent_blocks` (Voigt second derivatives
 of W(E), B^T H B per cell, stress and det F Hessian in closed form, cells in chunks).
 
 Per case, same process, variants interleaved (old, new, old, new, ...; best of ``--reps``):
@@ -19,6 +19,9 @@ tangent and splits seconds per Newton iteration into the host linear solve and t
 
     nice python bench/bench_tangent.py                                  # all cases
     nice python bench/bench_tangent.py --cases shell-p1-nh --newton 2
+
+Writes ``bench/results/bench_tangent.json`` (`bench/results.py`): the ``total`` part per case, and the
+Newton figures with ``--newton``.
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import hyperoc as ho
+from results import Table, command_line, write_results
 from hyperoc.fibres import rule_based_fibres
 from hyperoc.geometry import thick_shell, ventricle
 from hyperoc.linsolve import SparseSolver
@@ -119,6 +123,16 @@ def best_interleaved(fns: dict, reps: int) -> dict:
     return {k: min(v) for k, v in times.items()}
 
 
+KERNELS = Table("Element tangents of one Newton iteration (jitted), best of the interleaved repetitions",
+                ["case", "cells", "degree", "dofs", "old total (s)", "new total (s)", "new / old",
+                 "max |K_new - K_old| / max |K_old|"],
+                "old: jax.hessian of a W(F) + b det F at every quadrature point, then one einsum with the shape "
+                "gradients (the reference route); new: StateModel.tangent_blocks.", echo=False)
+NEWTON = Table("Dynamic steps (dt = 0.01, theta = 1/2, lu_reuse) per tangent variant",
+               ["case", "tangent", "Newton iterations", "s / Newton iteration", "linear solve s / iteration",
+                "JAX s / iteration"], echo=False)
+
+
 def kernel_case(name, reps, lu):
     models = build(name)
     old, new = models[HessianTangentModel], models[ho.StateModel]
@@ -154,13 +168,15 @@ def kernel_case(name, reps, lu):
         o, n_ = t.get(f"old {part}"), t.get(f"new {part}")
         row = f"  {part:16s} {o:8.3f} " + (f"{n_:8.3f} {n_ / o:8.3f}" if n_ is not None else f"{'-':>8s} {'-':>8s}")
         print(row)
+    KERNELS.add(name, new.mesh.num_cells, new.space.degree, new.n, round(t["old total"], 3), round(t["new total"], 3),
+                round(t["new total"] / t["old total"], 3), float(f"{diff:.1e}"))
     print(f"  {'scatter':16s} {t_scatter:8.3f}   (np.bincount into CSR, same for both)")
     if lu:
         print(f"  {'lu':16s} {solver.stats['host_s']:8.3f}   (factor {solver.stats['factor_s']:.3f} s + solves, same for both)")
     return models
 
 
-def newton_case(models, steps):
+def newton_case(name, models, steps):
     print(f"\n  {steps} time steps (dt = 0.01, theta = 1/2, lu_reuse), per variant:")
     print(f"  {'tangent':8s} {'Newton its':>10s} {'s/Newton':>9s} {'linear s/it':>12s} {'JAX s/it':>9s} {'p_end':>22s}")
     rows = {}
@@ -180,6 +196,7 @@ def newton_case(models, steps):
         lin = solver.stats["host_s"]
         rows[label] = (wall / its, lin / its, (wall - lin) / its)
         print(f"  {label:8s} {its:10d} {wall / its:9.3f} {lin / its:12.3f} {(wall - lin) / its:9.3f} {sol.pressure[-1]:22.15g}")
+        NEWTON.add(name, label, its, round(wall / its, 3), round(lin / its, 3), round((wall - lin) / its, 3))
     o, n_ = rows["old"], rows["new"]
     print(f"  new/old: s/Newton {n_[0] / o[0]:.3f}, JAX part {n_[2] / o[2]:.3f}")
 
@@ -194,7 +211,8 @@ def main():
     for name in args.cases.split(","):
         models = kernel_case(name, args.reps, args.lu)
         if args.newton:
-            newton_case(models, args.newton)
+            newton_case(name, models, args.newton)
+    write_results("bench_tangent", command_line(), [KERNELS.as_dict()] + ([NEWTON.as_dict()] if NEWTON.rows else []))
 
 
 if __name__ == "__main__":

@@ -9,6 +9,8 @@ solves and the wall time, and the iterations relative to the first c given (the 
 
     nice taskset -c 1 python bench/bench_tau_scale.py --scales 1,range --max-iter 120 --gtol 1e-4   # ~13 min
     nice taskset -c 0 python bench/bench_tau_scale.py --scales 0.1,10,30 --max-iter 120 --gtol 1e-4
+
+Writes ``bench/results/bench_tau_scale.json`` (`bench/results.py`).
 """
 
 from __future__ import annotations
@@ -18,6 +20,8 @@ import time
 from pathlib import Path
 
 import hyperoc  # noqa: F401  (before JAX: hyperoc._jax sets JAX's flags)
+from results import Table, command_line, write_results
+
 from hyperoc.config import load_config
 from hyperoc.optimize import lbfgsb, tau_scaling, _tau_range
 from hyperoc.workflows import build_reduced
@@ -36,8 +40,11 @@ def main():
     tau0 = cfg.tau_starts()[0]
     J = build_reduced(cfg, tau0)
     baseline = None
-    print("| c | iterations | converged | J | tau | final / initial gradient | state solves | s | iterations / baseline |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    out = Table(f"L-BFGS-B on {Path(args.config).name} to a relative projected gradient of {args.gtol:g} "
+                f"(at most {args.max_iter} iterations) for each scaling c of tau",
+                ["c", "iterations", "converged", "J", "tau", "final / initial gradient", "state solves",
+                 "wall time (s)", "iterations / first c"],
+                "range: the default rule, both blocks normalized to their admissible ranges.")
     for text in args.scales.split(","):
         scale = text.strip() if text.strip() == "range" else float(text)
         c = tau_scaling(J, scale, _tau_range(J, cfg["optimize"].get("tau_margin"), False, tau0), cfg.xi_bounds())
@@ -48,8 +55,9 @@ def main():
         g = res.history["grad_norm"]
         baseline = baseline or res.iterations
         label = f"range ({c:.4g})" if scale == "range" else f"{c:g}"
-        print(f"| {label} | {res.iterations} | {res.converged} | {res.objective:.8f} | {res.point.tau:.4f} | "
-              f"{g[-1] / g[0]:.2e} | {J.counts['state'] - before} | {seconds:.0f} | {res.iterations / baseline:.2f} |", flush=True)
+        out.add(label, res.iterations, bool(res.converged), round(res.objective, 8), round(res.point.tau, 4),
+                float(f"{g[-1] / g[0]:.2e}"), J.counts["state"] - before, round(seconds), round(res.iterations / baseline, 2))
+    write_results("bench_tau_scale", command_line(), [out.as_dict()])
 
 
 if __name__ == "__main__":

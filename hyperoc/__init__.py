@@ -1,6 +1,6 @@
 """hyperoc: optimal control of damped hyperelastic bodies under a global volume constraint.
 
-The curated API (see the README for a tour)::
+The curated API (the documentation in docs/ gives a tour)::
 
     mesh        interval, rectangle, box, refine, Mesh; geometry: annulus, thick_shell, ventricle, from_file
     materials   SaintVenantKirchhoff, Fung, Ogden, NeoHookean; Guccione, HolzapfelOgden (fibre frames)

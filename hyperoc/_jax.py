@@ -11,11 +11,11 @@ kernels close over the mesh's quadrature arrays (shape gradients, weights, gathe
 each at 80k dofs), and in JAX's default mode XLA receives them as literals of the program and
 constant-folds products of them at compile time ("Constant folding an instruction is taking > 1s");
 in this mode they are passed as arguments. JAX reads the variable when it is imported, so after
-``import jax`` it is left alone. Results are bitwise the same; at 80k dofs compilation takes 0.39x
-the time and the kernels' peak memory is 0.53x, for 1.09-1.18x per kernel evaluation
-(bench/bench_constants.py, bench/README.md).
+``import jax`` it is left alone. Results are bitwise the same; compilation is faster and needs less
+memory, for a slightly slower kernel evaluation (``python bench/bench_constants.py``; the docs'
+performance page).
 
-These are the package's only global side effects, and they are documented in the README.
+These are the package's only global side effects, and they are documented in the docs.
 """
 
 import os

@@ -10,7 +10,7 @@ Going backwards with ``lambda = (dJ/dy0_{n+1}, dJ/dy1_{n+1})`` (totals, future i
 
 All partial derivatives are vector-Jacobian products of the same JAX residual that Newton solves,
 so the gradient is exact for the discrete J up to the Newton and linear-solver tolerances. This is
-the discrete counterpart of the paper's ``ende3``-``ende4``; ``dJ/dtau = sum_n dJ/ddt_n ddt_n/dtau``.
+the discrete counterpart of the paper's optimality conditions; ``dJ/dtau = sum_n dJ/ddt_n ddt_n/dtau``.
 
 Checkpointing (`Adjoint.record`, `Adjoint.backward_checkpointed`): the forward pass keeps the level
 state ``(y0, y1)`` only at the checkpoint levels ``0, k, 2k, ...`` (plus the few levels the

@@ -1,7 +1,7 @@
 """The paper's optimize-then-discretize gradient, kept for comparison with the exact one.
 
 Semi-discrete (FE in space) state: ``y0' = y1``, ``M y1' = B xi + f - kappa K y1 - R(y0) - p G(y0)``,
-``vol(y0) = V0``. Its continuous adjoint (paper ``sysadjoint-init``, Corollary ``cor-optcond``):
+``vol(y0) = V0``. Its continuous adjoint (the paper's adjoint system and optimality conditions):
 
     M zeta1' = -zeta0 + kappa K zeta1 - c_y1,   zeta0' = (K_T + p H) zeta1 - pi G - c_y0,   G^T zeta1 = 0,
 

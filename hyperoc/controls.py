@@ -3,7 +3,7 @@
 - `BodyForce`: ``<f(xi), phi> = int_omega xi . phi`` with a vector control xi (what the paper's
   1D experiment uses);
 - `ActiveStress`: ``<f(xi), phi> = int_omega xi (fhat (x) fhat) : grad phi`` with a scalar xi and a
-  unit fibre field fhat (paper ``sec-app-control``, with the paper's sign).
+  unit fibre field fhat (the paper's appendix on control operators, with the paper's sign).
 
 The control is discretized with the state's Lagrange space restricted to the closure of omega:
 its dofs are the nodal values on the nodes of the cells of omega. `ControlData.load` is the
@@ -228,7 +228,7 @@ class ActiveStress:
     """Active stress along fibres ``<f(xi), phi> = int_omega xi (fhat (x) fhat) : grad phi`` (scalar xi).
 
     ``xi`` is a stress (the material's units, kPa for the cardiac laws). The sign is the paper's
-    (``sec-app-control``): the load acts like a stress ``-xi fhat (x) fhat`` added to the first
+    (its appendix on control operators): the load acts like a stress ``-xi fhat (x) fhat`` added to the first
     Piola-Kirchhoff stress, so ``xi > 0`` pushes along the fibres and a contraction (fibre tension
     ``T_a > 0``) is ``xi = -T_a``.
 

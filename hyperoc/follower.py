@@ -82,14 +82,14 @@ def _outward_facets(mesh, facets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 class FollowerPressure:
     """Pressure ``pressure`` (kPa) on the deformed boundary part ``boundary`` of ``model``'s mesh.
 
+    Methods take the reduced displacement u (n,) and a load ``factor`` (the load step ``s``: the
+    pressure applied is ``factor * pressure``).
+
     Parameters
     ----------
     model : `hyperoc.model.StateModel` (2D or 3D, P1 or P2); its reduced dof numbering is used.
     boundary : name of a facet set of the mesh (``mesh.boundary(name)``), e.g. ``"endocardium"``.
     pressure : ``p_ext``, positive pushes into the body (against the outward normal), stress units.
-
-    Methods take the reduced displacement u (n,) and a load ``factor`` (the load step ``s``: the
-    pressure applied is ``factor * pressure``).
     """
 
     def __init__(self, model, boundary: str, pressure: float):

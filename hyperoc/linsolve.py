@@ -115,9 +115,8 @@ def nested_dissection(pattern) -> np.ndarray:
     """Fill-reducing order ``q`` (n,) of a structurally symmetric pattern, new index -> old index
     (the LU factors ``K[q][:, q]``), by METIS multilevel nested dissection of the graph of ``K``.
 
-    On 3D P2 meshes this gives 1.8x fewer stored factor entries and 3.5x faster SuperLU
-    factorizations than minimum degree (LV at 80k dofs: 111M against 204M stored entries of L and U,
-    18 s against 65 s; bench/README.md).
+    On 3D P2 meshes this gives fewer stored factor entries and faster SuperLU factorizations than
+    minimum degree (``python bench/bench_ordering.py``).
     """
     import pymetis
 
@@ -155,14 +154,14 @@ class SparseSolver:
         against K in double precision to the same ``rtol``, or the solve fails. The refinement of a
         fresh PARDISO factorization goes on while the backward error falls by 10% or more in 3 steps,
         up to ``refine_max_iter`` steps: its rate is ``|K_s^-1 K_a|``, K's skew part (follower
-        loads) against its symmetric part, plus ``cond * 6e-8`` with the single factor (Land
-        problem 2, sliding base, level 3: 8 steps, the cap before 2026-12-02, left 6e-12 > 1e-13).
+        loads) against its symmetric part, plus ``cond * 6e-8`` with the single factor, so a fixed
+        small cap on the steps would stop short of ``rtol`` on slightly nonsymmetric tangents.
         Needs the ``mkl`` package; ``pivot_thresh``, ``fallback_thresh`` and ``ordering`` do not
         apply (PARDISO orders with METIS and pivots in 1x1 and 2x2 blocks, perturbing the pivots it
         cannot take).
         ``"minres"``: MINRES preconditioned by the absolute diagonal (K is mass dominated in
         dynamics), restarted until the true backward error is ``<= rtol``. (Smoothed-aggregation
-        AMG of ``|K|``, set up at every call, was 10x slower here: see bench/README.md.)
+        AMG of ``|K|``, set up at every call, is far slower here: ``python bench/bench_2d3d.py``.)
     pivot_thresh, fallback_thresh : SuperLU keeps the diagonal pivot while
         ``|K_jj| >= thresh * max_i |K_ij|`` and swaps a row in otherwise, which breaks the
         nested-dissection structure and adds fill. The first factorization of a call uses
@@ -170,14 +169,14 @@ class SparseSolver:
         structure is kept); when iterative refinement with it does not reach ``rtol`` (tiny pivots),
         K is factored again with ``fallback_thresh`` (default 0.1) and ``stats["pivoting_fallbacks"]``
         counts it. On the Taylor-Hood saddle point (zero pressure diagonal, indefinite K_uu under
-        load) threshold 0.1 swapped thousands of rows: LV P2-P1 at 84k dofs, 249M stored entries
-        and 73 s per factorization against 122M and 21 s (bench/bench_pivot.py, bench/README.md).
+        load) threshold 0.1 swaps thousands of rows, with more fill and slower factorizations than
+        diagonal pivots (``python bench/bench_pivot.py``).
     rtol : backward-error tolerance of the iterative parts (``<= 1e-12``; the gradients are exact
         up to it).
     ordering : ``"nd"`` (default): METIS nested dissection of the pattern (`nested_dissection`),
         before the first factorization; ``"mmd"``: SuperLU's minimum degree on ``K + K^T``
-        (``MMD_AT_PLUS_A``), taken from the first factorization (the ordering before 2026-11-30,
-        kept for comparison: bench/bench_ordering.py).
+        (``MMD_AT_PLUS_A``), taken from the first factorization, kept for comparison
+        (``python bench/bench_ordering.py``).
 
     ``stats`` accumulates ``calls``, ``factorizations``, ``iterations`` (refinement or Krylov)
     and the host seconds ``order_s`` (nested dissection), ``assembly_s`` (blocks -> matrix),

@@ -229,8 +229,8 @@ class Guccione(Material):
     ``isochoric=True``: Q from the isochoric strain ``Ebar = (J^(-2/d) C - I) / 2`` instead of E (the
     Simo-Taylor-Pister split ``W = W_iso(Cbar) + U(J)``). The same law at J = 1, so the same
     incompressible limit, but a different compressible one: the bulk response is U alone, and at
-    a given kappa the body is more compressible (Land problem 2 at kappa = 1000 kPa: the apex
-    0.47 mm below its kappa -> infinity value, `bench/README.md`). Without U, the exponential part
+    a given kappa the body is more compressible (on Land problem 2, use kappa >= 1e4 kPa with it
+    to stay close to the incompressible limit). Without U, the exponential part
     then grows without bound as a point is compressed to J -> 0, unless it keeps its shape (``Cbar``
     bounded, e.g. a pure dilatation): uniaxially (``F = diag(lambda, 1, 1)``) the transverse
     ``Ebar_22 = Ebar_33 ~ lambda^(-2/3) / 2``. On E it stays bounded (``|E_ij| <= 1/2`` as F -> 0)

@@ -67,9 +67,16 @@ class TaylorHoodModel(StateModel):
     **kwargs : the boundary and frame arguments of `StateModel` (``dirichlet``,
         ``dirichlet_components``, ``pin_rigid``, ``frames``, ``neumann``, ``traction``).
 
-    Attributes: ``n_u`` displacement unknowns, ``n_p`` pressure unknowns (mesh vertices), ``n``
-    their sum; ``cell_dofs`` (nc, k_u + d + 1) the element unknowns, displacement first (node-major),
-    then the cell's vertex pressures.
+    Attributes
+    ----------
+    n_u : int
+        Displacement unknowns.
+    n_p : int
+        Pressure unknowns (mesh vertices).
+    n : int
+        Their sum.
+    cell_dofs : (nc, k_u + d + 1) array of int
+        The element unknowns, displacement first (node-major), then the cell's vertex pressures.
     """
 
     def __init__(self, mesh: Mesh, material: Material, *, bulk_modulus: float | None = None, **kwargs):

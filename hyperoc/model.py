@@ -161,11 +161,15 @@ class StateModel:
         3.6 kPa of 10); a rest that grows without bound as J -> 0 (`Guccione` ``isochoric=True``
         unless the point keeps its shape, neo-Hookean's ``-mu ln J``) resists it, and problem 2
         reaches 10 kPa. The pressure is one constant per cell, so on coarse meshes the solution
-        can be far softer than the limit (`bench/README.md`).
+        can be far softer than the limit.
 
-    Attributes ``rigid_modes`` (n, m): orthonormal reduced vectors of the rigid motions that the
-    constraints (with pins) leave free, m = 0 normally; ``pinned_dofs``: global dofs
-    (``node * dim + component``) fixed by ``pin_rigid``.
+    Attributes
+    ----------
+    rigid_modes : (n, m) array
+        Orthonormal reduced vectors of the rigid motions that the constraints (with pins) leave
+        free; m = 0 normally.
+    pinned_dofs : array of int
+        Global dofs (``node * dim + component``) fixed by ``pin_rigid``.
     """
 
     def __init__(self, mesh: Mesh, material: Material, *, degree: int = 1, kappa: float = 0.0, density: float = 1.0,

@@ -85,8 +85,8 @@ class PardisoLDL:
 
     A matrix or right-hand side with a NaN or Inf entry (in the precision PARDISO gets: a double above
     3.4e38 is Inf in single precision) raises ``LinAlgError`` before PARDISO sees it: its scaling and
-    matching on such values corrupted the heap ("double free or corruption", the process aborted),
-    measured on a Newton iterate of Land problem 3 that had inverted elements.
+    matching on such values can corrupt the heap ("double free or corruption", the process aborts),
+    as on a Newton iterate with inverted elements.
     """
 
     def __init__(self, upper: sp.csr_matrix, *, single: bool = False):

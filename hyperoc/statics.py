@@ -178,14 +178,14 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
         equilibrium; ``"secant"``, the linear extrapolation of the last two equilibria (u and p) to
         the new load factor, first-order accurate in the increment where the previous one is
         zeroth-order: fewer Newton iterations on a smooth path, but on a response that stiffens
-        along the path it overshoots (Land problem 2: more halved increments, bench/README.md).
+        along the path it overshoots (Land problem 2: more halved increments).
     guess : a starting point (n,) for Newton directly at the full load, e.g. the solution on the
         next coarser mesh carried over by `StateModel.prolong` (nested iteration: the guess is off
         by the coarse discretization error only, so Newton converges in a few iterations and the
         load path is not walked again). This Newton always backtracks (``line_search`` concerns
         the load steps): with no small load increment to bound it, a full Newton step from such a
         guess can overshoot (Land problem 2, Taylor-Hood, level 1 -> 2: full steps diverge,
-        backtracking converges in 9 iterations, bench/README.md). The multiplier starts at the
+        backtracking converges in a few iterations). The multiplier starts at the
         least-squares balance of the forces at the guess, ``-G.r / G.G`` (one Newton iteration fewer
         than from 0 on the test plate from its 0.9-load equilibrium, as from the exact one). If
         Newton fails from it, a `RuntimeWarning` says why and the load stepping from ``u0`` runs as
@@ -198,8 +198,11 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
         prints them as they come). A host callback from the compiled loop: the solve is compiled once
         with it (for any monitor) and once without.
 
-    Raises `SolverError` naming the load step (index of the failed increment, and its load factor as
-    ``time``) when Newton fails or an element inverts (``det F <= 0``) and no cutback is left.
+    Raises
+    ------
+    SolverError
+        Naming the load step (index of the failed increment, and its load factor as ``time``) when
+        Newton fails or an element inverts (``det F <= 0``) and no cutback is left.
     """
     followers = (follower,) if not isinstance(follower, (tuple, list)) else tuple(follower)
     if predictor not in ("previous", "secant"):

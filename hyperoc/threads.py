@@ -4,8 +4,8 @@ XLA sizes its CPU thread pool by the CPUs the process may run on when the backen
 with one (``taskset -c 0 ...``), the pool has a single thread, and `jax.pure_callback` (the host
 sparse solve of `hyperoc.linsolve`) can deadlock: the callback's operands are copied to the CPU
 device by a task queued on that pool, whose only thread is the one waiting inside the callback.
-Measured with jax 0.10.2: the Land et al. ventricle (h = 9 mm, 1515 dofs, 5 load steps) hangs with
-no CPU use under ``taskset -c 0``, and runs in 14 s when the backend is started as below.
+With jax 0.10, a quasi-static solve of the Land et al. ventricle hangs with no CPU use under
+``taskset -c 0``, and runs normally when the backend is started as below (`tests/test_threads.py`).
 
 `start_backend` therefore starts the backend on every CPU of the machine and then binds the calling
 thread and the threads XLA started back to the CPUs the caller had (threads that existed before keep
@@ -23,7 +23,7 @@ import jax
 __all__ = ["bind_threads", "start_backend", "ONE_THREAD_POOL"]
 
 #: Environment variable: ``"1"`` keeps a process started on one CPU at XLA's one-thread pool, for
-#: processes that run no host solves (`hyperoc.paper`'s 1D workers: one thread is 1.2x faster there).
+#: processes that run no host solves (`hyperoc.paper`'s 1D workers, which run faster with one thread).
 ONE_THREAD_POOL = "HYPEROC_ONE_THREAD_POOL"
 
 

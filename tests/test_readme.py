@@ -1,24 +1,26 @@
-"""The README's Python API snippets run as printed (with 2 optimizer iterations instead of 50 or 100), so
-the names and signatures they show stay those of the package."""
+"""The Python snippets of the README and of the docs' cardiac page run as printed (with 2 optimizer
+iterations instead of 50 or 100), so the names and signatures they show stay those of the package."""
 
 import re
 from pathlib import Path
 
 import numpy as np
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+CARDIAC = ROOT / "docs" / "cardiac.md"
 
 
-def snippet(after: str, iterations: str) -> dict:
-    """Run the first ```python block after the line starting with ``after``, with ``iterations``
-    (e.g. "max_iter=50") replaced by "max_iter=2"; returns its names."""
-    text = README.read_text()
+def snippet(after: str, iterations: str, source: Path = README) -> dict:
+    """Run the first ```python block of ``source`` after the line starting with ``after``, with
+    ``iterations`` (e.g. "max_iter=50") replaced by "max_iter=2"; returns its names."""
+    text = source.read_text()
     match = re.search(r"```python\n(.*?)```", text[text.index(after):], re.S)
     assert match, f"README: no python block after {after!r}"
     code = match.group(1)
     assert iterations in code
     names = {}
-    exec(compile(code.replace(iterations, "max_iter=2"), str(README), "exec"), names)
+    exec(compile(code.replace(iterations, "max_iter=2"), str(source), "exec"), names)
     return names
 
 
@@ -35,7 +37,7 @@ def test_readme_python_api_snippet_runs():
 
 
 def test_readme_ventricle_snippet_runs():
-    names = snippet("The ventricle example (`examples/ventricle-3d.toml`) in Python", "max_iter=100")
+    names = snippet("The ventricle example in Python", "max_iter=100", CARDIAC)
     value, grad, taylor, result = names["value"], names["grad"], names["taylor"], names["result"]
     assert np.isfinite(value) and np.all(np.isfinite(grad.xi)) and np.isfinite(grad.tau)
     # The exact gradient of the discrete J: remainders O(h^2), the rate in [1.9, 2.1] on the
