@@ -23,14 +23,10 @@ Tables:
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import sys
-import tempfile
 import time
-from pathlib import Path
 
 import numpy as np
+from results import command_line, table, write_results
 
 from hyperoc.errors import SolverError
 from hyperoc.optimize import barzilai_borwein
@@ -39,7 +35,6 @@ from hyperoc.reduced import ControlPoint
 from hyperoc.workflows import build_reduced
 
 TAU0 = 7.5
-RESULTS = Path(__file__).parent / "results" / "wellposed.json"
 COLUMNS = ["beta", "h", "dt", "J", "p(tau)", "max |xi|", "min det F", "at t", "tau", "iterations",
            "final rel. gradient", "failed trials", "stop"]
 
@@ -81,15 +76,6 @@ def _fmt(v) -> str:
     return f"{v:.6g}" if isinstance(v, float) else str(v)
 
 
-def write_results(name: str, command: str, tables: list, path: Path = RESULTS) -> None:
-    """``bench/results/<name>.json``, written atomically."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        json.dump({"bench": name, "command": command, "tables": tables}, f, indent=1)
-    os.replace(tmp, path)
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--betas", default="1e-3", help="comma-separated beta > 0 to compare with beta = 0")
@@ -109,14 +95,13 @@ def main() -> None:
     load_rows = [nodal_load_response(h) for h in hs + ([0.01] if 0.01 not in hs else [])]
     for r in load_rows:
         print("unit nodal load: h", _fmt(r[0]), "p(tau) at x=1:", _fmt(r[1]), "at x=1-h:", _fmt(r[2]))
-    command = " ".join(["python bench/bench_wellposed.py", *sys.argv[1:]])
-    write_results("wellposed", command, [
-        {"title": "End point of Algorithm 1 on the paper's setup (start xi = 0, tau = 7.5)", "columns": COLUMNS,
-         "rows": rows, "notes": "min det F over all levels of the end point's state; 'failed trials': trial points "
-                                "where the state solver failed (an element inverted)"},
-        {"title": "p(tau) for a unit nodal load on [6.5, 7.5] (dt = 0.04)", "columns":
-         ["h", "p(tau), load at x = 1", "p(tau), load at x = 1 - h", "h/2", "h"], "rows": load_rows,
-         "notes": "the load at the constrained node reaches the multiplier without straining an element"},
+    write_results("bench_wellposed", command_line(), [
+        table("End point of Algorithm 1 on the paper's setup (start xi = 0, tau = 7.5)", COLUMNS, rows,
+              "min det F over all levels of the end point's state, 'at t' its time; 'failed trials': trial points "
+              "where the state solver failed (an element inverted)"),
+        table("p(tau) for a unit nodal load on [6.5, 7.5] (dt = 0.04)",
+              ["h", "p(tau), load at x = 1", "p(tau), load at x = 1 - h", "h/2", "h"], load_rows,
+              "the load at the constrained node reaches the multiplier without straining an element"),
     ])
 
 
