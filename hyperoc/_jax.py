@@ -15,7 +15,9 @@ in this mode they are passed as arguments. JAX reads the variable when it is imp
 memory, for a slightly slower kernel evaluation (``python bench/bench_constants.py``; the docs'
 performance page).
 
-These are the package's only global side effects, and they are documented in the docs.
+These are the package's only global side effects at import, and they are documented in the docs.
+The persistent compilation cache (`enable_compilation_cache`) is turned on by the command line,
+not at import.
 """
 
 import os
@@ -30,3 +32,28 @@ from .threads import start_backend  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 start_backend()
+
+
+def enable_compilation_cache(directory=None):
+    """Turn on JAX's persistent compilation cache: compiled XLA programs are written to ``directory``
+    and reused by later processes with the same program, shapes and JAX version, so a second run of a
+    job skips most of its compilation. Programs that compile in under 0.1 s are not stored.
+
+    ``directory`` defaults to ``$HYPEROC_CACHE_DIR``, else ``$XDG_CACHE_HOME/hyperoc/jax`` (``~/.cache``
+    when unset). ``HYPEROC_COMPILATION_CACHE=0`` turns it off. Returns the directory used, or None.
+    """
+    from pathlib import Path
+
+    if os.environ.get("HYPEROC_COMPILATION_CACHE", "1") == "0":
+        return None
+    if directory is None:
+        directory = os.environ.get("HYPEROC_CACHE_DIR") or (
+            Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "hyperoc" / "jax")
+    directory = Path(directory)
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError:  # an unwritable cache is not a reason to fail a run: compile as without it
+        return None
+    jax.config.update("jax_compilation_cache_dir", str(directory))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.1)
+    return directory
