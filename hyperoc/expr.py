@@ -256,8 +256,18 @@ def _children(node: ast.AST) -> list:
     return []
 
 
+def _preorder(root: ast.AST):
+    """The nodes under ``root``, every node before its operands, left to right (an explicit stack:
+    no recursion)."""
+    stack = [root]
+    while stack:
+        node = stack.pop()
+        yield node
+        stack.extend(reversed(_children(node)))
+
+
 def _postorder(root: ast.AST) -> list:
-    """The nodes under ``root``, every node after its operands (an explicit stack: no recursion)."""
+    """The nodes under ``root``, every node after its operands."""
     order, stack = [], [root]
     while stack:
         node = stack.pop()
@@ -267,9 +277,10 @@ def _postorder(root: ast.AST) -> list:
 
 
 def _check(root: ast.AST, variables: frozenset, source: str) -> set:
-    """Validate every node under ``root``; return the variable names it uses."""
+    """Validate every node under ``root``, outermost first (a call's name before its arguments);
+    return the variable names it uses."""
     names = set()
-    for node in _postorder(root):
+    for node in _preorder(root):
         names |= _check_node(node, variables, source)
     return names
 
