@@ -138,18 +138,18 @@ def _optimize(args) -> None:
                        model=model, iterations_done=done)
     print(f"tau = {summary.get('tau', float('nan')):.6g}  J = {summary.get('objective', float('nan')):.6g}  "
           f"converged = {summary.get('converged')}  -> {out / 'summary.json'}")
-    _print_stop(summary)
+    _print_stop(summary, out)
 
 
-def _print_stop(summary: dict) -> None:
+def _print_stop(summary: dict, out: Path) -> None:
     """The optimizer's stop reason, a best iterate it did not end at, and the physics warnings."""
     opt = summary.get("optimization", {})
     if opt.get("message"):
         print(f"stopped: {opt['message']}")
     best = opt.get("best")
-    if best and best["objective"] > opt.get("objective", float("inf")):
+    if best:
         print(f"best iterate: J = {best['objective']:.6g} at iteration {best['iteration']} (tau = {best['tau']:.6g}), "
-              f"above the final J; saved in {summary.get('files', {}).get('best', 'best.npz')}")
+              f"above the final J = {opt['objective']:.6g}: {out / best['file']}")
     for w in summary.get("warnings", []):
         print(f"warning: {w}", file=sys.stderr)
 

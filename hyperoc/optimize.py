@@ -33,7 +33,9 @@ __all__ = ["OptimizationResult", "EvaluationCache", "BBStepRule", "LumpedMetric"
 
 @dataclass
 class OptimizationResult:
-    """Final point, objective, convergence flag and per-iteration histories."""
+    """Final point, objective, convergence flag (``message``: why it stopped) and per-iteration
+    histories; ``best``: ``{"point", "objective", "iteration"}`` of an earlier iterate with a higher
+    J than the final one (a non-monotone method can end below its best value), else None."""
 
     point: ControlPoint
     objective: float
@@ -44,8 +46,12 @@ class OptimizationResult:
     wall_time: float = 0.0
     evaluations: dict = field(default_factory=dict)
     failed_trials: int = 0
+    best: dict | None = None
 
     def summary(self) -> dict:
+        best = None if self.best is None else {"objective": float(self.best["objective"]),
+                                               "iteration": int(self.best["iteration"]),
+                                               "tau": float(self.best["point"].tau)}
         return {
             "tau": float(self.point.tau),
             "objective": float(self.objective),
@@ -59,6 +65,7 @@ class OptimizationResult:
             "wall_time_s": float(self.wall_time),
             "evaluations": dict(self.evaluations),
             "failed_trials": int(self.failed_trials),
+            "best": best,
         }
 
 

@@ -15,7 +15,7 @@ import numpy as np
 from .config import Config
 from .dynamics import TimeStepper, detect_regimes
 from .errors import InputError
-from .io import read_json, write_json
+from .io import read_json, write_json, write_npz
 from .optimize import EvaluationCache, OptimizationResult, barzilai_borwein, lbfgsb, newton_cg
 from .reduced import ControlPoint, ReducedFunctional
 from .report import write_state_outputs
@@ -24,6 +24,7 @@ from .verification import random_directions, taylor_test
 __all__ = ["check_run", "simulate", "build_reduced", "optimize_single", "optimize", "check_gradient", "resume_state"]
 
 ITERATIONS_FILE = "iterations.json"  # in a run's checkpoint folder: the last iteration completed
+BEST_FILE = "best.npz"  # an iterate with a higher J than the final one (`OptimizationResult.best`)
 
 
 def check_run(cfg: Config, command: str, mesh=None):
@@ -87,8 +88,13 @@ def optimize_single(cfg: Config, tau0: float, *, checkpoint=None, progress: bool
     J = J or build_reduced(cfg, tau0)
     o = cfg["optimize"]
     bar = _progress_bar(progress, o["max_iter"], f"optimize (tau0={tau0:g})", iterations_done)
+    best = {"objective": -np.inf}
+    if checkpoint is not None:
+        Path(checkpoint).mkdir(parents=True, exist_ok=True)
 
     def callback(k, m, value, measure):  # measure: the stopping test's (projected, with bounds) ||G||
+        if value > best["objective"]:
+            best.update(point=m, objective=value, iteration=k)
         if checkpoint is not None and k > iterations_done:
             write_json(Path(checkpoint) / ITERATIONS_FILE, {"iterations": k})
         if bar is not None and k > iterations_done:
@@ -106,6 +112,9 @@ def optimize_single(cfg: Config, tau0: float, *, checkpoint=None, progress: bool
         res = lbfgsb(J, J.zero(tau0), tau_scale=o["tau_scale"], **kwargs)
     if bar is not None:
         bar.close()
+    if res.history["objective"] and res.history["objective"][0] > best["objective"]:
+        best.update(point=J.zero(tau0), objective=res.history["objective"][0], iteration=0)
+    res.best = best if best["objective"] > res.objective else None
     return J, res
 
 
@@ -149,6 +158,10 @@ def write_optimization_outputs(out: Path, cfg: Config, J: ReducedFunctional, res
     summary = {**res.summary(), "objective_terms": parts, "tau0": float(res.history["tau"][0]),
                **(extra or {})}
     hist = {"objective": res.history["objective"], "grad_norm": res.history["grad_norm"], "tau": res.history["tau"]}
+    if res.best is not None:  # the final iterate is written below; the better earlier one beside it
+        write_npz(out / BEST_FILE, xi=res.best["point"].xi, tau=np.float64(res.best["point"].tau),
+                  objective=np.float64(res.best["objective"]), iteration=np.int64(res.best["iteration"]))
+        summary["best"]["file"] = BEST_FILE
     o = cfg["output"]
     return write_state_outputs(out, sol, tau=res.point.tau, eps=J.transform.eps or None, history=hist,
                                snapshot_times=o.get("snapshot_times"), series_every=o.get("series_every"),
