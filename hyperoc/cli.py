@@ -185,13 +185,16 @@ def _check_gradient(args) -> None:
     cfg, _ = _checked_config(args.config, args.overrides, None, "optimize", args.force)
     from .workflows import check_gradient
 
-    res = check_gradient(cfg, seed=args.seed)
+    if not args.json:
+        print("Taylor tests along xi, tau and (xi, tau) (a few state and adjoint solves each):", flush=True)
+    res = check_gradient(cfg, seed=args.seed, report=None if args.json else _print_taylor)
     if args.json:
         print(json.dumps(res, indent=2))
-        return
-    for name, r in res.items():
-        print(f"{name:6s} rate {r['rate']:.3f} ({'pass' if r['passed'] else 'FAIL'}: expected 2)  "
-              f"remainders {', '.join(f'{x:.2e}' for x in r['remainder'])}")
+
+
+def _print_taylor(name: str, r: dict) -> None:
+    print(f"{name:6s} rate {r['rate']:.3f} ({'pass' if r['passed'] else 'FAIL'}: expected 2)  "
+          f"remainders {', '.join(f'{x:.2e}' for x in r['remainder'])}", flush=True)
 
 
 def _reproduce(args) -> None:

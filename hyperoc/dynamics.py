@@ -331,7 +331,8 @@ class TimeStepper:
         `SolverError` is raised), e.g. ``monitor=lambda r: print(r.step, r.describe())``. With a
         monitor the steps are driven from Python even when the linear solver is traced (one
         dispatch per step instead of one compiled loop). ``progress``: a bar over the steps showing
-        the last record, where the steps are driven from Python (a host solver, or a monitor).
+        the last record, where the steps are driven from Python (a host solver, or a monitor),
+        labelled "compiling" until the first step has run.
 
         ``external``: external load vectors per level, (N+1, n), or a callable ``t -> (n,)``
         (e.g. ``lambda t: model.load_vector(traction=g, t=t)``); default: the model's constant traction.
@@ -406,12 +407,15 @@ class TimeStepper:
 
         carry = (jnp.asarray(y0), jnp.asarray(y1), jnp.asarray(p0, dtype=jnp.float64), jnp.asarray(False))
         outs = []
-        steps = tqdm(range(grid.num_steps), disable=not progress, desc="time steps", leave=False)
+        steps = tqdm(range(grid.num_steps), disable=not progress, desc="compiling", leave=False)
         for n in steps:
             inputs = (jnp.asarray(xis[n]), jnp.asarray(xis[n + 1]), jnp.asarray(fs[n]), jnp.asarray(fs[n + 1]), grid.dt[n], V0)
             carry, out = self._jit_step(carry, inputs)
             out = [np.asarray(o) for o in out]
             outs.append(out)
+            if n == 0 and progress:  # the ETA from here on counts steps, not the compilation
+                steps.set_description("time steps", refresh=False)
+                steps.reset()
             if monitor is not None or progress:
                 record = self._record(n, grid, out, V0)
                 steps.set_postfix_str(record.describe(), refresh=False)

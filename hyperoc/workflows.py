@@ -249,12 +249,12 @@ def _multistart(cfg: Config, out: Path, starts, scheduler, workers) -> list:
     return [results[k] for k in sorted(results)]
 
 
-def check_gradient(cfg: Config, *, seed: int = 0, J: ReducedFunctional | None = None) -> dict:
+def check_gradient(cfg: Config, *, seed: int = 0, J: ReducedFunctional | None = None, report=None) -> dict:
     """Taylor tests of the exact gradient at a nonzero control, for xi, tau and joint directions.
 
     The point is ``xi = 0.1 * xi_scale * (smooth random field)`` and the configured tau0 (or T/2),
     so that J depends on tau (at xi = 0 the state is trivial and J is flat in tau). ``J``: as in
-    `optimize_single`.
+    `optimize_single`. ``report(name, result)``: called as each direction's test ends.
     """
     tau0 = cfg.tau_starts()[0]
     J = J or build_reduced(cfg, tau0)
@@ -264,4 +264,6 @@ def check_gradient(cfg: Config, *, seed: int = 0, J: ReducedFunctional | None = 
     for name, dm in random_directions(J, m, seed=seed + 1).items():
         r = taylor_test(J, m, dm)
         out[name] = r.as_dict()
+        if report is not None:
+            report(name, out[name])
     return out

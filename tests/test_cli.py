@@ -67,7 +67,16 @@ def test_check_gradient_json(tmp_path, capsys):
     res = json.loads(capsys.readouterr().out)
     assert set(res) == {"xi", "tau", "joint"}
     for r in res.values():
-        assert 1.9 <= r["rate"] <= 2.1
+        assert 1.9 <= r["rate"] <= 2.1 and r["passed"]
+
+
+def test_progress_bar_labels_the_compilation(tmp_path, capsys):
+    """Steps driven from Python (here a host sparse solver): the bar says "compiling" until the
+    first step has run, then counts time steps."""
+    cfg = _write(tmp_path, SMALL_1D)
+    assert main(["simulate", str(cfg), "--out", str(tmp_path / "o"), "--set", "dynamics.solver=lu"]) == 0
+    err = capsys.readouterr().err
+    assert err.index("compiling:") < err.index("time steps:")
 
 
 @pytest.mark.parametrize(
