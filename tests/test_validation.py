@@ -179,7 +179,9 @@ def _paths(tmp_path) -> dict:
     _write(tmp_path / "a_file", "x")
     _write(tmp_path / "bad.toml", "[mesh\nkind = ")
     (tmp_path / "binary.toml").write_bytes(b"\xff\xfe\x00[mesh]")
-    return {"cfg": str(_write(tmp_path / "c.toml", SMALL_1D)), "file": str(tmp_path / "a_file"),
+    _write(tmp_path / "garbage.msh", "garbage")
+    mesh = _write(tmp_path / "mesh.toml", SMALL_1D.replace('kind = "interval"\nn = 20', 'kind = "file"\nfile = "garbage.msh"'))
+    return {"cfg": str(_write(tmp_path / "c.toml", SMALL_1D)), "file": str(tmp_path / "a_file"), "mesh": str(mesh),
             "folder": str(tmp_path / "folder.toml"), "bad": str(tmp_path / "bad.toml"),
             "binary": str(tmp_path / "binary.toml"), "missing": str(tmp_path / "missing.toml")}
 
@@ -189,6 +191,7 @@ def _paths(tmp_path) -> dict:
     (["simulate", "{missing}", "--out", "{out}"], "config file not found"),
     (["simulate", "{bad}", "--out", "{out}"], "invalid TOML"),
     (["simulate", "{binary}", "--out", "{out}"], "invalid TOML"),
+    (["simulate", "{mesh}", "--out", "{out}"], "cannot read mesh file"),
     (["simulate", "{cfg}", "--out", "{file}"], "is a file, not a folder"),
     (["simulate", "{cfg}", "--out", "{file}/sub/dir"], "is a file, so no folder can be made under it"),
     (["simulate", "{cfg}", "--out", "/proc/hyperoc-out"], "/proc is not writable"),
@@ -242,3 +245,16 @@ def test_configuration_reference_is_the_schemas():
         assert f"## [{name}]" in text
         for key, field in model.model_fields.items():
             assert f"| `{field.alias or key}` |" in text
+
+
+def test_keys_of_other_kinds_at_their_defaults_are_dropped(tmp_path):
+    """A config.toml written with every default (as before keys were tied to kinds) still loads,
+    and the sections keep only the keys that apply."""
+    from hyperoc.config import load_config
+
+    text = SMALL_1D.replace("n = 20", "n = 20\nr_inner = 0.5\nstructured = false").replace(
+        "alpha = 2e-3", "alpha = 2e-3\neps = 0.0").replace("max_iter = 4", 'max_iter = 4\ntau_scale = "range"\nmax_cg = 20')
+    cfg = load_config(_write(tmp_path / "c.toml", text))
+    assert cfg["mesh"] == {"kind": "interval", "n": 20, "length": 1.0, "degree": 1, "refinements": 0}
+    assert "eps" not in cfg["objective"] and not {"tau_scale", "max_cg"} & set(cfg["optimize"])
+    assert load_config(_write(tmp_path / "again.toml", cfg.to_toml()))["mesh"] == cfg["mesh"]
