@@ -5,9 +5,10 @@ Exit status: 0 success; 1 solver failure (the message names the time step and th
 memory), with one line on stderr, no traceback and nothing written.
 
 Every input is checked before anything is written or solved, in order of cost: the configuration
-against its schema, the output folder, the files it names and the problem's size (no JAX
-imported: these errors come at once), then the model and the prescribed control on the actual
-space-time grid (`hyperoc.workflows.check_run`).
+against its schema, the output folder, the files it names, the problem's size, the mesh and the
+prescribed control on the actual space-time grid (`hyperoc.preflight`, no JAX imported: these
+errors come at once), then the model, with the material law's own checks
+(`hyperoc.workflows.check_run`).
 """
 
 from __future__ import annotations

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import math
+import typing
 from typing import Annotated, Any, ClassVar, Literal, Optional
 
 import annotated_types as at
@@ -403,18 +404,40 @@ _TYPE_WORDS = {"int": "an integer", "float": "a number", "bool": "true or false"
 
 def _message(error: dict) -> str:
     """One line for pydantic's ``error`` (its first one): ``config: [section] key <what is wrong>``."""
-    loc = [str(p) for p in error["loc"] if not str(p).startswith("function-")]
-    section = f"[{loc[0]}] " if loc else ""
-    key = " ".join(loc[1:])
+    loc = [p for p in error["loc"] if not str(p).startswith("function-")]
+    where = "config: " + (f"[{loc[0]}] " if loc else "") + _key_text(loc[1:])
     kind, ctx, value = error["type"], error.get("ctx", {}), error.get("input")
     if kind == "extra_forbidden":
         if len(loc) == 1:
             return f"config: unknown section [{loc[0]}]; allowed: {', '.join(SECTIONS)}"
-        return f"config: {section}unknown key {loc[-1]!r}"
+        model = _model_at(loc[:-1])
+        keys = ", ".join(f.alias or k for k, f in model.model_fields.items()) if model else ""
+        table = f"[{loc[0]}] " + _key_text(loc[1:-1])
+        return f"config: {table}unknown key {quote(loc[-1], 40)}" + (f" (keys: {keys})" if keys else "")
     if kind == "value_error":
-        text = str(ctx.get("error", error["msg"]))
-        return f"config: {section}{key + ' ' if key else ''}{text}"
-    return f"config: {section}{key} {_requirement(kind, ctx)}, got {_value_text(value)}".replace("  ", " ")
+        return f"{where}{str(ctx.get('error', error['msg']))}"
+    return f"{where}{_requirement(kind, ctx)}, got {_value_text(value)}"
+
+
+def _key_text(path: list) -> str:
+    """``key``, ``key[0]`` or ``region lower[1]`` followed by a space ("" for no key)."""
+    text = ""
+    for p in path:
+        text += f"[{p}]" if isinstance(p, int) else f"{' ' if text else ''}{p}"
+    return text + " " if text else ""
+
+
+def _model_at(path: list):
+    """The section model (or sub-table model) at a location of the config, if any."""
+    model = ConfigSchema
+    for name in path:
+        field = model.model_fields.get(name) if isinstance(name, str) else None
+        inner = [a for a in (field.annotation, *typing.get_args(field.annotation)) if isinstance(a, type)
+                 and issubclass(a, BaseModel)] if field else []
+        if not inner:
+            return None
+        model = inner[0]
+    return model
 
 
 def _requirement(kind: str, ctx: dict) -> str:
