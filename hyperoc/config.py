@@ -65,6 +65,14 @@ class Config:
             mesh = refine(mesh)
         return mesh
 
+    def file_mesh(self):
+        """The mesh read from ``[mesh] file``, before refinements."""
+        from . import geometry
+
+        c = self["mesh"]
+        return geometry.from_file(self.mesh_path(), dirichlet=c["dirichlet_tag"], neumann=c["neumann_tag"],
+                                  control=c["control_tag"])
+
     def mesh_path(self) -> Path | None:
         """``[mesh] file`` resolved against the config's folder (None for a generated mesh)."""
         c = self["mesh"]
@@ -86,10 +94,7 @@ class Config:
         if kind == "box":
             return box(c["nx"], c.get("ny"), c.get("nz"), tuple(c.get("size", (1.0, 1.0, 1.0))), c["dirichlet"])
         if kind == "file":
-            from . import geometry
-
-            return geometry.from_file(self.mesh_path(), dirichlet=c["dirichlet_tag"], neumann=c["neumann_tag"],
-                                      control=c["control_tag"])
+            return self.file_mesh()
         raise InputError(f"config: [mesh] kind {kind!r} unknown (interval, rectangle, box, annulus, shell, ventricle, file)")
 
     def _curved_mesh(self, kind: str, refinements: int):

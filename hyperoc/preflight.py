@@ -147,8 +147,8 @@ def _mesh_cells(cfg) -> tuple[int, float]:
     if kind == "ventricle":  # `hyperoc.geometry.ventricle`'s default wall: endo (7, 17), epi (10, 20), base z = 5
         volume = _cut_spheroid_volume(10.0, 20.0, 5.0) - _cut_spheroid_volume(7.0, 17.0, 5.0)
         return 3, volume / (SIMPLEX_VOLUME[3] * m["h"] ** 3)
-    mesh = cfg.mesh()  # a file: its size is the size of what is on disk
-    return mesh.dim, mesh.num_cells / 2 ** (mesh.dim * m["refinements"])
+    mesh = cfg.file_mesh()  # its size is the size of what is on disk
+    return mesh.dim, mesh.num_cells
 
 
 def _cut_spheroid_volume(a: float, c: float, z0: float) -> float:
