@@ -66,7 +66,7 @@ def _ordered_pair(value):
     return value
 
 
-Expressions = Annotated[Any, BeforeValidator(_expressions), Field(json_schema_extra={"type": "expression(s)"})]
+Expressions = Annotated[Any, BeforeValidator(_expressions)]
 TauScale = Annotated[Any, BeforeValidator(_tau_scale), Field(json_schema_extra={"type": "'range' or number"})]
 Bounds = Annotated[list[Number], AfterValidator(_ordered_pair)]
 
@@ -273,7 +273,8 @@ class Control(Section):
         "body_force", description="a body force (one component per dimension) or a fibre active stress (one)")
     region: Optional[Region] = Field(None, description="support of the control (default: the whole body)")
     value: Optional[Expressions] = Field(
-        None, description="simulate: xi(x, y, z, r, t) as an expression, or a list with one per component")
+        None, description="simulate: xi(x, y, z, r, t) as an expression, or a list with one per component",
+        json_schema_extra={"type": "expression(s)"})
     file: Optional[str] = Field(None, description="simulate: NPZ file with an array 'xi' (levels, n_ctrl)")
 
     @model_validator(mode="after")
@@ -480,7 +481,7 @@ def reference_markdown() -> str:
 
 
 def _section_table(name: str, model) -> list:
-    lines = [f"## [{name}]", "", (model.__doc__ or "").strip().replace("\n", " "), "",
+    lines = [f"## [{name}]", "", " ".join((model.__doc__ or "").split()), "",
              "| key | type | default | constraint | description |", "|---|---|---|---|---|"]
     for key, field in model.model_fields.items():
         shown = field.alias or key
