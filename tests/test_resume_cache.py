@@ -41,6 +41,7 @@ def _damage(entries: list) -> None:
     np.savez(entries[1], J=np.float64(1.0))
 
 
+@pytest.mark.slow  # a 3-iteration optimization, then its replay
 def test_resume_drops_damaged_entries_and_ends_where_the_run_ended(tmp_path, capsys):
     cfg, out = tmp_path / "c.toml", tmp_path / "out"
     cfg.write_text(SMALL_1D)
