@@ -77,6 +77,19 @@ def test_progress_bar_labels_the_compilation(tmp_path, capsys):
     assert err.index("compiling:") < err.index("time steps:")
 
 
+def test_simulate_1d_progress_by_blocks_gives_the_same_solution(tmp_path, capsys):
+    """1D P1 (compiled loop): the bar advances by blocks of steps after "compiling", and the solution
+    is bitwise the one of the loop run in one piece (--no-progress)."""
+    cfg = _write(tmp_path, SMALL_1D)
+    assert main(["simulate", str(cfg), "--out", str(tmp_path / "bar")]) == 0
+    err = capsys.readouterr().err
+    assert err.index("compiling:") < err.index("time steps:")
+    assert main(["simulate", str(cfg), "--out", str(tmp_path / "quiet"), "--no-progress"]) == 0
+    bar, quiet = (np.load(tmp_path / name / "results.npz") for name in ("bar", "quiet"))
+    for key in ("displacement", "velocity", "p", "volume"):
+        np.testing.assert_array_equal(bar[key], quiet[key])
+
+
 @pytest.mark.parametrize(
     "change, message",
     [
