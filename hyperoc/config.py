@@ -17,6 +17,7 @@ import json
 import math
 import sys
 import tomllib
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -147,7 +148,8 @@ class Config:
         traction = d.get("traction")
         if traction is not None and len(traction) != mesh.dim:
             raise InputError(f"config: [dynamics] traction must be a list of {mesh.dim} numbers, got {len(traction)}")
-        material = material_from_config({k: v for k, v in self["material"].items() if k != "volumetric"})
+        with _in_section("material"):
+            material = material_from_config({k: v for k, v in self["material"].items() if k != "volumetric"})
         frames = self.fibres(mesh)
         if frames is None and isinstance(material, (Guccione, HolzapfelOgden)):
             raise InputError(f"config: [material] law {self['material']['law']!r} needs fibres: add [fibres] kind = 'rule_based'")
@@ -214,7 +216,8 @@ class Config:
 
         space = VectorSpace(mesh, self["mesh"]["degree"])
         operator = self.control_operator(self.fibres(mesh))
-        return operator.build(space, np.arange(space.num_dofs)), space
+        with _in_section("control"):
+            return operator.build(space, np.arange(space.num_dofs)), space
 
     def prescribed_control(self, model, t: np.ndarray) -> np.ndarray | None:
         """Control values (N+1, n_ctrl) from ``[control] value`` (expression(s)) or ``file`` (NPZ)
@@ -241,6 +244,15 @@ class Config:
             out = np.stack([np.stack([expression_field(e, x, float(tk)) for e in exprs], axis=-1) for tk in t])
         _require_finite(out, t, x, exprs)
         return out.reshape(t.size, -1)
+
+
+@contextmanager
+def _in_section(name: str):
+    """An `InputError` raised inside the block, prefixed with the config section it concerns."""
+    try:
+        yield
+    except InputError as err:
+        raise InputError(f"config: [{name}] {err}") from None
 
 
 def _require_finite(values: np.ndarray, t: np.ndarray, x: np.ndarray, exprs) -> None:
