@@ -499,8 +499,6 @@ def _type_text(field) -> str:
 
 
 def _annotation_text(annotation) -> str:
-    import typing
-
     origin, args = typing.get_origin(annotation), typing.get_args(annotation)
     if origin is Annotated:
         return _annotation_text(args[0])
@@ -537,8 +535,6 @@ def _constraint_text(model, key: str, field) -> str:
 
 
 def _metadata(annotation) -> list:
-    import typing
-
     out = []
     if typing.get_origin(annotation) is Annotated:
         args = typing.get_args(annotation)
@@ -553,8 +549,6 @@ def _metadata(annotation) -> list:
 
 
 def _literal_choices(annotation) -> tuple:
-    import typing
-
     origin, args = typing.get_origin(annotation), typing.get_args(annotation)
     if origin is Literal:
         return args
