@@ -1,6 +1,6 @@
 """hyperoc: optimal control of damped hyperelastic bodies under a global volume constraint.
 
-The curated API (the documentation in docs/ gives a tour)::
+The curated API (see the README for a tour)::
 
     mesh        interval, rectangle, box, refine, Mesh; geometry: annulus, thick_shell, ventricle, from_file
     materials   SaintVenantKirchhoff, Fung, Ogden, NeoHookean; Guccione, HolzapfelOgden (fibre frames)
@@ -12,35 +12,92 @@ The curated API (the documentation in docs/ gives a tour)::
                 deformed boundary), FibreTension (active stress), and NewtonLog, a monitor that
                 prints or keeps every Newton iteration
     time        uniform_grid, TimeGrid, TimeTransform
-    objectives  Objective, ControlCost, ControlRateCost, PressureAt, PressureRise
+    objectives  Objective, ControlCost, PressureAt, PressureRise
     gradients   ReducedFunctional, ControlPoint, taylor_test
     optimizers  barzilai_borwein (the paper's Algorithm 1), lbfgsb, newton_cg
     config      load_config
 
-Importing hyperoc enables JAX's float64 mode (``jax_enable_x64``), which the solvers need, and,
-before JAX is imported, passes closed-over arrays to XLA as arguments (`hyperoc._jax`).
+Importing hyperoc is cheap: the names above are imported on first use (PEP 562), so that the
+command line answers at once. It sets JAX's float64 mode (``JAX_ENABLE_X64``) and, before JAX is
+imported, passes closed-over arrays to XLA as arguments (`hyperoc._jax`); every module that builds
+JAX kernels also turns float64 on when it is imported.
 """
 
-from . import _jax  # noqa: F401  (first: it sets JAX's environment before anything imports jax)
-from .active import FibreTension
-from .controls import ActiveStress, BodyForce, Region
-from .config import load_config
-from .dynamics import Scheme, StateSolution, TimeStepper, solve_state
-from .errors import HyperocError, InputError, SolverError
-from .geometry import annulus, from_file, thick_shell, ventricle
-from .fibres import prolate_fibres, rule_based_fibres, transmural_coordinate
-from .follower import FollowerPressure
-from .materials import Fung, Guccione, HolzapfelOgden, NeoHookean, Ogden, SaintVenantKirchhoff
-from .mesh import Mesh, box, interval, rectangle, refine
-from .mixed import TaylorHoodModel
-from .model import StateModel
-from .newton import NewtonLog
-from .objectives import ControlCost, ControlRateCost, Objective, PressureAt, PressureRise
-from .optimize import barzilai_borwein, lbfgsb, newton_cg
-from .reduced import ControlPoint, ReducedFunctional
-from .statics import solve_static
-from .timegrid import TimeGrid, TimeTransform, uniform_grid
-from .verification import taylor_test
+import importlib
+import os
+import sys
+
+if "jax" in sys.modules:  # too late for the environment: configure the imported JAX now
+    from . import _jax  # noqa: F401
+else:
+    os.environ.setdefault("JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS", "1")  # read by JAX on import (`hyperoc._jax`)
+    os.environ.setdefault("JAX_ENABLE_X64", "1")
+
+# public name -> submodule that defines it
+_LAZY = {
+    "FibreTension": "active",
+    "ActiveStress": "controls",
+    "BodyForce": "controls",
+    "Region": "controls",
+    "load_config": "config",
+    "Scheme": "dynamics",
+    "StateSolution": "dynamics",
+    "TimeStepper": "dynamics",
+    "solve_state": "dynamics",
+    "HyperocError": "errors",
+    "InputError": "errors",
+    "SolverError": "errors",
+    "annulus": "geometry",
+    "from_file": "geometry",
+    "thick_shell": "geometry",
+    "ventricle": "geometry",
+    "prolate_fibres": "fibres",
+    "rule_based_fibres": "fibres",
+    "transmural_coordinate": "fibres",
+    "FollowerPressure": "follower",
+    "Fung": "materials",
+    "Guccione": "materials",
+    "HolzapfelOgden": "materials",
+    "NeoHookean": "materials",
+    "Ogden": "materials",
+    "SaintVenantKirchhoff": "materials",
+    "Mesh": "mesh",
+    "box": "mesh",
+    "interval": "mesh",
+    "rectangle": "mesh",
+    "refine": "mesh",
+    "TaylorHoodModel": "mixed",
+    "StateModel": "model",
+    "NewtonLog": "newton",
+    "ControlCost": "objectives",
+    "ControlRateCost": "objectives",
+    "Objective": "objectives",
+    "PressureAt": "objectives",
+    "PressureRise": "objectives",
+    "barzilai_borwein": "optimize",
+    "lbfgsb": "optimize",
+    "newton_cg": "optimize",
+    "ControlPoint": "reduced",
+    "ReducedFunctional": "reduced",
+    "solve_static": "statics",
+    "TimeGrid": "timegrid",
+    "TimeTransform": "timegrid",
+    "uniform_grid": "timegrid",
+    "taylor_test": "verification",
+}
+
+
+def __getattr__(name):
+    if name not in _LAZY:
+        raise AttributeError(f"module 'hyperoc' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))
+
 
 __version__ = "0.1.0"
 
@@ -49,7 +106,7 @@ __all__ = [
     "HyperocError", "InputError", "SolverError", "annulus", "from_file", "thick_shell", "ventricle", "Fung",
     "NeoHookean", "Ogden", "SaintVenantKirchhoff", "Guccione", "HolzapfelOgden", "rule_based_fibres", "prolate_fibres",
     "transmural_coordinate", "Mesh", "box", "interval", "rectangle", "refine", "StateModel", "TaylorHoodModel",
-    "ControlCost", "ControlRateCost", "Objective", "PressureAt", "PressureRise", "barzilai_borwein", "lbfgsb", "newton_cg",
+    "ControlCost", "Objective", "PressureAt", "PressureRise", "barzilai_borwein", "lbfgsb", "newton_cg",
     "ControlPoint",
     "ReducedFunctional", "solve_static", "NewtonLog", "FollowerPressure", "FibreTension", "TimeGrid", "TimeTransform", "uniform_grid", "taylor_test",
 ]

@@ -1,9 +1,13 @@
-"""TOML configuration: schema, validation with one clear message, and builders.
+"""TOML configuration: validation against the schema (`hyperoc.schema`), with one clear message,
+and the builders of the objects a run needs.
 
 A configuration has the sections ``[mesh] [material] [fibres] [dynamics] [control] [objective]
-[optimize] [output]`` (see ``examples/*.toml``). Every entry is checked for its type and range before any
+[optimize] [output]`` (see ``examples/*.toml`` and ``docs/configuration.md``, printed by
+``python -m hyperoc.config --reference``). Every entry is checked for its type and range before any
 computation starts; a problem raises `InputError` naming the section and key, which the CLI turns
 into one line on stderr and exit status 2.
+
+Importing this module is cheap (no JAX, no solver): the builders import what they build.
 """
 
 from __future__ import annotations
@@ -11,102 +15,18 @@ from __future__ import annotations
 import copy
 import json
 import math
+import sys
 import tomllib
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from .controls import ActiveStress, BodyForce, Region
-from .dynamics import Scheme
 from .errors import InputError
-from .expr import expression_field, parse_expression
-from .fibres import FibreFrames, rule_based_fibres
-from .materials import Guccione, HolzapfelOgden, material_from_config
-from .mesh import Mesh, box, interval, rectangle, refine
-from .model import StateModel
-from .objectives import objective_from_config
-from .reduced import checkpoint_options
-from .timegrid import TimeTransform, uniform_grid
+from .schema import reference_markdown, validate_sections
 
-__all__ = ["Config", "load_config", "parse_config", "apply_overrides"]
-
-NUMBER = (int, float)
-
-# section -> key -> (accepted types, default); None default = required, ... = optional
-SCHEMA = {
-    "mesh": {
-        "kind": (str, "interval"), "n": (int, 100), "length": (NUMBER, 1.0), "nx": (int, 8), "ny": (int, ...),
-        "nz": (int, ...), "size": (list, ...), "dirichlet": (str, "left"), "r_inner": (NUMBER, 0.5),
-        "r_outer": (NUMBER, 1.0), "h": (NUMBER, 0.1), "structured": (bool, False), "n_radial": (int, ...),
-        "n_theta": (int, ...), "file": (str, ...), "degree": (int, 1),
-        # uniform refinements of the mesh built (hyperoc.mesh.refine; curved geometries stay exact)
-        "refinements": (int, 0),
-        "dirichlet_tag": (str, "gamma_d"), "neumann_tag": (str, "gamma_n"), "control_tag": (str, "omega"),
-        # components fixed on gamma_d (default: all); e.g. [2] = a base sliding in its plane, with the
-        # rigid in-plane motions this leaves removed by three pinned dofs (StateModel.pinned_dofs)
-        "fixed_components": (list, ...),
-    },
-    "material": {"law": (str, "svk"), "mu": (NUMBER, ...), "lambda": (NUMBER, ...), "beta": (NUMBER, ...),
-                 "gamma": (NUMBER, ...), "W0": (NUMBER, ...), "coefficients": (list, ...), "exponents": (list, ...),
-                 # cardiac laws (kPa): Guccione C, bf, bt, bfs; Holzapfel-Ogden a, b, af, bf, as, bs, afs, bfs
-                 "C": (NUMBER, ...), "bf": (NUMBER, ...), "bt": (NUMBER, ...), "bfs": (NUMBER, ...),
-                 "a": (NUMBER, ...), "b": (NUMBER, ...), "af": (NUMBER, ...), "as": (NUMBER, ...),
-                 "bs": (NUMBER, ...), "afs": (NUMBER, ...), "kappa": (NUMBER, ...),
-                 # Guccione's Q on the isochoric strain (J^(-2/3) C - I)/2; needed with "cell-mean"
-                 "isochoric": (bool, ...),
-                 # the bulk term per quadrature point, or on each cell's mean J (mixed u-p with a
-                 # piecewise-constant pressure, condensed; StateModel volumetric): "pointwise", "cell-mean"
-                 "volumetric": (str, "pointwise")},
-    # rule-based fibres (hyperoc.fibres.rule_based_fibres): helix angles in degrees, long axis apex -> base
-    "fibres": {"kind": (str, "none"), "helix_endo": (NUMBER, 60.0), "helix_epi": (NUMBER, -60.0),
-               "long_axis": (list, [0.0, 0.0, 1.0]), "inner": (str, "endocardium"), "outer": (str, "epicardium")},
-    "dynamics": {"T": (NUMBER, 15.0), "dt": (NUMBER, 0.02), "kappa": (NUMBER, 2e-4), "density": (NUMBER, 1.0),
-                 "theta": (NUMBER, 0.5), "multiplier": (str, "step"), "solver": (str, "auto"),
-                 "newton_rtol": (NUMBER, 1e-11), "newton_max_iter": (int, 30), "traction": (list, ...)},
-    "control": {"kind": (str, "body_force"), "region": (dict, ...), "value": ((str, list, NUMBER), ...),
-                "file": (str, ...)},
-    "objective": {"phi1": (str, "pressure"), "alpha": (NUMBER, 2e-3), "beta": (NUMBER, 0.0), "eps": (NUMBER, 0.0)},
-    "optimize": {"method": (str, "bb"), "tau0": (NUMBER, ...), "tau_starts": (list, ...), "max_iter": (int, 100),
-                 "gtol": (NUMBER, 1e-6), "xi_bounds": (list, ...), "tau_margin": (NUMBER, ...),
-                 "gradient": (str, "exact"), "steps": (str, "joint"), "bb_step": (str, "bb1"),
-                 "nonmonotone": (int, 0),  # bb: 0 = the paper's Algorithm 1, M > 0 = SPG's window
-                 "tau_scale": ((str, NUMBER), "range"),  # L-BFGS-B's scaling of tau (`hyperoc.optimize.tau_scaling`)
-                 "max_cg": (int, 20),  # newton: Hessian-vector products per iteration (`hyperoc.optimize.newton_cg`)
-                 # checkpointed adjoint: every k-th level state, or a binomial schedule with s snapshots
-                 "checkpoint_every": (int, ...), "checkpoint_snapshots": (int, ...)},
-    "output": {"snapshot_times": (list, ...), "series_every": (int, ...)},
-}
-
-
-def _type_name(types) -> str:
-    types = types if isinstance(types, tuple) else (types,)
-    if float in types:  # an int is accepted wherever a float is
-        types = tuple(t for t in types if t is not int)
-    names = {int: "an integer", float: "a number", str: "a string", list: "a list", dict: "a table", bool: "true/false"}
-    return " or ".join(dict.fromkeys(names[t] for t in types))
-
-
-def _check_section(name: str, given: dict) -> dict:
-    schema = SCHEMA[name]
-    if not isinstance(given, dict):
-        raise InputError(f"config: [{name}] must be a table")
-    unknown = set(given) - set(schema)
-    if unknown:
-        raise InputError(f"config: [{name}] has unknown key(s) {sorted(unknown)}; allowed: {sorted(schema)}")
-    out = {}
-    for key, (types, default) in schema.items():
-        if key not in given:
-            if default is not ...:
-                out[key] = default
-            continue
-        value = given[key]
-        tt = types if isinstance(types, tuple) else (types,)
-        ok = isinstance(value, tt) and not (isinstance(value, bool) and bool not in tt)
-        if not ok:
-            raise InputError(f"config: [{name}] {key} must be {_type_name(types)}, got {type(value).__name__} {value!r}")
-        out[key] = value
-    return out
+__all__ = ["Config", "load_config", "parse_config", "apply_overrides", "reference_markdown"]
 
 
 @dataclass(frozen=True)
@@ -133,11 +53,12 @@ class Config:
         return "\n".join(lines)
 
     # --- builders ---------------------------------------------------------------------------------
-    def mesh(self) -> Mesh:
+    def mesh(self):
+        """The `hyperoc.mesh.Mesh` of ``[mesh]``, refined ``refinements`` times."""
+        from .mesh import refine
+
         c = self["mesh"]
         kind, k = c["kind"], c["refinements"]
-        if k < 0:
-            raise InputError(f"config: [mesh] refinements must be >= 0, got {k}")
         if kind in ("annulus", "shell", "ventricle"):
             return self._curved_mesh(kind, k)
         mesh = self._straight_mesh(kind)
@@ -145,7 +66,27 @@ class Config:
             mesh = refine(mesh)
         return mesh
 
-    def _straight_mesh(self, kind: str) -> Mesh:
+    def file_mesh(self):
+        """The mesh read from ``[mesh] file``, before refinements."""
+        from . import geometry
+
+        c = self["mesh"]
+        return geometry.from_file(self.mesh_path(), dirichlet=c["dirichlet_tag"], neumann=c["neumann_tag"],
+                                  control=c["control_tag"])
+
+    def mesh_path(self) -> Path | None:
+        """``[mesh] file`` resolved against the config's folder (None for a generated mesh)."""
+        c = self["mesh"]
+        return (self.base / c["file"]).resolve() if c["kind"] == "file" else None
+
+    def control_path(self) -> Path | None:
+        """``[control] file`` resolved against the config's folder (None without one)."""
+        c = self["control"]
+        return (self.base / c["file"]).resolve() if "file" in c else None
+
+    def _straight_mesh(self, kind: str):
+        from .mesh import box, interval, rectangle
+
         c = self["mesh"]
         if kind == "interval":
             return interval(c["n"], c["length"])
@@ -154,15 +95,10 @@ class Config:
         if kind == "box":
             return box(c["nx"], c.get("ny"), c.get("nz"), tuple(c.get("size", (1.0, 1.0, 1.0))), c["dirichlet"])
         if kind == "file":
-            from . import geometry
-
-            if "file" not in c:
-                raise InputError("config: [mesh] kind = 'file' needs file = 'path/to/mesh.msh'")
-            path = (self.base / c["file"]).resolve()
-            return geometry.from_file(path, dirichlet=c["dirichlet_tag"], neumann=c["neumann_tag"], control=c["control_tag"])
+            return self.file_mesh()
         raise InputError(f"config: [mesh] kind {kind!r} unknown (interval, rectangle, box, annulus, shell, ventricle, file)")
 
-    def _curved_mesh(self, kind: str, refinements: int) -> Mesh:
+    def _curved_mesh(self, kind: str, refinements: int):
         """The generators that put refined boundary vertices on their exact surfaces."""
         from . import geometry
 
@@ -174,23 +110,24 @@ class Config:
             return geometry.thick_shell(c["r_inner"], c["r_outer"], c["h"], refinements=refinements)
         return geometry.ventricle(c["h"], refinements=refinements)
 
-    def fibres(self, mesh: Mesh) -> FibreFrames | None:
-        """Fibre frames of ``[fibres]`` on ``mesh`` (kind "rule_based"), or None (kind "none")."""
+    def fibres(self, mesh):
+        """Fibre frames (`hyperoc.fibres.FibreFrames`) of ``[fibres]`` on ``mesh`` (kind "rule_based"),
+        or None (kind "none")."""
+        from .fibres import rule_based_fibres
+
         c = self["fibres"]
         if c["kind"] == "none":
             return None
-        if c["kind"] != "rule_based":
-            raise InputError(f"config: [fibres] kind {c['kind']!r} unknown (none, rule_based)")
         axis = c["long_axis"]
-        if len(axis) != 3 or not all(isinstance(v, NUMBER) and not isinstance(v, bool) for v in axis):
-            raise InputError(f"config: [fibres] long_axis must be a list of 3 numbers, got {axis!r}")
         if mesh.dim != 3:
             raise InputError(f"config: [fibres] rule_based needs a 3D mesh, got dimension {mesh.dim}")
         return rule_based_fibres(mesh, helix_endo=float(c["helix_endo"]), helix_epi=float(c["helix_epi"]),
                                  long_axis=tuple(float(v) for v in axis), inner=c["inner"], outer=c["outer"])
 
-    def control_operator(self, frames: FibreFrames | None = None):
+    def control_operator(self, frames=None):
         """The control of ``[control]``; active stress follows ``frames``' fibres when given."""
+        from .controls import ActiveStress, BodyForce
+
         c = self["control"]
         region = _region(c.get("region"))
         if c["kind"] == "body_force":
@@ -199,17 +136,20 @@ class Config:
             return ActiveStress(region, fibres=None if frames is None else frames.fibre)
         raise InputError(f"config: [control] kind {c['kind']!r} unknown (body_force, active_stress)")
 
-    def model(self) -> StateModel:
-        """The `StateModel` of the config; the frames of ``[fibres]`` serve both a fibre-dependent
-        material and the active stress (its fibre = row 0 of the frame)."""
+    def model(self, mesh=None):
+        """The `hyperoc.model.StateModel` of the config (on ``mesh`` if already built); the frames of
+        ``[fibres]`` serve both a fibre-dependent material and the active stress (its fibre = row 0
+        of the frame)."""
+        from .materials import Guccione, HolzapfelOgden, material_from_config
+        from .model import StateModel
+
         d = self["dynamics"]
-        mesh = self.mesh()
+        mesh = mesh if mesh is not None else self.mesh()
         traction = d.get("traction")
-        if traction is not None and (len(traction) != mesh.dim or not all(isinstance(v, NUMBER) for v in traction)):
-            raise InputError(f"config: [dynamics] traction must be a list of {mesh.dim} numbers")
-        if self["mesh"]["degree"] not in (1, 2):
-            raise InputError(f"config: [mesh] degree must be 1 or 2, got {self['mesh']['degree']}")
-        material = material_from_config({k: v for k, v in self["material"].items() if k != "volumetric"})
+        if traction is not None and len(traction) != mesh.dim:
+            raise InputError(f"config: [dynamics] traction must be a list of {mesh.dim} numbers, got {len(traction)}")
+        with _in_section("material"):
+            material = material_from_config({k: v for k, v in self["material"].items() if k != "volumetric"})
         frames = self.fibres(mesh)
         if frames is None and isinstance(material, (Guccione, HolzapfelOgden)):
             raise InputError(f"config: [material] law {self['material']['law']!r} needs fibres: add [fibres] kind = 'rule_based'")
@@ -223,25 +163,33 @@ class Config:
         comps = self["mesh"].get("fixed_components")
         if comps is None:
             return {"dirichlet": "gamma_d"}
-        if not comps or not all(isinstance(c, int) and not isinstance(c, bool) and 0 <= c < dim for c in comps):
-            raise InputError(f"config: [mesh] fixed_components must be a non-empty list of integers in [0, {dim})")
+        if not all(c < dim for c in comps):
+            raise InputError(f"config: [mesh] fixed_components must be integers in [0, {dim}) on this mesh, got {comps}")
         return {"dirichlet": None, "dirichlet_components": {"gamma_d": tuple(comps)}}
 
-    def scheme(self) -> Scheme:
+    def scheme(self):
+        from .dynamics import Scheme
+
         d = self["dynamics"]
         return Scheme(theta=float(d["theta"]), multiplier=d["multiplier"], rtol=float(d["newton_rtol"]),
                       max_iter=int(d["newton_max_iter"]))
 
     def grid(self):
+        from .timegrid import uniform_grid
+
         d = self["dynamics"]
         return uniform_grid(float(d["T"]), float(d["dt"]))
 
     def objective(self):
+        from .objectives import objective_from_config
+
         return objective_from_config(self["objective"])
 
-    def transform(self, tau: float) -> TimeTransform:
+    def transform(self, tau: float):
+        from .timegrid import TimeTransform
+
         d = self["dynamics"]
-        eps = float(self["objective"]["eps"])
+        eps = float(self["objective"].get("eps", 0.0))
         T = float(d["T"])
         if not 0 < tau < T - eps:
             raise InputError(f"config: tau = {tau} must lie in (0, T - eps) = (0, {T - eps})")
@@ -250,97 +198,121 @@ class Config:
     def tau_starts(self) -> list:
         o, T = self["optimize"], float(self["dynamics"]["T"])
         starts = o.get("tau_starts") or [o.get("tau0", T / 2)]
-        if not all(isinstance(t, NUMBER) and not isinstance(t, bool) for t in starts):
-            raise InputError("config: [optimize] tau_starts must be a list of numbers")
         for t in starts:
             self.transform(float(t))
         return [float(t) for t in starts]
 
     def xi_bounds(self):
         b = self["optimize"].get("xi_bounds")
-        if b is None:
-            return (None, None)
-        if len(b) != 2 or not all(isinstance(v, NUMBER) for v in b) or not b[0] < b[1]:
-            raise InputError("config: [optimize] xi_bounds must be [lower, upper] with lower < upper")
-        return (float(b[0]), float(b[1]))
+        return (None, None) if b is None else (float(b[0]), float(b[1]))
 
-    def prescribed_control(self, model: StateModel, t: np.ndarray) -> np.ndarray | None:
-        """Control values (N+1, n_ctrl) from ``[control] value`` (expression(s)) or ``file`` (NPZ)."""
+    def control_data(self, mesh):
+        """``(control, space)``: the `hyperoc.controls.ControlData` of ``[control]`` on ``mesh`` and
+        the displacement's `hyperoc.spaces.VectorSpace`, built without the state model (its load
+        matrix numbers every dof), so that the prescribed control can be checked before JAX starts."""
+        from .spaces import VectorSpace
+
+        space = VectorSpace(mesh, self["mesh"]["degree"])
+        operator = self.control_operator(self.fibres(mesh))
+        with _in_section("control"):
+            return operator.build(space, np.arange(space.num_dofs)), space
+
+    def prescribed_control(self, model, t: np.ndarray) -> np.ndarray | None:
+        """Control values (N+1, n_ctrl) from ``[control] value`` (expression(s)) or ``file`` (NPZ)
+        for ``model`` (anything with the ``control`` and ``space`` of a `hyperoc.model.StateModel`);
+        `InputError` if a value is not finite (e.g. an expression dividing by zero on the grid)."""
+        return self.control_values(model.control, model.space, t)
+
+    def control_values(self, control, space, t: np.ndarray) -> np.ndarray | None:
+        """`prescribed_control` for a `hyperoc.controls.ControlData` on ``space``."""
+        from .expr import expression_field, parse_expression
+
         c = self["control"]
         if "file" in c:
-            return _control_from_npz(self.base / c["file"], model, t.size)
+            return _control_from_npz(self.control_path(), control.size, t.size)
         if "value" not in c:
             return None
-        comps = model.control.components
+        comps = control.components
         values = c["value"] if isinstance(c["value"], list) else [c["value"]] * comps
         if len(values) != comps:
             raise InputError(f"config: [control] value needs {comps} expression(s) (one per component)")
         exprs = [parse_expression(str(v)) for v in values]
-        x = model.control.coordinates(model.space)
-        out = np.stack([np.stack([expression_field(e, x, float(tk)) for e in exprs], axis=-1) for tk in t])
+        x = control.coordinates(space)
+        with np.errstate(all="ignore"):  # a non-finite value is reported below, with where it occurs
+            out = np.stack([np.stack([expression_field(e, x, float(tk)) for e in exprs], axis=-1) for tk in t])
+        _require_finite(out, t, x, exprs)
         return out.reshape(t.size, -1)
 
 
-# [control.region] key -> accepted value ("numbers" = a list of numbers)
-_REGION_KEYS = {"tag": str, "inner": str, "outer": str, "z_max": "number", "lower": "numbers", "upper": "numbers",
-                "r_range": "numbers", "theta_range": "numbers", "transmural": "numbers"}
+@contextmanager
+def _in_section(name: str):
+    """An `InputError` raised inside the block, prefixed with the config section it concerns."""
+    try:
+        yield
+    except InputError as err:
+        raise InputError(f"config: [{name}] {err}") from None
 
 
-def _region(cfg) -> Region:
+def _require_finite(values: np.ndarray, t: np.ndarray, x: np.ndarray, exprs) -> None:
+    """`InputError` naming the first (time, point, expression) where ``values`` (levels, nodes,
+    components) is NaN or infinite."""
+    bad = np.argwhere(~np.isfinite(values))
+    if bad.size:
+        k, i, c = bad[0]
+        raise InputError(f"config: [control] value {exprs[c].source[:60]!r} is {values[k, i, c]} at t = {t[k]:g}, "
+                         f"x = {np.round(x[i], 6).tolist()} (it must be finite on the whole grid)")
+
+
+def _region(cfg):
+    """`hyperoc.controls.Region` of a validated ``[control] region`` table (None: the whole body)."""
+    from .controls import Region
+
     if cfg is None:
         return Region()
     cfg = dict(cfg)
     kind = cfg.pop("kind", "box")
-    if not isinstance(kind, str):
-        raise InputError("config: [control.region] kind must be a string")
-    if set(cfg) - set(_REGION_KEYS):
-        raise InputError(f"config: [control.region] unknown key(s) {sorted(set(cfg) - set(_REGION_KEYS))}; "
-                         f"allowed: {sorted(_REGION_KEYS)}")
-    is_number = lambda v: isinstance(v, NUMBER) and not isinstance(v, bool)
-    conv = {}
-    for key, value in cfg.items():
-        expected = _REGION_KEYS[key]
-        if expected is str and not isinstance(value, str):
-            raise InputError(f"config: [control.region] {key} must be a string")
-        if expected == "number" and not is_number(value):
-            raise InputError(f"config: [control.region] {key} must be a number")
-        if expected == "numbers" and not (isinstance(value, list) and all(is_number(v) for v in value)):
-            raise InputError(f"config: [control.region] {key} must be a list of numbers")
-        conv[key] = tuple(float(v) for v in value) if expected == "numbers" else (float(value) if expected == "number" else value)
-    return Region(kind=kind, **conv)
+    return Region(kind=kind, **{k: tuple(v) if isinstance(v, list) else v for k, v in cfg.items()})
 
 
-def _control_from_npz(path: Path, model: StateModel, levels: int) -> np.ndarray:
-    if not path.exists():
-        raise InputError(f"control file not found: {path}")
-    with np.load(path) as data:
-        if "xi" not in data:
-            raise InputError(f"control file {path} has no array 'xi'")
-        xi = np.asarray(data["xi"], dtype=np.float64)
-    if xi.shape != (levels, model.control.size):
-        raise InputError(f"control file {path}: 'xi' must have shape (levels, n_ctrl) = {(levels, model.control.size)}, got {xi.shape}")
+def _control_from_npz(path: Path, size: int, levels: int) -> np.ndarray:
+    xi = read_control_file(path)
+    if xi.shape != (levels, size):
+        raise InputError(f"control file {path}: 'xi' must have shape (levels, n_ctrl) = {(levels, size)}, got {xi.shape}")
+    return xi
+
+
+def read_control_file(path: Path) -> np.ndarray:
+    """The array ``xi`` of an NPZ control file, as float64; `InputError` if the file is missing, is
+    not an NPZ archive, has no finite 2D float array ``xi``."""
+    import zipfile
+
+    if not path.is_file():
+        raise InputError(f"control file not found: {path}" if not path.exists() else f"control file {path} is not a file")
+    try:
+        data = np.load(path, allow_pickle=False)
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as err:
+        raise InputError(f"control file {path} is not a readable NPZ archive ({type(err).__name__})") from None
+    if not isinstance(data, np.lib.npyio.NpzFile):
+        raise InputError(f"control file {path} is not an NPZ archive (a single .npy array?)")
+    with data:
+        if "xi" not in data.files:
+            raise InputError(f"control file {path} has no array 'xi' (found: {', '.join(data.files) or 'none'})")
+        try:
+            xi = data["xi"]
+        except (zipfile.BadZipFile, ValueError, OSError, EOFError) as err:
+            raise InputError(f"control file {path}: array 'xi' is unreadable ({type(err).__name__})") from None
+    if xi.ndim != 2 or not np.issubdtype(xi.dtype, np.number) or np.iscomplexobj(xi):
+        raise InputError(f"control file {path}: 'xi' must be a 2D real array (levels, n_ctrl), got {xi.dtype} {xi.shape}")
+    xi = xi.astype(np.float64)
+    if not np.all(np.isfinite(xi)):
+        k, j = np.argwhere(~np.isfinite(xi))[0]
+        raise InputError(f"control file {path}: 'xi' has a non-finite value ({xi[k, j]}) at level {k}, entry {j}")
     return xi
 
 
 def parse_config(data: dict, base: Path = Path(".")) -> Config:
-    """Validate a config dict (as read from TOML) into a `Config`."""
-    unknown = set(data) - set(SCHEMA)
-    if unknown:
-        raise InputError(f"config: unknown section(s) {sorted(unknown)}; allowed: {sorted(SCHEMA)}")
-    sections = {name: _check_section(name, data.get(name, {})) for name in SCHEMA}
-    d = sections["dynamics"]
-    if not d["dt"] > 0 or not d["T"] > 0:
-        raise InputError(f"config: [dynamics] needs dt > 0 and T > 0, got dt = {d['dt']}, T = {d['T']}")
-    if d["kappa"] < 0:
-        raise InputError(f"config: [dynamics] kappa must be >= 0, got {d['kappa']}")
-    if d["density"] <= 0:
-        raise InputError(f"config: [dynamics] density must be > 0, got {d['density']}")
-    o = sections["optimize"]
-    try:
-        checkpoint_options(o.get("checkpoint_every"), o.get("checkpoint_snapshots"))
-    except InputError as err:
-        raise InputError(f"config: [optimize] {err}") from None
-    return Config(sections, Path(base))
+    """Validate a config dict (as read from TOML) into a `Config` (`hyperoc.schema.validate_sections`)."""
+    return Config(validate_sections(data), Path(base))
 
 
 def load_config(path, overrides=()) -> Config:
@@ -349,10 +321,14 @@ def load_config(path, overrides=()) -> Config:
     path = Path(path)
     if not path.exists():
         raise InputError(f"config file not found: {path}")
+    if not path.is_file():
+        raise InputError(f"config {path} is not a file (a directory?)")
     try:
-        data = tomllib.loads(path.read_text())
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"config {path}: invalid TOML: {exc}") from None
+        raise InputError(f"config {path}: invalid TOML: {str(exc).splitlines()[0][:120]}") from None
+    except OSError as exc:
+        raise InputError(f"config {path} cannot be read: {exc.strerror}") from None
     return parse_config(apply_overrides(data, overrides), path.parent)
 
 
@@ -372,7 +348,7 @@ def apply_overrides(data: dict, overrides) -> dict:
         for key in keys[:-1]:
             table = table.setdefault(key, {})
             if not isinstance(table, dict):
-                raise InputError(f"override {item!r}: {key} is not a table")
+                raise InputError(f"override {item[:80]!r}: {key} is not a table")
         table[keys[-1]] = _read_value(text.strip())
     return data
 
@@ -400,3 +376,20 @@ def _toml_value(value) -> str:
     if isinstance(value, dict):
         return "{ " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in value.items()) + " }"
     raise TypeError(f"no TOML form for {value!r}")
+
+
+def _main(argv=None) -> int:
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="python -m hyperoc.config", description="the configuration schema")
+    parser.add_argument("--reference", action="store_true", help="print the configuration reference (Markdown)")
+    args = parser.parse_args(argv)
+    if not args.reference:
+        parser.print_help()
+        return 2
+    sys.stdout.write(reference_markdown())
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(_main())

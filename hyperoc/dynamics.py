@@ -42,6 +42,10 @@ __all__ = ["Scheme", "StateSolution", "StepRecord", "TimeStepper", "solve_state"
 
 STATUS = {0: "ok", 1: "newton", 2: "nonfinite", 3: "detF"}
 
+# Blocks of steps a compiled time loop runs in when it shows progress (two compilations: the block
+# and the shorter last one).
+PROGRESS_CHUNKS = 20
+
 
 @dataclass(frozen=True)
 class Scheme:
@@ -300,6 +304,36 @@ class TimeStepper:
         return jax.jit(run)
 
     @cached_property
+    def _scan_from(self):
+        """`_scan`'s loop from a given carry, returning the final carry too (`_chunked_scan`)."""
+        def run(carry, xis, fs, dts, V):
+            return jax.lax.scan(self.step, carry, (xis[:-1], xis[1:], fs[:-1], fs[1:], dts, V))
+
+        return jax.jit(run)
+
+    def _chunked_scan(self, y0, y1, p0, xis, fs, grid, V0):
+        """The compiled loop over ``PROGRESS_CHUNKS`` blocks of steps, with a bar updated between
+        blocks: "compiling" until the first block has run, then the steps."""
+        from tqdm.auto import tqdm
+
+        N = grid.num_steps
+        size = -(-N // PROGRESS_CHUNKS)
+        carry = (jnp.asarray(y0), jnp.asarray(y1), jnp.asarray(p0, dtype=jnp.float64), jnp.asarray(False))
+        outs = []
+        bar = tqdm(total=N, desc="compiling", leave=False)
+        for start in range(0, N, size):
+            stop = min(start + size, N)
+            carry, out = self._scan_from(carry, jnp.asarray(xis[start:stop + 1]), jnp.asarray(fs[start:stop + 1]),
+                                         jnp.asarray(grid.dt[start:stop]), jnp.full(stop - start, V0))
+            outs.append([np.asarray(o) for o in out])
+            if start == 0:  # the ETA from here on counts steps, not the compilation
+                bar.set_description("time steps", refresh=False)
+                bar.reset()
+            bar.update(stop - start)
+        bar.close()
+        return [np.concatenate([o[k] for o in outs]) for k in range(len(outs[0]))]
+
+    @cached_property
     def _jit_step(self):
         return jax.jit(self.step)
 
@@ -330,8 +364,10 @@ class TimeStepper:
         ``monitor``: called with a `StepRecord` as each step ends (a failed step included, before
         `SolverError` is raised), e.g. ``monitor=lambda r: print(r.step, r.describe())``. With a
         monitor the steps are driven from Python even when the linear solver is traced (one
-        dispatch per step instead of one compiled loop). ``progress``: a bar over the steps showing
-        the last record, where the steps are driven from Python (a host solver, or a monitor).
+        dispatch per step instead of one compiled loop). ``progress``: a bar over the steps,
+        labelled "compiling" until the first step has run; where the steps are driven from Python
+        (a host solver, or a monitor) it shows the last record, where they are compiled it advances
+        by blocks of steps (`_chunked_scan`).
 
         ``external``: external load vectors per level, (N+1, n), or a callable ``t -> (n,)``
         (e.g. ``lambda t: model.load_vector(traction=g, t=t)``); default: the model's constant traction.
@@ -346,7 +382,9 @@ class TimeStepper:
         V0 = float(m.jitted["volume"](jnp.asarray(y0)))
         p0 = self.initial_pressure(y0, y1, xis[0], fs[0]) if self.scheme.multiplier == "theta" else 0.0
         start = _time.perf_counter()
-        if self.solver.traced and monitor is None:
+        if self.solver.traced and monitor is None and progress:
+            out = self._chunked_scan(y0, y1, p0, xis, fs, grid, V0)
+        elif self.solver.traced and monitor is None:
             out = self._scan(jnp.asarray(y0), jnp.asarray(y1), jnp.asarray(p0), jnp.asarray(xis), jnp.asarray(fs),
                              jnp.asarray(grid.dt), V0)
             out = [np.asarray(o) for o in out]
@@ -406,12 +444,15 @@ class TimeStepper:
 
         carry = (jnp.asarray(y0), jnp.asarray(y1), jnp.asarray(p0, dtype=jnp.float64), jnp.asarray(False))
         outs = []
-        steps = tqdm(range(grid.num_steps), disable=not progress, desc="time steps", leave=False)
+        steps = tqdm(range(grid.num_steps), disable=not progress, desc="compiling", leave=False)
         for n in steps:
             inputs = (jnp.asarray(xis[n]), jnp.asarray(xis[n + 1]), jnp.asarray(fs[n]), jnp.asarray(fs[n + 1]), grid.dt[n], V0)
             carry, out = self._jit_step(carry, inputs)
             out = [np.asarray(o) for o in out]
             outs.append(out)
+            if n == 0 and progress:  # the ETA from here on counts steps, not the compilation
+                steps.set_description("time steps", refresh=False)
+                steps.reset()
             if monitor is not None or progress:
                 record = self._record(n, grid, out, V0)
                 steps.set_postfix_str(record.describe(), refresh=False)
@@ -454,7 +495,8 @@ def detect_regimes(sol: StateSolution) -> list:
     - loss of strong ellipticity (acoustic tensor not positive definite; SVK in strong compression),
       checked at every level for small problems, at 21 levels otherwise;
     - fronts at mesh scale: the jump of grad u between neighbouring cells is comparable to grad u
-      itself (only checked in 1D, where cells are ordered).
+      itself (only checked for 1D P1, where cells are ordered and u_x is constant per cell: the
+      difference quotients of the nodal values over the cell lengths).
     """
     m = sol.model
     out = []
@@ -465,15 +507,14 @@ def detect_regimes(sol: StateSolution) -> list:
         k = levels[int(np.argmax(eig < 0))]
         out.append(f"loss of strong ellipticity from t = {sol.t[k]:.4g} (min acoustic-tensor eigenvalue {eig.min():.3g}): "
                    "the material is unstable there (e.g. Saint Venant-Kirchhoff in strong compression)")
-    if m.dim == 1:
-        ux = np.diff(sol.displacement()[..., 0], axis=1) / np.diff(m.space.nodes[: m.mesh.points.shape[0], 0])[None, :]
-        if m.space.degree == 1:
-            jump = np.max(np.abs(np.diff(ux, axis=1)), axis=1)
-            ratio = jump / np.maximum(np.max(np.abs(ux), axis=1), 1e-300)
-            k = int(np.argmax(ratio))
-            if np.max(np.abs(ux[k])) > 1e-3 and ratio[k] > 0.5:
-                out.append(f"front at mesh scale at t = {sol.t[k]:.4g}: the jump of u_x between neighbouring cells is "
-                           f"{ratio[k]:.2f} of max|u_x| (refine h or increase kappa)")
+    if m.dim == 1 and m.space.degree == 1:
+        ux = np.diff(sol.displacement()[..., 0], axis=1) / np.diff(m.space.nodes[:, 0])[None, :]
+        jump = np.max(np.abs(np.diff(ux, axis=1)), axis=1)
+        ratio = jump / np.maximum(np.max(np.abs(ux), axis=1), 1e-300)
+        k = int(np.argmax(ratio))
+        if np.max(np.abs(ux[k])) > 1e-3 and ratio[k] > 0.5:
+            out.append(f"front at mesh scale at t = {sol.t[k]:.4g}: the jump of u_x between neighbouring cells is "
+                       f"{ratio[k]:.2f} of max|u_x| (refine h or increase kappa)")
     return out
 
 

@@ -8,6 +8,15 @@ exit with status 2. `SolverError` names the time step and the cause (Newton dive
 from __future__ import annotations
 
 
+QUOTE_LIMIT = 80  # characters of a user's value quoted in a message
+
+
+def quote(value, limit: int = QUOTE_LIMIT) -> str:
+    """``repr(value)``, cut to ``limit`` characters (ending in "...") when longer."""
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
 class HyperocError(Exception):
     """Base class of all errors raised on purpose by hyperoc."""
 

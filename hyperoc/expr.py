@@ -16,17 +16,24 @@ Allowed syntax
   arctan arctan2 arcsin arccos minimum maximum where heaviside clip floor ceil sign``.
 
 Anything else (attributes, subscripts, lambdas, comprehensions, strings, keyword arguments,
-dunder names, unknown names or functions) raises `InputError` naming the construct.
+dunder names, unknown names or functions) raises `InputError` naming the construct and quoting at
+most 80 characters of the expression.
+
+Length: up to 10,000 characters. The tree is checked and evaluated with an explicit stack, so a
+flat chain such as ``x + x + ... + x`` of that length works (Python's own parser, which builds the
+tree, nests up to 200 parentheses).
 """
 
 from __future__ import annotations
 
 import ast
+import sys
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, quote
 
 __all__ = ["Expression", "parse_expression", "expression_field", "DEFAULT_VARIABLES", "FUNCTIONS", "CONSTANTS"]
 
@@ -147,10 +154,10 @@ class Expression:
         """
         unknown = sorted(set(values) - self.variables)
         if unknown:
-            raise TypeError(f"expression {self.source!r}: unknown variable(s) {unknown}")
+            raise TypeError(f"expression {quote(self.source)}: unknown variable(s) {unknown}")
         missing = sorted(self.names - set(values))
         if missing:
-            raise TypeError(f"expression {self.source!r}: missing value(s) for {missing}")
+            raise TypeError(f"expression {quote(self.source)}: missing value(s) for {missing}")
         arrays = {name: np.asarray(v, dtype=np.float64) for name, v in values.items()}
         result = _evaluate(self.tree.body, arrays)
         shape = np.broadcast_shapes(result.shape, *(a.shape for a in arrays.values()))
@@ -208,44 +215,99 @@ def _parse(source) -> ast.Expression:
     if not isinstance(source, str):
         raise InputError(f"expression must be a string, got {type(source).__name__}")
     if len(source) > _MAX_SOURCE_LENGTH:
-        raise InputError(f"expression longer than {_MAX_SOURCE_LENGTH} characters")
+        raise InputError(f"expression {quote(source)} is longer than {_MAX_SOURCE_LENGTH} characters")
     try:
-        return ast.parse(source.strip(), mode="eval")
+        with _recursion_limit(sys.getrecursionlimit() + len(source)):
+            return ast.parse(source.strip(), mode="eval")
     except SyntaxError as err:
-        raise InputError(f"expression {source!r}: invalid syntax ({err.msg}, column {err.offset})") from None
+        raise InputError(f"expression {quote(source)}: invalid syntax ({err.msg}, column {err.offset})") from None
     except (ValueError, RecursionError, MemoryError) as err:
-        raise InputError(f"expression {source!r}: cannot be parsed ({type(err).__name__})") from None
+        raise InputError(f"expression {quote(source)}: cannot be parsed ({type(err).__name__}: nested too deeply)") from None
+
+
+@contextmanager
+def _recursion_limit(limit: int):
+    """Python's recursion limit raised to ``limit`` inside the block: the C code that turns the
+    parser's tree into `ast` nodes counts one level per operator of a chain like ``x + x + ...``."""
+    previous = sys.getrecursionlimit()
+    sys.setrecursionlimit(max(previous, limit))
+    try:
+        yield
+    finally:
+        sys.setrecursionlimit(previous)
 
 
 def _reject(source: str, what: str) -> InputError:
-    return InputError(f"expression {source!r}: {what} not allowed")
+    return InputError(f"expression {quote(source)}: {what} not allowed")
 
 
-def _check(node: ast.AST, variables: frozenset, source: str) -> set:
-    """Validate ``node`` recursively; return the variable names it uses."""
+def _children(node: ast.AST) -> list:
+    """The operands of an allowed node (a call's arguments, not its name)."""
+    if isinstance(node, ast.BinOp):
+        return [node.left, node.right]
+    if isinstance(node, ast.UnaryOp):
+        return [node.operand]
+    if isinstance(node, ast.BoolOp):
+        return list(node.values)
+    if isinstance(node, ast.Compare):
+        return [node.left, *node.comparators]
+    if isinstance(node, ast.Call):
+        return list(node.args)
+    return []
+
+
+def _preorder(root: ast.AST):
+    """The nodes under ``root``, every node before its operands, left to right (an explicit stack:
+    no recursion)."""
+    stack = [root]
+    while stack:
+        node = stack.pop()
+        yield node
+        stack.extend(reversed(_children(node)))
+
+
+def _postorder(root: ast.AST) -> list:
+    """The nodes under ``root``, every node after its operands."""
+    order, stack = [], [root]
+    while stack:
+        node = stack.pop()
+        order.append(node)
+        stack.extend(_children(node))
+    return order[::-1]
+
+
+def _check(root: ast.AST, variables: frozenset, source: str) -> set:
+    """Validate every node under ``root``, outermost first (a call's name before its arguments);
+    return the variable names it uses."""
+    names = set()
+    for node in _preorder(root):
+        names |= _check_node(node, variables, source)
+    return names
+
+
+def _check_node(node: ast.AST, variables: frozenset, source: str) -> set:
+    """Validate one node (its operands are checked separately); the variable it names, if any."""
     if isinstance(node, ast.Constant):
         if isinstance(node.value, bool) or not isinstance(node.value, (int, float)):
-            raise _reject(source, f"{type(node.value).__name__} literal {node.value!r}")
+            raise _reject(source, f"{type(node.value).__name__} literal {quote(node.value, 40)}")
         if not _fits_float64(node.value):
-            raise InputError(f"expression {source!r}: number {node.value!r} is out of float64 range")
+            raise InputError(f"expression {quote(source)}: number {quote(node.value, 40)} is out of float64 range")
         return set()
     if isinstance(node, ast.Name):
         return _check_name(node.id, variables, source)
-    if isinstance(node, ast.BinOp) and type(node.op) in _BINARY:
-        return _check(node.left, variables, source) | _check(node.right, variables, source)
-    if isinstance(node, ast.UnaryOp) and type(node.op) in _UNARY:
-        return _check(node.operand, variables, source)
+    if isinstance(node, (ast.BinOp, ast.UnaryOp)):
+        if type(node.op) not in (_BINARY if isinstance(node, ast.BinOp) else _UNARY):
+            raise _reject(source, f"operator {type(node.op).__name__!r}")
+        return set()
     if isinstance(node, ast.BoolOp):
-        return set().union(*(_check(v, variables, source) for v in node.values))
+        return set()
     if isinstance(node, ast.Compare):
         for op in node.ops:
             if type(op) not in _COMPARE:
                 raise _reject(source, f"comparison operator {type(op).__name__!r}")
-        return set().union(*(_check(v, variables, source) for v in [node.left, *node.comparators]))
+        return set()
     if isinstance(node, ast.Call):
         return _check_call(node, variables, source)
-    if isinstance(node, (ast.BinOp, ast.UnaryOp)):
-        raise _reject(source, f"operator {type(node.op).__name__!r}")
     raise _reject(source, _CONSTRUCT_NAMES.get(type(node), f"{type(node).__name__} syntax"))
 
 
@@ -258,14 +320,15 @@ def _fits_float64(value) -> bool:
 
 def _check_name(name: str, variables: frozenset, source: str) -> set:
     if name.startswith("__"):
-        raise _reject(source, f"dunder name {name!r}")
+        raise _reject(source, f"dunder name {quote(name, 40)}")
     if name in variables:
         return {name}
     if name in CONSTANTS:
         return set()
     if name in FUNCTIONS:
-        raise InputError(f"expression {source!r}: function {name!r} must be called, e.g. {name}(x)")
-    raise InputError(f"expression {source!r}: unknown name {name!r} (variables: {sorted(variables)}, constants: pi, e)")
+        raise InputError(f"expression {quote(source)}: function {name!r} must be called, e.g. {name}(x)")
+    raise InputError(f"expression {quote(source)}: unknown name {quote(name, 40)} (variables: {sorted(variables)}, "
+                     "constants: pi, e)")
 
 
 def _check_call(node: ast.Call, variables: frozenset, source: str) -> set:
@@ -273,45 +336,50 @@ def _check_call(node: ast.Call, variables: frozenset, source: str) -> set:
         raise _reject(source, f"calling {_CONSTRUCT_NAMES.get(type(node.func), type(node.func).__name__)}")
     name = node.func.id
     if name.startswith("__"):
-        raise _reject(source, f"dunder name {name!r}")
+        raise _reject(source, f"dunder name {quote(name, 40)}")
     if name not in FUNCTIONS:
-        raise InputError(f"expression {source!r}: unknown function {name!r} (allowed: {', '.join(sorted(FUNCTIONS))})")
+        raise InputError(f"expression {quote(source)}: unknown function {quote(name, 40)} "
+                         f"(allowed: {', '.join(sorted(FUNCTIONS))})")
     if node.keywords:
         raise _reject(source, f"keyword arguments in call to {name!r}")
     arity = FUNCTIONS[name][1]
     if len(node.args) != arity:
-        raise InputError(f"expression {source!r}: {name}() takes {arity} argument(s), got {len(node.args)}")
-    return set().union(*(_check(arg, variables, source) for arg in node.args))
+        raise InputError(f"expression {quote(source)}: {name}() takes {arity} argument(s), got {len(node.args)}")
+    return set()
 
 
-def _evaluate(node: ast.AST, values: dict) -> np.ndarray:
-    """Evaluate a validated node; every intermediate result is a float64 array."""
+def _evaluate(root: ast.AST, values: dict) -> np.ndarray:
+    """Evaluate a validated tree, operands before operators; every result is a float64 array."""
+    results = {}
+    for node in _postorder(root):
+        operands = [results.pop(id(child)) for child in _children(node)]
+        results[id(node)] = _evaluate_node(node, operands, values)
+    return results[id(root)]
+
+
+def _evaluate_node(node: ast.AST, operands: list, values: dict) -> np.ndarray:
+    """One node's value from its operands' values."""
     if isinstance(node, ast.Constant):
         return np.asarray(node.value, dtype=np.float64)
     if isinstance(node, ast.Name):
         return values[node.id] if node.id in values else np.asarray(CONSTANTS[node.id])
     if isinstance(node, ast.BinOp):
-        return _BINARY[type(node.op)](_evaluate(node.left, values), _evaluate(node.right, values))
+        return _BINARY[type(node.op)](*operands)
     if isinstance(node, ast.UnaryOp):
-        return np.asarray(_UNARY[type(node.op)](_evaluate(node.operand, values)), dtype=np.float64)
+        return np.asarray(_UNARY[type(node.op)](operands[0]), dtype=np.float64)
     if isinstance(node, ast.BoolOp):
-        operands = [_evaluate(v, values) for v in node.values]
         combined = operands[0]
         for operand in operands[1:]:
             combined = _BOOLEAN[type(node.op)](combined, operand)
         return np.asarray(combined, dtype=np.float64)
     if isinstance(node, ast.Compare):
-        return _evaluate_comparison(node, values)
-    func = FUNCTIONS[node.func.id][0]
-    return np.asarray(func(*(_evaluate(arg, values) for arg in node.args)), dtype=np.float64)
+        return _evaluate_comparison(node, operands)
+    return np.asarray(FUNCTIONS[node.func.id][0](*operands), dtype=np.float64)
 
 
-def _evaluate_comparison(node: ast.Compare, values: dict) -> np.ndarray:
+def _evaluate_comparison(node: ast.Compare, operands: list) -> np.ndarray:
     """``a < b <= c`` as ``(a < b) and (b <= c)``, as 1.0 / 0.0."""
-    left = _evaluate(node.left, values)
     result = np.asarray(True)
-    for op, comparator in zip(node.ops, node.comparators):
-        right = _evaluate(comparator, values)
+    for op, left, right in zip(node.ops, operands[:-1], operands[1:]):
         result = np.logical_and(result, _COMPARE[type(op)](left, right))
-        left = right
     return np.asarray(result, dtype=np.float64)

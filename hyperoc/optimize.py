@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import hashlib
 import time
+import warnings
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -33,7 +35,9 @@ __all__ = ["OptimizationResult", "EvaluationCache", "BBStepRule", "LumpedMetric"
 
 @dataclass
 class OptimizationResult:
-    """Final point, objective, convergence flag and per-iteration histories."""
+    """Final point, objective, convergence flag (``message``: why it stopped) and per-iteration
+    histories; ``best``: ``{"point", "objective", "iteration"}`` of an earlier iterate with a higher
+    J than the final one (a non-monotone method can end below its best value), else None."""
 
     point: ControlPoint
     objective: float
@@ -44,8 +48,12 @@ class OptimizationResult:
     wall_time: float = 0.0
     evaluations: dict = field(default_factory=dict)
     failed_trials: int = 0
+    best: dict | None = None
 
     def summary(self) -> dict:
+        best = None if self.best is None else {"objective": float(self.best["objective"]),
+                                               "iteration": int(self.best["iteration"]),
+                                               "tau": float(self.best["point"].tau)}
         return {
             "tau": float(self.point.tau),
             "objective": float(self.objective),
@@ -59,11 +67,17 @@ class OptimizationResult:
             "wall_time_s": float(self.wall_time),
             "evaluations": dict(self.evaluations),
             "failed_trials": int(self.failed_trials),
+            "best": best,
         }
 
 
 class EvaluationCache:
-    """``(J, Riesz gradient)`` of every evaluated point, on disk (one atomic NPZ per point) or in memory."""
+    """``(J, Riesz gradient)`` of every evaluated point, on disk (one atomic NPZ per point) or in memory.
+
+    An entry that cannot be read back (not an NPZ archive, arrays missing, non-finite, or a
+    gradient of another shape than the point's) is reported (`RuntimeWarning`), deleted and
+    recomputed: a damaged cache costs evaluations, never the run.
+    """
 
     def __init__(self, J: ReducedFunctional, directory=None):
         self.J, self.dir = J, Path(directory) if directory is not None else None
@@ -78,23 +92,69 @@ class EvaluationCache:
         h.update(np.float64(m.tau).tobytes())
         return h.hexdigest()[:32]
 
+    @staticmethod
+    def read_entry(path: Path) -> tuple[float, ControlPoint]:
+        """``(J, gradient)`` stored in ``path``; `ValueError` naming the damage if it is not a
+        complete entry."""
+        try:
+            data = read_npz(path)
+        except (OSError, EOFError, ValueError, zipfile.BadZipFile) as err:
+            raise ValueError(f"unreadable: {type(err).__name__}") from None
+        missing = {"J", "gxi", "gtau"} - set(data)
+        if missing:
+            raise ValueError(f"missing array(s) {sorted(missing)}")
+        J, gxi, gtau = data["J"], data["gxi"], data["gtau"]
+        if J.shape != () or gtau.shape != () or gxi.ndim != 2:
+            raise ValueError("arrays of the wrong shape")
+        if not (np.isfinite(J) and np.isfinite(gtau) and np.all(np.isfinite(gxi))):
+            raise ValueError("non-finite values")
+        return float(J), ControlPoint(gxi.astype(np.float64), float(gtau))
+
+    @classmethod
+    def scan(cls, directory) -> tuple[int, list]:
+        """``(count, dropped)``: the readable entries of a cache folder, and ``(path, reason)`` for
+        each damaged one, which is deleted (the run will recompute it)."""
+        directory = Path(directory)
+        if not directory.is_dir():
+            return 0, []
+        count, dropped = 0, []
+        for path in sorted(directory.glob("*.npz")):
+            try:
+                cls.read_entry(path)
+                count += 1
+            except ValueError as err:
+                path.unlink(missing_ok=True)
+                dropped.append((path, str(err)))
+        return count, dropped
+
     def __call__(self, m: ControlPoint) -> tuple[float, ControlPoint]:
         k = self.key(m)
         if k in self.memory:
             self.hits += 1
             return self.memory[k]
         path = self.dir / f"{k}.npz" if self.dir is not None else None
-        if path is not None and path.exists():
-            data = read_npz(path)
-            out = (float(data["J"]), ControlPoint(data["gxi"], float(data["gtau"])))
+        out = self._cached(path, m) if path is not None and path.exists() else None
+        if out is not None:
             self.hits += 1
         else:
-            J, g = self.J.value_and_gradient(m)
-            out = (J, g)
+            out = self.J.value_and_gradient(m)
             if path is not None:
-                write_npz(path, J=np.float64(J), gxi=g.xi, gtau=np.float64(g.tau))
+                write_npz(path, J=np.float64(out[0]), gxi=out[1].xi, gtau=np.float64(out[1].tau))
         self.memory[k] = out
         return out
+
+    def _cached(self, path: Path, m: ControlPoint) -> tuple[float, ControlPoint] | None:
+        """The entry of ``m`` in ``path``, or None (reported, deleted) if it is damaged."""
+        try:
+            value, g = self.read_entry(path)
+            if g.xi.shape != np.shape(m.xi):
+                raise ValueError(f"gradient of shape {g.xi.shape}, the point has {np.shape(m.xi)}")
+        except ValueError as err:
+            warnings.warn(f"damaged evaluation cache entry {path} ({err}): dropped, recomputed", RuntimeWarning,
+                          stacklevel=3)
+            path.unlink(missing_ok=True)
+            return None
+        return value, g
 
 
 class LumpedMetric:

@@ -23,6 +23,11 @@ def observed_rates(sizes, errors) -> np.ndarray:
     return np.log(e[:-1] / e[1:]) / np.log(s[:-1] / s[1:])
 
 
+# The observed rate of a correct gradient: the second-order remainder's 2, within this (the
+# pre-asymptotic range ends when the last two rates are inside it).
+EXPECTED_RATE, RATE_TOLERANCE = 2.0, 0.1
+
+
 @dataclass
 class TaylorResult:
     """Steps h, remainders r(h), observed rates between successive steps, and their summary."""
@@ -38,9 +43,14 @@ class TaylorResult:
         """The rate on the two smallest steps above the noise floor (the asymptotic one)."""
         return float(self.rates[-1]) if self.rates.size else float("nan")
 
+    @property
+    def passed(self) -> bool:
+        """The asymptotic rate is ``EXPECTED_RATE`` within ``RATE_TOLERANCE`` (a correct gradient)."""
+        return bool(abs(self.rate - EXPECTED_RATE) <= RATE_TOLERANCE)
+
     def as_dict(self) -> dict:
         return {"h": self.h.tolist(), "remainder": self.remainder.tolist(), "rates": self.rates.tolist(),
-                "rate": self.rate, "dJ_dm": self.derivative, "J": self.value}
+                "rate": self.rate, "passed": self.passed, "dJ_dm": self.derivative, "J": self.value}
 
 
 def taylor_test(J: ReducedFunctional, m: ControlPoint, dm: ControlPoint, *, steps: int = 5,
@@ -65,7 +75,7 @@ def taylor_test(J: ReducedFunctional, m: ControlPoint, dm: ControlPoint, *, step
         hs.append(h)
         rs.append(r)
         rates = observed_rates(hs, rs) if len(rs) > 1 else np.array([])
-        if len(rs) >= steps and np.all(np.abs(rates[-2:] - 2.0) <= 0.1):
+        if len(rs) >= steps and np.all(np.abs(rates[-2:] - EXPECTED_RATE) <= RATE_TOLERANCE):
             break
         h /= 2
     hs, rs = np.array(hs[-steps:]), np.array(rs[-steps:])

@@ -15,29 +15,39 @@ import numpy as np
 from .config import Config
 from .dynamics import TimeStepper, detect_regimes
 from .errors import InputError
-from .io import read_json, write_json
-from .optimize import BBStepRule, OptimizationResult, barzilai_borwein, check_tau_scale, lbfgsb, newton_cg
+from .io import read_json, write_json, write_npz
+from .optimize import EvaluationCache, OptimizationResult, barzilai_borwein, lbfgsb, newton_cg
 from .reduced import ControlPoint, ReducedFunctional
 from .report import write_state_outputs
 from .verification import random_directions, taylor_test
 
-__all__ = ["check_run", "simulate", "build_reduced", "optimize_single", "optimize", "check_gradient"]
+__all__ = ["check_run", "simulate", "build_reduced", "optimize_single", "optimize", "check_gradient", "resume_state"]
+
+ITERATIONS_FILE = "iterations.json"  # in a run's checkpoint folder: the last iteration completed
+BEST_FILE = "best.npz"  # an iterate with a higher J than the final one (`OptimizationResult.best`)
 
 
-def check_run(cfg: Config, command: str):
+def check_run(cfg: Config, command: str, mesh=None):
     """Everything a ``simulate`` or ``optimize`` run checks before it starts, so that bad input
     fails (`InputError`) before any output is written: the model (mesh, material, boundary tags,
     control region), the time grid, and for ``simulate`` the prescribed control, for ``optimize``
-    every start's tau, the objective and the optimizer options. Returns the model, which the run
-    can reuse (``model=``)."""
-    model = cfg.model()
+    every start's tau and the objective; the types and ranges of every entry were checked by the
+    schema (`hyperoc.schema`); ``mesh``: the config's mesh if already built
+    (`hyperoc.preflight.check_inputs`). Returns the model, which the run can reuse (``model=``)."""
+    from .linsolve import SparseSolver
+
+    model = cfg.model(mesh)
     grid = cfg.grid()
+    cfg.scheme()
+    solver = cfg["dynamics"]["solver"]
+    if solver not in ("auto", "tridiagonal", "dense", *SparseSolver.methods):
+        raise InputError(f"config: [dynamics] solver {solver!r} unknown (auto, tridiagonal, dense, "
+                         f"{', '.join(SparseSolver.methods)})")
     if command == "simulate":
         cfg.prescribed_control(model, grid.t)
     elif command == "optimize":
         cfg.tau_starts()
         cfg.objective()
-        _check_optimizer_options(cfg["optimize"])
     else:
         raise ValueError(f"check_run: unknown command {command!r}")
     return model
@@ -65,59 +75,80 @@ def build_reduced(cfg: Config, tau0: float, model=None) -> ReducedFunctional:
                              checkpoint_every=o.get("checkpoint_every"), checkpoint_snapshots=o.get("checkpoint_snapshots"))
 
 
-def optimize_single(cfg: Config, tau0: float, *, checkpoint=None, method: str | None = None, progress: bool = False,
-                    J: ReducedFunctional | None = None) -> tuple[ReducedFunctional, OptimizationResult]:
-    """One optimization from ``(xi, tau) = (0, tau0)`` with the method of ``[optimize]``.
+def optimize_single(cfg: Config, tau0: float, *, checkpoint=None, progress: bool = False,
+                    J: ReducedFunctional | None = None, iterations_done: int = 0) -> tuple[ReducedFunctional, OptimizationResult]:
+    """One optimization from ``(xi, tau) = (0, tau0)`` with the method of ``[optimize]`` (whose
+    method-specific options the schema keeps only for that method).
 
     ``J``: the config's reduced functional (default: `build_reduced`); passing one reuses its
-    compiled state and adjoint solves.
+    compiled state and adjoint solves. ``checkpoint``: the folder of the evaluation cache, where
+    the last completed iteration is also recorded (`resume_state`); ``iterations_done``: where a
+    resumed run's progress bar starts (the iterations up to it replay cached evaluations).
     """
     J = J or build_reduced(cfg, tau0)
     o = cfg["optimize"]
-    method = method or o["method"]
-    bar = _progress_bar(progress, o["max_iter"], f"optimize (tau0={tau0:g})")
+    bar = _progress_bar(progress, o["max_iter"], f"optimize (tau0={tau0:g})", iterations_done)
+    best = {"objective": -np.inf}
+    if checkpoint is not None:
+        Path(checkpoint).mkdir(parents=True, exist_ok=True)
 
     def callback(k, m, value, measure):  # measure: the stopping test's (projected, with bounds) ||G||
-        if bar is not None:
+        if value > best["objective"]:
+            best.update(point=m, objective=value, iteration=k)
+        if checkpoint is not None and k > iterations_done:
+            write_json(Path(checkpoint) / ITERATIONS_FILE, {"iterations": k})
+        if bar is not None and k > iterations_done:
             bar.update(1)
             bar.set_postfix(J=f"{value:.5g}", tau=f"{m.tau:.4f}", G=f"{measure:.2e}")
 
     kwargs = dict(gtol=float(o["gtol"]), max_iter=int(o["max_iter"]), checkpoint=checkpoint, callback=callback,
-                  tau_margin=o.get("tau_margin"))
-    _check_optimizer_options({**o, "method": method})
-    if method == "bb":
-        res = barzilai_borwein(J, J.zero(tau0), xi_bounds=cfg.xi_bounds(), steps=o["steps"], bb_step=o["bb_step"],
-                               nonmonotone=o["nonmonotone"], **kwargs)
-    elif method == "newton":
-        res = newton_cg(J, J.zero(tau0), xi_bounds=cfg.xi_bounds(), max_cg=o["max_cg"], **kwargs)
+                  tau_margin=o.get("tau_margin"), xi_bounds=cfg.xi_bounds())
+    if o["method"] == "bb":
+        res = barzilai_borwein(J, J.zero(tau0), steps=o["steps"], bb_step=o["bb_step"], nonmonotone=o["nonmonotone"],
+                               **kwargs)
+    elif o["method"] == "newton":
+        res = newton_cg(J, J.zero(tau0), max_cg=o["max_cg"], **kwargs)
     else:
-        res = lbfgsb(J, J.zero(tau0), xi_bounds=cfg.xi_bounds(), tau_scale=o["tau_scale"], **kwargs)
+        res = lbfgsb(J, J.zero(tau0), tau_scale=o["tau_scale"], **kwargs)
     if bar is not None:
         bar.close()
+    if res.history["objective"] and res.history["objective"][0] > best["objective"]:
+        best.update(point=J.zero(tau0), objective=res.history["objective"][0], iteration=0)
+    res.best = best if best["objective"] > res.objective else None
     return J, res
 
 
-def _check_optimizer_options(o: dict) -> None:
-    """The ``[optimize]`` entries that only the optimizer reads: method, steps, bb_step, nonmonotone, max_cg, tau_scale."""
-    if o["method"] not in ("bb", "lbfgsb", "newton"):
-        raise InputError(f"config: [optimize] method {o['method']!r} unknown (bb, lbfgsb, newton)")
-    if o["steps"] not in ("joint", "blockwise"):
-        raise InputError(f"config: [optimize] steps must be 'joint' or 'blockwise', got {o['steps']!r}")
-    if o["bb_step"] not in BBStepRule.RULES:
-        raise InputError(f"config: [optimize] bb_step must be one of {', '.join(BBStepRule.RULES)}, got {o['bb_step']!r}")
-    if o["max_cg"] < 1:
-        raise InputError(f"config: [optimize] max_cg must be >= 1, got {o['max_cg']}")
-    if o["nonmonotone"] < 0:
-        raise InputError(f"config: [optimize] nonmonotone must be >= 0 (0: the paper's Algorithm 1), got {o['nonmonotone']}")
-    check_tau_scale(o["tau_scale"])  # used by L-BFGS-B only, checked for every method
+def resume_state(cfg: Config, out) -> dict:
+    """What a resumed run of ``cfg`` in ``out`` starts from: ``{"evaluations": N, "iterations": K,
+    "dropped": [(path, reason), ...]}``, N the cached evaluations of every start (damaged entries
+    dropped, `EvaluationCache.scan`), K the iterations completed (summed over the starts)."""
+    out = Path(out)
+    starts = cfg.tau_starts()
+    folders = [out] if len(starts) == 1 else [_start_dir(out, k, t) for k, t in enumerate(starts)]
+    total, iterations, dropped = 0, 0, []
+    for folder in folders:
+        count, bad = EvaluationCache.scan(folder / "checkpoint")
+        total, dropped = total + count, dropped + bad
+        iterations += _iterations_done(folder / "checkpoint")
+    return {"evaluations": total, "iterations": iterations, "dropped": dropped}
 
 
-def _progress_bar(enabled: bool, total: int, desc: str):
+def _iterations_done(checkpoint: Path) -> int:
+    """The iteration recorded in ``checkpoint/iterations.json`` (0 if none or unreadable: the
+    progress count only, the cached evaluations are replayed either way)."""
+    try:
+        k = read_json(checkpoint / ITERATIONS_FILE)["iterations"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return 0
+    return k if isinstance(k, int) and k >= 0 else 0
+
+
+def _progress_bar(enabled: bool, total: int, desc: str, initial: int = 0):
     if not enabled:
         return None
     from tqdm.auto import tqdm
 
-    return tqdm(total=total, desc=desc, leave=False)
+    return tqdm(total=total, desc=desc, leave=False, initial=initial)
 
 
 def write_optimization_outputs(out: Path, cfg: Config, J: ReducedFunctional, res: OptimizationResult, extra=None) -> dict:
@@ -127,6 +158,10 @@ def write_optimization_outputs(out: Path, cfg: Config, J: ReducedFunctional, res
     summary = {**res.summary(), "objective_terms": parts, "tau0": float(res.history["tau"][0]),
                **(extra or {})}
     hist = {"objective": res.history["objective"], "grad_norm": res.history["grad_norm"], "tau": res.history["tau"]}
+    if res.best is not None:  # the final iterate is written below; the better earlier one beside it
+        write_npz(out / BEST_FILE, xi=res.best["point"].xi, tau=np.float64(res.best["point"].tau),
+                  objective=np.float64(res.best["objective"]), iteration=np.int64(res.best["iteration"]))
+        summary["best"]["file"] = BEST_FILE
     o = cfg["output"]
     return write_state_outputs(out, sol, tau=res.point.tau, eps=J.transform.eps or None, history=hist,
                                snapshot_times=o.get("snapshot_times"), series_every=o.get("series_every"),
@@ -159,13 +194,14 @@ def _run_start(cfg_sections: dict, base: str, tau0: float, folder: str) -> dict:
 
 
 def optimize(cfg: Config, out, *, progress: bool = False, scheduler: str | None = None, workers: int = 2,
-             model=None) -> dict:
+             model=None, iterations_done: int = 0) -> dict:
     """Optimize from every tau start of ``[optimize]``; several starts run in parallel on Dask.
 
     Each start writes into its own folder; a start whose ``summary.json`` exists is not recomputed
     (resume). The best start's outputs are also written at the top level of ``out``. ``model``: the
     config's model if already built (`check_run`), used by a single start (each start of several
-    builds its own, on its worker).
+    builds its own, on its worker); ``iterations_done``: a resumed single start's completed
+    iterations (`resume_state`), where its progress bar starts.
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -173,7 +209,7 @@ def optimize(cfg: Config, out, *, progress: bool = False, scheduler: str | None 
     start_time = time.perf_counter()
     if len(starts) == 1:
         J, res = optimize_single(cfg, starts[0], checkpoint=out / "checkpoint", progress=progress,
-                                 J=build_reduced(cfg, starts[0], model))
+                                 J=build_reduced(cfg, starts[0], model), iterations_done=iterations_done)
         return write_optimization_outputs(out, cfg, J, res)
     results = _multistart(cfg, out, starts, scheduler, workers)
     ok = [r for r in results if r["status"] == "ok"]
@@ -213,12 +249,12 @@ def _multistart(cfg: Config, out: Path, starts, scheduler, workers) -> list:
     return [results[k] for k in sorted(results)]
 
 
-def check_gradient(cfg: Config, *, seed: int = 0, J: ReducedFunctional | None = None) -> dict:
+def check_gradient(cfg: Config, *, seed: int = 0, J: ReducedFunctional | None = None, report=None) -> dict:
     """Taylor tests of the exact gradient at a nonzero control, for xi, tau and joint directions.
 
     The point is ``xi = 0.1 * xi_scale * (smooth random field)`` and the configured tau0 (or T/2),
     so that J depends on tau (at xi = 0 the state is trivial and J is flat in tau). ``J``: as in
-    `optimize_single`.
+    `optimize_single`. ``report(name, result)``: called as each direction's test ends.
     """
     tau0 = cfg.tau_starts()[0]
     J = J or build_reduced(cfg, tau0)
@@ -228,4 +264,6 @@ def check_gradient(cfg: Config, *, seed: int = 0, J: ReducedFunctional | None = 
     for name, dm in random_directions(J, m, seed=seed + 1).items():
         r = taylor_test(J, m, dm)
         out[name] = r.as_dict()
+        if report is not None:
+            report(name, out[name])
     return out
