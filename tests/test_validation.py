@@ -45,7 +45,7 @@ BAD_SETTINGS = [
     ("objective.alpha=-1", "alpha must be >= 0"),
     ("objective.beta=-0.5", "beta must be >= 0"),
     ("objective.beta=inf", "beta must be a finite number"),
-    ("objective.phi1=volume", "phi1 must be 'pressure' or 'pressure_rise'"),
+    ("objective.phi1=volume", "phi1 must be 'pressure', 'pressure_rise' or 'pressure_mean'"),
     ("objective.phi1=pressure_rise", "needs eps > 0"),
     ("objective.eps=0.1", "eps does not apply to phi1 = 'pressure'"),
     ("material.mu=nan", "mu must be a finite number"),
