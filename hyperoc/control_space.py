@@ -14,8 +14,9 @@ diagonal time weights and K the tridiagonal 1D stiffness in s (natural end condi
 ``l_s > 0`` is H^1(0, 2; L2(omega)), the geometry of the regularized cost
 ``alpha/2 ||xi||^2 + beta/2 ||d xi/dt||^2``: with ``dt = mu_dot ds`` and ``mu_dot = T/2`` at
 ``tau = T/2``, that cost is ``alpha T/4 (||xi||^2_s + l_s^2 ||d_s xi||^2_s)`` with
-``l_s = (2/T) sqrt(beta / alpha)``, so gradients in this metric are those the cost's Hessian
-would give, and the number of iterations does not grow with the number of time levels.
+``l_s = (2/T) sqrt(beta / alpha)``; `control_space` scales the xi-part by ``c = alpha T/2``, so the
+metric is the cost's Hessian there, and the number of iterations does not grow with the number of
+time levels.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ import scipy.sparse.linalg as spla
 
 from .timegrid import trapezoid_weights
 
-__all__ = ["ControlSpace", "s_time_scale"]
+__all__ = ["ControlSpace", "control_space", "s_time_scale"]
 
 
 def s_time_scale(alpha: float, beta: float, T: float) -> float:
@@ -49,13 +50,15 @@ class ControlSpace:
     mass : (n_ctrl, n_ctrl) sparse L2(omega) Gram matrix of the control nodes.
     lumped_mass : (n_ctrl,) positive lumped weights of the same nodes.
     time_scale : ``l_s >= 0`` (`s_time_scale`); 0 gives L2 in time, > 0 gives H^1 in time.
+    weight : c > 0, the factor of the xi-part, ``<a, b> = c a.xi : (A_t b.xi M) + a.tau b.tau``.
     """
 
-    def __init__(self, ds, mass, lumped_mass, time_scale: float = 0.0):
+    def __init__(self, ds, mass, lumped_mass, time_scale: float = 0.0, weight: float = 1.0):
         self.ds = np.asarray(ds, dtype=np.float64)
         self.mass, self.lumped_mass = mass, np.asarray(lumped_mass, dtype=np.float64)
-        self.time_scale = float(time_scale)
+        self.time_scale, self.weight = float(time_scale), float(weight)
         self.weights = trapezoid_weights(self.ds)  # (N+1,)
+        self._w = self.weight * self.weights  # the time weights of the metric
 
     @property
     def regular_in_time(self) -> bool:
@@ -65,9 +68,9 @@ class ControlSpace:
     # --- the time operator A_t = W + l_s^2 K (tridiagonal, SPD) ----------------------------------
     @cached_property
     def time_bands(self) -> np.ndarray:
-        """``A_t`` in upper banded storage (2, N+1): row 0 the superdiagonal, row 1 the diagonal."""
-        k = self.time_scale**2 / self.ds  # (N,) stiffness of each s-interval
-        diag = self.weights.copy()
+        """``A_t = c (W + l_s^2 K)`` in upper banded storage (2, N+1): row 0 the superdiagonal, row 1 the diagonal."""
+        k = self.weight * self.time_scale**2 / self.ds  # (N,) stiffness of each s-interval
+        diag = self._w.copy()
         diag[:-1] += k
         diag[1:] += k
         upper = np.concatenate([[0.0], -k])
@@ -81,7 +84,7 @@ class ControlSpace:
     def apply_time(self, x: np.ndarray) -> np.ndarray:
         """``A_t x`` for x (N+1, ...)."""
         if not self.regular_in_time:
-            return self.weights.reshape((-1,) + (1,) * (x.ndim - 1)) * x
+            return self._w.reshape((-1,) + (1,) * (x.ndim - 1)) * x
         upper, diag = self.time_bands
         out = diag.reshape((-1,) + (1,) * (x.ndim - 1)) * x
         off = upper[1:].reshape((-1,) + (1,) * (x.ndim - 1))
@@ -92,7 +95,7 @@ class ControlSpace:
     def solve_time(self, b: np.ndarray) -> np.ndarray:
         """``A_t^{-1} b`` for b (N+1, ...) (a banded Cholesky solve)."""
         if not self.regular_in_time:
-            return b / self.weights.reshape((-1,) + (1,) * (b.ndim - 1))
+            return b / self._w.reshape((-1,) + (1,) * (b.ndim - 1))
         return sla.cho_solve_banded((self.time_cholesky, False), b)
 
     # --- inner product and Riesz map -------------------------------------------------------------
@@ -120,7 +123,7 @@ class ControlSpace:
     @cached_property
     def _diagonal_scale(self) -> np.ndarray:
         """``sqrt(w_k D_i)`` (N+1, n_ctrl): the coordinate scale when the metric is L2 in time."""
-        return np.sqrt(self.weights[:, None] * self.lumped_mass[None, :])
+        return np.sqrt(self._w[:, None] * self.lumped_mass[None, :])
 
     def to_coordinates(self, xi: np.ndarray) -> np.ndarray:
         """``z = U xi D^(1/2)`` (U the Cholesky factor of A_t; ``sqrt(w) xi sqrt(D)`` in L2): Euclidean
@@ -144,3 +147,19 @@ class ControlSpace:
             return dual_xi / self._diagonal_scale
         lower = np.vstack([self.time_cholesky[1], np.concatenate([self.time_cholesky[0, 1:], [0.0]])])
         return sla.solve_banded((1, 0), lower, dual_xi / np.sqrt(self.lumped_mass))
+
+
+def control_space(transform, control, alpha: float, beta: float) -> ControlSpace:
+    """The control space of a problem with the cost ``alpha/2 ||xi||^2 + beta/2 ||xi_t||^2``.
+
+    beta = 0: L2(0, 2; L2(omega)), the metric of the paper's Algorithm 1. beta > 0: H^1 in time,
+    scaled to the Hessian of that cost at ``tau = T/2`` (``c = alpha T/2``, l_s from `s_time_scale`;
+    ``c = beta`` when alpha = 0). Why the scale: in that metric the xi-block of J's Hessian is the
+    identity plus the observation's part, while tau keeps the weight 1, so that a gradient step
+    moves xi and tau by comparable amounts of J and Barzilai-Borwein steps are not held back by the
+    ratio of the two curvatures.
+    """
+    if beta <= 0:
+        return ControlSpace(transform.ds(), control.mass, control.lumped_mass)
+    weight = alpha * transform.T / 2 if alpha > 0 else beta
+    return ControlSpace(transform.ds(), control.mass, control.lumped_mass, s_time_scale(alpha, beta, transform.T), weight)

@@ -25,7 +25,7 @@ import numpy as np
 
 from . import _jax  # noqa: F401
 from .adjoint import Adjoint, Checkpoints, RevolveRecord
-from .control_space import ControlSpace, s_time_scale
+from .control_space import ControlSpace, control_space
 from .dynamics import Scheme, StateSolution, TimeStepper
 from .errors import InputError
 from .model import StateModel
@@ -160,8 +160,7 @@ class ReducedFunctional:
         self.model, self.transform, self.objective = model, transform, objective
         if space is None:
             alpha, beta = objective.control_weights
-            space = ControlSpace(transform.ds(), model.control.mass, model.control.lumped_mass,
-                                 s_time_scale(alpha, beta, transform.T))
+            space = control_space(transform, model.control, alpha, beta)
         if gradient == "continuous" and objective.control_weights[1] > 0:
             raise InputError("gradient = 'continuous' does not include the cost of d xi/dt: use 'exact' with beta > 0")
         self.space = space

@@ -134,3 +134,14 @@ def test_both_optimizers_find_the_same_maximizer(optima):
     a, b = optima["bb"], optima["lbfgsb"]
     assert a.objective == pytest.approx(b.objective, rel=1e-9)
     assert a.point.tau == pytest.approx(b.point.tau, abs=1e-5)
+
+
+def test_h1_metric_is_the_hessian_of_the_control_cost_at_half_time(bar):
+    """With beta > 0 the xi-part of the metric is ``alpha T/2 (W + l_s^2 K) (x) M``: at tau = T/2 the control
+    cost ``alpha/2 ||xi||^2 + beta/2 ||xi_t||^2`` (quadratic in xi) is exactly half the squared norm."""
+    T = bar.transform.T
+    rng = np.random.default_rng(5)
+    v = ControlPoint(rng.standard_normal((bar.N + 1, bar.model.control.size)), 0.0)
+    traj = bar.trajectory(bar.state(ControlPoint(v.xi, T / 2)))
+    cost = -sum(float(term.value(traj)) for term in bar.objective.running)
+    assert cost == pytest.approx(0.5 * bar.inner(v, v), rel=1e-12)
