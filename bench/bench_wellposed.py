@@ -19,10 +19,14 @@ Tables:
     python bench/bench_wellposed.py                        # full study (~30 min on one core)
     python bench/bench_wellposed.py --quick                # dt in {0.04, 0.02}, h in {0.02}, one beta
     python bench/bench_wellposed.py --variant 10,10        # alpha = beta = 10: local maximizers, two methods
+    python bench/bench_wellposed.py --variant 10,10 --grid # the same, L-BFGS-B on the 3 x 3 (h, dt) grid
 
 With ``--variant ALPHA,BETA`` it runs instead L-BFGS-B and Algorithm 1 from tau0 = 7.5 and 6.3 on
 (h, dt) = (0.02, 0.04) and (0.01, 0.02) with those weights (a control cost that competes with the
-pressure, so the optimum stays in the elastic range), into ``bench_wellposed_variant.json``.
+pressure, so the optimum stays in the elastic range), into ``bench_wellposed_variant.json``. With
+``--grid`` as well: L-BFGS-B from tau0 = 7.5 on h in {0.02, 0.01, 0.005} x dt in {0.04, 0.02, 0.01}
+(iteration counts against their median; successive differences of tau* and J* along each refinement,
+their observed order and the Richardson estimate), into ``bench_wellposed_grid.json``.
 """
 
 from __future__ import annotations
@@ -87,6 +91,40 @@ def variant_study(alpha: float, beta: float, max_iter: int) -> None:
         VARIANT_COLUMNS, rows, "converged: relative gradient (H^1 metric) <= 1e-6 within the iterations allowed")])
 
 
+def refinement_rows(label: str, rows: list, key: int) -> list:
+    """Successive differences of column ``key`` over three rows refined by 2, the observed order and
+    the Richardson estimate ``v3 + (v3 - v2) / (2^q - 1)``."""
+    v = [r[key] for r in rows]
+    d1, d2 = v[1] - v[0], v[2] - v[1]
+    q = float(np.log2(abs(d1 / d2))) if d1 and d2 else float("nan")
+    richardson = v[2] + d2 / (2**q - 1) if np.isfinite(q) and q > 0 else None
+    return [label, *v, d1, d2, q, richardson]
+
+
+def grid_study(alpha: float, beta: float, max_iter: int) -> None:
+    hs, dts = (0.02, 0.01, 0.005), (0.04, 0.02, 0.01)
+    rows = {(h, dt): variant_run(alpha, beta, "lbfgsb", 7.5, h, dt, max_iter) for h in hs for dt in dts}
+    its = np.array([r[6] for r in rows.values()])
+    median = float(np.median(its))
+    spread = [[h, dt, rows[h, dt][6], rows[h, dt][6] / median - 1] for h in hs for dt in dts]
+    diagonal = [rows[h, dt] for h, dt in zip(hs, dts)]
+    fixed_h = [rows[0.01, dt] for dt in dts]
+    fixed_dt = [rows[h, 0.02] for h in hs]
+    conv = [refinement_rows(f"{name}: {label}", seq, key) for label, seq in
+            (("dt refined at h = 0.01", fixed_h), ("h refined at dt = 0.02", fixed_dt), ("both refined", diagonal))
+            for name, key in (("tau*", 5), ("J*", 4))]
+    for r in conv:
+        print("  ".join(_fmt(v) for v in r))
+    write_results("bench_wellposed_grid", command_line(), [
+        table(f"alpha = {alpha:g}, beta = {beta:g}: L-BFGS-B from tau0 = 7.5 on the (h, dt) grid", VARIANT_COLUMNS,
+              list(rows.values())),
+        table("Iterations against their median", ["h", "dt", "iterations", "relative to the median"], spread),
+        table("Convergence of the optimum under refinement", ["sequence", "coarse", "middle", "fine", "difference 1",
+              "difference 2", "observed order", "Richardson estimate"], conv,
+              "the paper reports tau ~ 7.9 for alpha = 2e-3, beta = 0 (no maximizer: see the well-posedness page)"),
+    ])
+
+
 def nodal_load_response(h: float, dt: float = 0.04) -> list:
     """p(tau) for a unit load at the node x = 1 and at x = 1 - h, held on [6.5, 7.5]; tau = 7.5."""
     J = build_reduced(_with(paper_config(), mesh__n=int(round(1 / h)), dynamics__dt=dt), TAU0)
@@ -116,10 +154,11 @@ def main() -> None:
     ap.add_argument("--max-iter", type=int, default=100)
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--variant", help="ALPHA,BETA: the variant study instead")
+    ap.add_argument("--grid", action="store_true", help="with --variant: the 3 x 3 (h, dt) grid")
     args = ap.parse_args()
     if args.variant:
         alpha, beta = (float(v) for v in args.variant.split(","))
-        return variant_study(alpha, beta, args.max_iter)
+        return (grid_study if args.grid else variant_study)(alpha, beta, args.max_iter)
     dts = [0.04, 0.02] if args.quick else [float(v) for v in args.dts.split(",")]
     hs = [0.02] if args.quick else [float(v) for v in args.hs.split(",")]
     betas = [0.0] + [float(v) for v in args.betas.split(",")]
