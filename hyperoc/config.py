@@ -136,11 +136,18 @@ class Config:
             return ActiveStress(region, fibres=None if frames is None else frames.fibre)
         raise InputError(f"config: [control] kind {c['kind']!r} unknown (body_force, active_stress)")
 
+    def material(self):
+        """The `hyperoc.materials.Material` of ``[material]``, its parameters checked (no JAX needed)."""
+        from .materials import material_from_config
+
+        with _in_section("material"):
+            return material_from_config({k: v for k, v in self["material"].items() if k != "volumetric"})
+
     def model(self, mesh=None):
         """The `hyperoc.model.StateModel` of the config (on ``mesh`` if already built); the frames of
         ``[fibres]`` serve both a fibre-dependent material and the active stress (its fibre = row 0
         of the frame)."""
-        from .materials import Guccione, HolzapfelOgden, material_from_config
+        from .materials import Guccione, HolzapfelOgden
         from .model import StateModel
 
         d = self["dynamics"]
@@ -148,8 +155,7 @@ class Config:
         traction = d.get("traction")
         if traction is not None and len(traction) != mesh.dim:
             raise InputError(f"config: [dynamics] traction must be a list of {mesh.dim} numbers, got {len(traction)}")
-        with _in_section("material"):
-            material = material_from_config({k: v for k, v in self["material"].items() if k != "volumetric"})
+        material = self.material()
         frames = self.fibres(mesh)
         if frames is None and isinstance(material, (Guccione, HolzapfelOgden)):
             raise InputError(f"config: [material] law {self['material']['law']!r} needs fibres: add [fibres] kind = 'rule_based'")

@@ -30,11 +30,9 @@ import math
 from dataclasses import dataclass, fields, replace
 from functools import partial
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
-from . import _jax  # noqa: F401  (float64 everywhere)
+from ._lazy import jax, jnp  # JAX on first use: checking a material's parameters does not start it
 from .errors import InputError
 
 __all__ = [

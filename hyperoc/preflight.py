@@ -32,7 +32,7 @@ LOCAL_NODES = {(1, 1): 2, (1, 2): 3, (2, 1): 3, (2, 2): 6, (3, 1): 4, (3, 2): 10
 
 def check_inputs(cfg, command: str, force: bool = False):
     """The checks of a run that need no solver: the files ``cfg`` names, the problem's size
-    (`check_resources`), the mesh and control region, the time grid and, for ``simulate``, the
+    (`check_resources`), the material's parameters, the mesh and control region, the time grid and, for ``simulate``, the
     prescribed control on the actual space-time grid. Returns the mesh, for the model to reuse."""
     from .config import read_control_file
 
@@ -42,6 +42,7 @@ def check_inputs(cfg, command: str, force: bool = False):
     if control_file is not None:
         read_control_file(control_file)
     check_resources(cfg, command, force)
+    cfg.material()
     mesh = cfg.mesh()
     grid = cfg.grid()
     control, space = cfg.control_data(mesh)

@@ -258,3 +258,19 @@ def test_keys_of_other_kinds_at_their_defaults_are_dropped(tmp_path):
     assert cfg["mesh"] == {"kind": "interval", "n": 20, "length": 1.0, "degree": 1, "refinements": 0}
     assert "eps" not in cfg["objective"] and not {"tau_scale", "max_cg"} & set(cfg["optimize"])
     assert load_config(_write(tmp_path / "again.toml", cfg.to_toml()))["mesh"] == cfg["mesh"]
+
+
+def test_material_errors_need_no_jax():
+    """A bad material parameter is reported by the checks that run before JAX is imported."""
+    code = ("import sys; from hyperoc.cli import main; "
+            "rc = main(['simulate', 'examples/simulate-1d.toml', '--out', sys.argv[1], '--set', 'material.mu=-1']); "
+            "print(rc, 'jax' in sys.modules)")
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    out = subprocess.run([sys.executable, "-c", code, str(root / "never-written")], cwd=root, capture_output=True,
+                         text=True, check=True)
+    assert out.stdout.split() == ["2", "False"]
+    assert "mu must be > 0" in out.stderr and not (root / "never-written").exists()
