@@ -1,0 +1,30 @@
+"""The persistent compilation cache that the command line turns on (`hyperoc._jax.enable_compilation_cache`)."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _simulate(tmp_path, name, **env):
+    cmd = [sys.executable, "-m", "hyperoc.cli", "simulate", "examples/simulate-1d.toml", "--out", str(tmp_path / name),
+           "--no-progress", "--set", "dynamics.T=0.2"]
+    subprocess.run(cmd, cwd=ROOT, check=True, capture_output=True, env={**os.environ, **env})
+
+
+def test_a_run_fills_the_cache_and_the_next_one_reads_it(tmp_path):
+    """The compiled time loop is stored under HYPEROC_CACHE_DIR, and a second run adds no entry for it."""
+    cache = tmp_path / "cache"
+    _simulate(tmp_path, "first", HYPEROC_CACHE_DIR=str(cache), HYPEROC_COMPILATION_CACHE="1")
+    entries = {p.name for p in cache.iterdir() if p.name.startswith("jit_")}
+    assert any(name.startswith("jit_run-") for name in entries)
+    _simulate(tmp_path, "second", HYPEROC_CACHE_DIR=str(cache), HYPEROC_COMPILATION_CACHE="1")
+    assert {p.name for p in cache.iterdir() if p.name.startswith("jit_")} == entries
+
+
+def test_the_cache_can_be_turned_off(tmp_path):
+    cache = tmp_path / "cache"
+    _simulate(tmp_path, "run", HYPEROC_CACHE_DIR=str(cache), HYPEROC_COMPILATION_CACHE="0")
+    assert not cache.exists()
