@@ -459,12 +459,11 @@ def _upper_triangle_map(pattern) -> tuple:
 
 
 def make_solver(model, kind: str = "auto"):
-    """``"auto"``: tridiagonal for 1D P1, dense up to 600 dofs, sparse LU beyond."""
+    """``"auto"``: tridiagonal for 1D P1, sparse LU otherwise. The dense LU is never faster than the
+    sparse one, compilation included, and up to several times slower from a few hundred dofs
+    (``python bench/bench_auto_solver.py``); it stays available as ``"dense"``."""
     if kind == "auto":
-        if model.dim == 1 and model.space.degree == 1:
-            kind = "tridiagonal"
-        else:
-            kind = "dense" if model.n <= 600 else "lu"
+        kind = "tridiagonal" if model.dim == 1 and model.space.degree == 1 else "lu"
     if kind == "tridiagonal":
         return TridiagonalSolver(model)
     if kind == "dense":
