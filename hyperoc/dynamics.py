@@ -1,6 +1,6 @@
 """Theta-scheme time stepping of the damped hyperelastic system with a global volume constraint.
 
-First-order system ``y0 = u``, ``y1 = u_t``; step ``n -> n+1`` of size ``dt`` (DESIGN.md section 4):
+First-order system ``y0 = u``, ``y1 = u_t``; step ``n -> n+1`` of size ``dt``:
 
     y0' = y0 + dt (theta y1' + (1 - theta) y1)
     M (y1' - y1) + dt [theta A(y0', y1') + (1 - theta) A(y0, y1)] + dt p' [theta G(y0') + (1 - theta) G(y0)]
@@ -52,7 +52,7 @@ class Scheme:
     """Time-stepping options.
 
     theta : 1/2 (Crank-Nicolson, second order) ... 1 (implicit Euler).
-    multiplier : "step" (DESIGN.md, default) or "theta" (paper/GetFEM weighting, comparison only).
+    multiplier : "step" (default) or "theta" (paper/GetFEM weighting, comparison only).
     rtol : Newton stops when ``|dy0|_inf <= rtol |y0'|_inf + atol``.
     atol : absolute floor of that test, in displacement units.
     max_iter : Newton iterations per step before the step is declared failed.

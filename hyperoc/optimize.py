@@ -442,7 +442,7 @@ def tau_scaling(J: ReducedFunctional, tau_scale: float | str, tau_range, xi_boun
     bound-constrained codes commonly normalize variables. Why: tau and xi have unrelated units, while
     scipy's line search and L-BFGS's initial Hessian ``gamma I`` treat all variables alike (the
     ventricle example converges to gtol = 1e-4 in 50-57 iterations for c from 10 to 67, and not in
-    120 with c = 1 or 0.1: bench/README.md). c = 1 without finite bounds or with tau fixed. A number:
+    120 with c = 1 or 0.1: ``python bench/bench_tau_scale.py``). c = 1 without finite bounds or with tau fixed. A number:
     that factor (> 0).
     """
     if check_tau_scale(tau_scale) == "range":

@@ -47,7 +47,7 @@ PAPER_REPORT = {
 
 XI_MAX = 0.05  # bound of the well-posed variant (same order as the control the paper's figures suggest)
 # The bounded variant's nonmonotone window (Birgin-Martinez-Raydan's SPG default): Algorithm 1's
-# unguarded BB steps let J fall to a tenth of its best value there (bench/README.md).
+# unguarded BB steps let J fall to a tenth of its best value there.
 SPG_WINDOW = 10
 
 

@@ -1,4 +1,4 @@
-"""No alternating (period 2 dt) mode in the pressure with the step multiplier (DESIGN.md section 4).
+"""No alternating (period 2 dt) mode in the pressure with the step multiplier.
 
 The paper's 1D case (SVK mu = lam = 0.05, kappa = 2e-4, h = 0.01, dt = 0.02, body force on
 [0.75, 1]). The spatial profile of the control is ``b(x) = sin(pi (x - 0.75) / 0.5)^2``, with
@@ -154,7 +154,7 @@ def test_step_level_pressure_is_the_alternation_free_filter_of_the_consistent_pr
 
 def test_theta_multiplier_pressure_follows_the_flipping_control():
     """Same states as "step" (1D: only p_n + p_{n+1} enters), p_n = phat_n: the reported pressure flips
-    by the full reaction to the control every step while the control flips (why DESIGN.md forbids it)."""
+    by the full reaction to the control every step while the control flips (why it is not the default)."""
     sol_t, sol_s = flipping_run("theta"), flipping_run("step")
     np.testing.assert_allclose(sol_t.y0, sol_s.y0, rtol=0, atol=1e-12 * np.abs(sol_s.y0).max())
     pt = sol_t.p_steps  # level values p_0 .. p_N

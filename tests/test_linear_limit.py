@@ -9,7 +9,7 @@ with ``K_L`` the Lame stiffness ``int 2 mu eps(v):eps(w) + lam div v div w`` (th
 F = I), ``G0 = int div(phi)`` (the volume gradient at u = 0), M the mass and K the vector Laplacian.
 Here every matrix is assembled by hand from P1 strain-displacement (Voigt) formulas with numpy,
 without hyperoc's autodiff kernels or assembly, and the Crank-Nicolson step with the per-step
-multiplier (DESIGN.md section 4) is written out and solved with scipy.
+multiplier is written out and solved with scipy.
 
 Second-order Taylor remainder: ``|u_nl / eps - u_lin| / |u_lin| = C eps`` with C ~ |grad u_hat|
 (the quadratic part of E and p H u); so it falls 10x per decade of eps, and is asserted in [5, 20]x

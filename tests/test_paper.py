@@ -1,6 +1,6 @@
 """The README's main job, ``hyperoc reproduce paper-1d``, on a coarse grid with a few iterations.
 
-The full run is measured in bench/README.md; here the same code path runs on h = 0.05, dt = 0.1,
+The full run is measured by bench/bench_paper_job.py; here the same code path runs on h = 0.05, dt = 0.1,
 3 iterations, so that the job's structure (studies, files, parallel workers) cannot rot.
 """
 

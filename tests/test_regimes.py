@@ -1,4 +1,4 @@
-"""Regimes where the discrete solution must not be trusted silently (DESIGN.md section 7).
+"""Regimes where the discrete solution must not be trusted silently.
 
 (a) Saint Venant-Kirchhoff in strong compression: in 1D ``P(F) = (2 mu + lam) F (F^2 - 1) / 2`` has
     ``dP/dF < 0`` for ``F < 1/sqrt(3)``, i.e. ``u_x < -1 + 1/sqrt(3)``: the acoustic tensor is

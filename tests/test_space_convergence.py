@@ -1,4 +1,4 @@
-"""Space convergence on manufactured static solutions (DESIGN.md sections 4 and 7).
+"""Space convergence on manufactured static solutions.
 
 A smooth displacement ``u_ex`` (zero on the Dirichlet side x = 0) and a constant multiplier
 ``p_ex`` solve the static volume-constrained problem

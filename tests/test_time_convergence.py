@@ -1,4 +1,4 @@
-"""Time order of the theta-scheme (DESIGN.md section 4), by self-convergence in dt.
+"""Time order of the theta-scheme, by self-convergence in dt.
 
 Smooth control ``xi(x, t) = A sin(pi t / T)^2 b(x)`` with a smooth spatial bump b, so that the exact
 solution of the semi-discrete (space-discretized) system is smooth in time. For a method of order

@@ -12,7 +12,7 @@ formulation with a pressure constant per cell, condensed. What is checked:
   then move the tip by at most ``max(mu) / 1e3`` relative. The pointwise formulation locks: its
   beam stiffens with kappa far beyond that bound;
 - Land problem 2 (the ventricle inflated to 10 kPa, coarsest mesh): with Guccione on the full strain
-  a cell folds inside while keeping its mean J (det F -> 0 at about 0.36 of the load, `bench/README.md`);
+  a cell folds inside while keeping its mean J (det F -> 0 at about 0.36 of the load);
   with Guccione on the isochoric strain (`Guccione(isochoric=True)`, the Simo-Taylor-Pister split)
   the rest energy grows without bound as a point is compressed to J -> 0 (unless it keeps its
   shape) and the full load is reached;
