@@ -118,7 +118,8 @@ def child(case: str, size: float, k) -> dict:
     N, n = J.N, model.n
     stored = N + 1 if k is None else J.record(ho.ControlPoint(1.03 * xi, tau)).stored_states
     segment = 2 * (min(J.checkpoint_every, N) + 1) * n * 8 if J.checkpoint_every else 0
-    return {"case": case, "size": size, "k": k, "dofs": n, "steps": N, "first_s": times[0], "gradient_s": min(times[1:]),
+    return {"case": case, "size": size, "k": k, "dofs": n, "steps": N, "first_s": times[0],
+            "gradient_s": min(times[1:]),
             "stored_bytes": 2 * stored * n * 8, "segment_bytes": segment, "step_evaluations": step_evaluations(k, N),
             "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
 
@@ -157,7 +158,8 @@ def sizes_child(hs: list) -> dict:
     Js = {}
     for h in hs:
         model, transform, objective, solver, tau, shape = build_lv(h)
-        Js[h] = ho.ReducedFunctional(model, transform, objective, solver=solver), shape * np.ones((1, model.control.size))
+        Js[h] = (ho.ReducedFunctional(model, transform, objective, solver=solver),
+                 shape * np.ones((1, model.control.size)))
     best = {str(h): math.inf for h in hs}
     for r in range(4):  # round 0 compiles
         for h, (J, xi) in Js.items():
@@ -191,10 +193,13 @@ def table(rows: list, base: dict, inter: dict) -> str:
         k = r["k"]
         name = "all (None)" if k is None else f"revolve s = {k[1:]}" if isinstance(k, str) else f"every k = {k}"
         t = inter[str(k)]
-        lines.append(f"| {name} | {r['dofs']} | {r['steps']} | {r['stored_bytes'] / 1e6:.2f} | {r['segment_bytes'] / 1e6:.2f} | "
+        lines.append(f"| {name} | {r['dofs']} | {r['steps']} | {r['stored_bytes'] / 1e6:.2f} | "
+                     f"{r['segment_bytes'] / 1e6:.2f} | "
                      f"{r['peak_rss_mb']:.0f} | {r['peak_rss_mb'] / base['peak_rss_mb']:.3f} | "
-                     f"{r['step_evaluations']}, {r['step_evaluations'] / base['step_evaluations']:.2f} | {r['gradient_s']:.3f} | "
-                     f"{r['gradient_s'] / base['gradient_s']:.2f} | {t:.3f}, {t / inter['None']:.2f} | {r['first_s']:.1f} |")
+                     f"{r['step_evaluations']}, {r['step_evaluations'] / base['step_evaluations']:.2f} | "
+                     f"{r['gradient_s']:.3f} | "
+                     f"{r['gradient_s'] / base['gradient_s']:.2f} | {t:.3f}, "
+                     f"{t / inter['None']:.2f} | {r['first_s']:.1f} |")
     return "\n".join(lines)
 
 
@@ -217,7 +222,8 @@ def main():
         if case == "lv-sizes":
             print(json.dumps(sizes_child([float(v) for v in k.split(",")])))
         elif k.startswith("interleaved:"):
-            print(json.dumps(interleaved_child(case, float(size), [parse_variant(v) for v in k.split(":")[1].split(",")])))
+            variants = [parse_variant(v) for v in k.split(":")[1].split(",")]
+            print(json.dumps(interleaved_child(case, float(size), variants)))
         else:
             print(json.dumps(child(case, float(size), parse_variant(k))))
         return
@@ -250,7 +256,8 @@ def main():
             for r in rs:
                 t = inter[str(r["size"])]
                 print(f"| {r['size']} | {r['dofs']} | {r['steps']} | {r['gradient_s']:.2f} | {t:.2f} | "
-                      f"{1e6 * t / (r['dofs'] * r['steps']):.0f} | {r['first_s']:.1f} | {r['peak_rss_mb']:.0f} |", flush=True)
+                      f"{1e6 * t / (r['dofs'] * r['steps']):.0f} | {r['first_s']:.1f} | "
+                      f"{r['peak_rss_mb']:.0f} |", flush=True)
     if args.json:
         with open(args.json, "w") as f:
             json.dump(rows, f, indent=1)

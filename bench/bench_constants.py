@@ -84,7 +84,8 @@ def main():
     if args.child:
         print(json.dumps(child(args.h0, levels[0])))
         return
-    print("| level | dofs | constants | compile solve (s) | 1st eval (s) | later eval (s) | peak RSS (MB) | folding alarms |")
+    print("| level | dofs | constants | compile solve (s) | 1st eval (s) | later eval (s) | peak "
+          "RSS (MB) | folding alarms |")
     print("|---|---|---|---|---|---|---|---|")
     ratios = []
     for level in levels:

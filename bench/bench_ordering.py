@@ -55,7 +55,8 @@ def main():
     ap.add_argument("--h0", type=float, default=6.0, help="Gmsh size of the coarsest LV mesh (mm)")
     ap.add_argument("--levels", default="0,1", help="uniform refinements, comma separated")
     args = ap.parse_args()
-    print("| level | dofs | nnz(K) | ordering | order (s) | 1st factor (s) | refactor (s) | stored L+U | backward err |")
+    print("| level | dofs | nnz(K) | ordering | order (s) | 1st factor (s) | refactor (s) | "
+          "stored L+U | backward err |")
     print("|---|---|---|---|---|---|---|---|---|")
     ratios = []
     for level in (int(v) for v in args.levels.split(",")):

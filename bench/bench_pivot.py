@@ -28,6 +28,7 @@ import math
 import time
 
 from bench_ordering import measure, step_blocks
+
 from hyperoc.benchmarks import VENTRICLE, node_position, ventricle_problem
 from hyperoc.linsolve import SparseSolver
 from hyperoc.statics import solve_static

@@ -84,7 +84,8 @@ def main():
     first = next(iter(rows.values()))
     print(f"\nlevel {args.level}, {first['dofs']} unknowns, {args.steps} load increments, {first['cores']} core(s)\n")
     print("| method | Newton its | factorizations | solve (s) | factorizations (s) | factor entries (M) | "
-          "RSS after 1st call (GB) | RSS at end (GB) | peak RSS (GB) | growth per factorization (MB) | z_endo | z_epi |")
+          "RSS after 1st call (GB) | RSS at end (GB) | peak RSS (GB) | growth per "
+          "factorization (MB) | z_endo | z_epi |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows.values():
         print(f"| {r['method']} | {r['newton']} | {r['factorizations']} | {r['seconds']:.1f} | {r['factor_s']:.1f} | "

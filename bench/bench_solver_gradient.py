@@ -19,7 +19,6 @@ import math
 import time
 
 import numpy as np
-
 from bench_checkpoint import LV_STEPS, build_lv
 
 METHODS = ("lu", "lu_reuse", "pardiso", "pardiso_reuse", "pardiso_single", "pardiso_single_reuse")
@@ -37,7 +36,8 @@ def main():
     runs = {}
     for method in methods:
         model, transform, objective, _, tau, shape = build_lv(args.h)
-        runs[method] = ho.ReducedFunctional(model, transform, objective, solver=method), shape * np.ones((1, model.control.size))
+        runs[method] = (ho.ReducedFunctional(model, transform, objective, solver=method),
+                        shape * np.ones((1, model.control.size)))
     first, best, result = {}, {m: math.inf for m in methods}, {}
     for r in range(4):  # round 0 compiles
         for method, (J, xi) in runs.items():
@@ -53,7 +53,8 @@ def main():
                 result[method] = (value, grad)
     model = runs["lu"][0].model
     print(f"LV h = {args.h} mm: {model.n} unknowns, {runs['lu'][0].N} steps\n")
-    print("| solver | first incl. JIT (s) | gradient (s) | time / lu | J rel. diff | grad xi rel. diff (max) | grad tau rel. diff |")
+    print("| solver | first incl. JIT (s) | gradient (s) | time / lu | J rel. diff | grad xi rel. diff "
+          "(max) | grad tau rel. diff |")
     print("|---|---|---|---|---|---|---|")
     J0, g0 = result["lu"]
     for method in methods:

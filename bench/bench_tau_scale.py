@@ -19,7 +19,7 @@ from pathlib import Path
 
 import hyperoc  # noqa: F401  (before JAX: hyperoc._jax sets JAX's flags)
 from hyperoc.config import load_config
-from hyperoc.optimize import lbfgsb, tau_scaling, _tau_range
+from hyperoc.optimize import _tau_range, lbfgsb, tau_scaling
 from hyperoc.workflows import build_reduced
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "ventricle-3d.toml"
@@ -36,20 +36,23 @@ def main():
     tau0 = cfg.tau_starts()[0]
     J = build_reduced(cfg, tau0)
     baseline = None
-    print("| c | iterations | converged | J | tau | final / initial gradient | state solves | s | iterations / baseline |")
+    print("| c | iterations | converged | J | tau | final / initial gradient | state solves | s "
+          "| iterations / baseline |")
     print("|---|---|---|---|---|---|---|---|---|")
     for text in args.scales.split(","):
         scale = text.strip() if text.strip() == "range" else float(text)
         c = tau_scaling(J, scale, _tau_range(J, cfg["optimize"].get("tau_margin"), False, tau0), cfg.xi_bounds())
         before = J.counts["state"]
         t0 = time.perf_counter()
-        res = lbfgsb(J, J.zero(tau0), xi_bounds=cfg.xi_bounds(), gtol=args.gtol, max_iter=args.max_iter, tau_scale=scale)
+        res = lbfgsb(J, J.zero(tau0), xi_bounds=cfg.xi_bounds(), gtol=args.gtol, max_iter=args.max_iter,
+                     tau_scale=scale)
         seconds = time.perf_counter() - t0
         g = res.history["grad_norm"]
         baseline = baseline or res.iterations
         label = f"range ({c:.4g})" if scale == "range" else f"{c:g}"
         print(f"| {label} | {res.iterations} | {res.converged} | {res.objective:.8f} | {res.point.tau:.4f} | "
-              f"{g[-1] / g[0]:.2e} | {J.counts['state'] - before} | {seconds:.0f} | {res.iterations / baseline:.2f} |", flush=True)
+              f"{g[-1] / g[0]:.2e} | {J.counts['state'] - before} | {seconds:.0f} | "
+              f"{res.iterations / baseline:.2f} |", flush=True)
 
 
 if __name__ == "__main__":

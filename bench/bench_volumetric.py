@@ -16,10 +16,10 @@ from __future__ import annotations
 import argparse
 import time
 
-import hyperoc  # noqa: F401  (before JAX: hyperoc._jax sets JAX's flags)
 import jax
 import jax.numpy as jnp
 
+import hyperoc  # noqa: F401  (before JAX: hyperoc._jax sets JAX's flags)
 from hyperoc.benchmarks import ventricle_problem
 from hyperoc.model import VOLUMETRIC as MODES  # the baseline, "pointwise", first
 
@@ -53,7 +53,8 @@ def main():
     ap.add_argument("--levels", default="0,1")
     ap.add_argument("--reps", type=int, default=5)
     args = ap.parse_args()
-    print("| level | dofs | 1st call pointwise (s) | 1st call cell-mean (s) | later pointwise (s) | later cell-mean (s) | later ratio |")
+    print("| level | dofs | 1st call pointwise (s) | 1st call cell-mean (s) | later pointwise (s) | later "
+          "cell-mean (s) | later ratio |")
     print("|---|---|---|---|---|---|---|")
     for level in (int(v) for v in args.levels.split(",")):
         r = level_row(args.h0, level, args.reps)

@@ -19,13 +19,13 @@ from __future__ import annotations
 import argparse
 import gc
 
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
 from hyperoc.active import FibreTension  # first: hyperoc sets JAX's environment
 from hyperoc.benchmarks import CONTRACTION, VENTRICLE, load_state, node_position
 from hyperoc.errors import InputError
 from hyperoc.materials import det
-
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
 
 APEXES = {"endocardium": np.array(VENTRICLE["endo_apex"]), "epicardium": np.array(VENTRICLE["epi_apex"])}
 

@@ -50,7 +50,8 @@ def probe_smoothness(J, m, seed=0):
     free_derivative = np.where(outward, 0.0, d.xi)
     random = np.where(active, 0.0, np.random.default_rng(seed).standard_normal(m.xi.shape))
     print(f"J = {J0:.6g}; control values at a bound: {active.mean():.3f}")
-    for name, direction in (("derivative without its active-bound part", free_derivative), ("random, off the active set", random)):
+    for name, direction in (("derivative without its active-bound part", free_derivative),
+                            ("random, off the active set", random)):
         dx = direction / np.abs(direction).max() * 0.01
         dJ = float(np.sum(d.xi * dx))
         print(f"{name}: dJ = {dJ:.4e}")
@@ -78,7 +79,8 @@ def residual_structure(J, m, windows=10):
               f"max|G| {np.abs(G.xi[k]).max():.3g}  on a bound {on_bound[k].mean():.2f}")
     print(f"  s >= 1: share {share[s >= 1].sum() / total:.3f}")
     pushed = ~on_bound & (np.abs(G.xi) > XI_MAX)
-    print(f"free values with |G| > {XI_MAX}: {pushed.mean():.3f} of all values, share {share[pushed].sum() / total:.3f}")
+    print(f"free values with |G| > {XI_MAX}: {pushed.mean():.3f} of all values, share "
+          f"{share[pushed].sum() / total:.3f}")
 
 
 def hessian_accuracy(J, m):

@@ -14,11 +14,11 @@ import gc
 import resource
 import time
 
-import hyperoc  # noqa: F401  (before JAX: hyperoc._jax sets JAX's flags)
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+import hyperoc  # noqa: F401  (before JAX: hyperoc._jax sets JAX's flags)
 from hyperoc.benchmarks import ventricle_problem
 
 

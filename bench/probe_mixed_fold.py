@@ -22,11 +22,11 @@ from __future__ import annotations
 import argparse
 import time
 
-import hyperoc  # noqa: F401  (before JAX: hyperoc._jax sets JAX's flags)
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+import hyperoc  # noqa: F401  (before JAX: hyperoc._jax sets JAX's flags)
 from hyperoc.benchmarks import ventricle_problem
 from hyperoc.materials import det
 from hyperoc.quadrature import simplex_rule
@@ -85,7 +85,8 @@ def main():
         md = float(min_det(jnp.asarray(x))) if x is not None else float("nan")
         if x is not None and md > 0:
             u, s_done, ds = x, s, min(2 * ds, 0.05)
-            print(f"load {s:.4f} ({10 * s:.3f} kPa): {its} Newton its, min det F {md:.3f}  [{time.perf_counter() - t0:.0f} s]",
+            print(f"load {s:.4f} ({10 * s:.3f} kPa): {its} Newton its, min det F {md:.3f}  "
+                  f"[{time.perf_counter() - t0:.0f} s]",
                   flush=True)
         elif cuts < args.cutbacks:
             cuts, ds = cuts + 1, ds / 2

@@ -19,11 +19,11 @@ from __future__ import annotations
 import argparse
 import time
 
-import hyperoc  # noqa: F401  (before JAX: hyperoc._jax sets JAX's flags)
 import jax.numpy as jnp
 import numpy as np
 import scipy.sparse.linalg as spla
 
+import hyperoc  # noqa: F401  (before JAX: hyperoc._jax sets JAX's flags)
 from hyperoc.benchmarks import ventricle_problem
 from hyperoc.dynamics import Scheme
 from hyperoc.errors import SolverError
@@ -70,7 +70,8 @@ def main():
 
     coarse, coarse_load = ventricle_problem(args.h0, refinements=0, **opts)
     t0 = time.perf_counter()
-    sol = solve_static(coarse, follower=coarse_load, constrained=False, steps=args.steps, line_search=False, cutbacks=80)
+    sol = solve_static(coarse, follower=coarse_load, constrained=False, steps=args.steps, line_search=False,
+                       cutbacks=80)
     print(f"level 0: {coarse.n} dofs, {sol.newton_iterations.sum()} Newton its, {time.perf_counter() - t0:.1f} s, "
           f"min det F {min_det(coarse, sol.u):.3f}", flush=True)
     fine, load = ventricle_problem(args.h0, refinements=1, **opts)
@@ -81,7 +82,8 @@ def main():
     K = fine.pattern.matrix(np.asarray(blocks).reshape(fine.pattern.element_shape)).tocsc()
     r = np.asarray(fine.internal_force(jnp.asarray(u0)) - load.force(jnp.asarray(u0), 1.0))
     du = spla.splu(K).solve(-r)
-    print(f"first full Newton step: max |du| = {np.abs(du).max():.3g} mm (|u0| max {np.abs(u0).max():.3g} mm)", flush=True)
+    print(f"first full Newton step: max |du| = {np.abs(du).max():.3g} mm (|u0| max {np.abs(u0).max():.3g} mm)",
+          flush=True)
     try:
         out = solve_static(fine, follower=load, constrained=False, steps=1, u0=u0, line_search=False, cutbacks=12)
         print(f"solve_static from the prolonged field: converged, Newton its {out.newton_iterations.tolist()}")

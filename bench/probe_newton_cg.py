@@ -31,7 +31,8 @@ def report(name, res):
     g = np.array(res.history["grad_norm"])
     ev = res.evaluations
     solves = f"{ev['state_solves']}" + (f" ({ev['hessian_products']})" if "hessian_products" in ev else "")
-    print(f"| {name} | {res.iterations} | {solves} | {g[-1] / g[0]:.1e} ({g.min() / g[0]:.1e}) | {res.objective:.12f} | "
+    print(f"| {name} | {res.iterations} | {solves} | {g[-1] / g[0]:.1e} ({g.min() / g[0]:.1e}) "
+          f"| {res.objective:.12f} | "
           f"{res.point.tau:.7f} | {', '.join(f'{s:.2g}' for s in res.history['step'][-3:])} |")
 
 
@@ -40,7 +41,8 @@ def paper_end_point(iterations, restart=0):
     res = ho.newton_cg(J, J.zero(7.5), xi_bounds=(-XI_MAX, XI_MAX), max_iter=iterations)
     print(f"J = {res.objective:.8g}, tau = {res.point.tau:.6g}, {res.evaluations}")
     status = np.sign(res.point.xi) * (np.abs(res.point.xi) >= XI_MAX * (1 - 1e-12))  # +-1 on a bound, 0 free
-    print(f"values on a bound: {np.abs(status).mean():.3f} (upper {(status > 0).mean():.3f}, lower {(status < 0).mean():.3f})")
+    print(f"values on a bound: {np.abs(status).mean():.3f} (upper {(status > 0).mean():.3f}, lower "
+          f"{(status < 0).mean():.3f})")
     for node in range(0, status.shape[1], 5):
         print(f"  control node {node}: {np.count_nonzero(np.diff(status[:, node]))} switches of bound status along s")
     residual_structure(J, res.point)
@@ -55,7 +57,8 @@ def vibrating_bar_table():
     runs = {"Newton-CG": lambda J, **k: ho.newton_cg(J, J.zero(2.0), max_iter=100, **k),
             "L-BFGS-B": lambda J, **k: ho.lbfgsb(J, J.zero(2.0), max_iter=200, **k),
             "SPG (M = 10)": lambda J, **k: ho.barzilai_borwein(J, J.zero(2.0), max_iter=400, nonmonotone=10, **k)}
-    print("| bounds | method | iterations | state solves (Hessian products) | measure end (least) / start | J | tau | last steps |")
+    print("| bounds | method | iterations | state solves (Hessian products) | measure end (least) / start "
+          "| J | tau | last steps |")
     print("|---|---|---|---|---|---|---|---|")
     ref = None
     for bounded in (False, True):

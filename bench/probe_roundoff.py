@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import argparse
 
-import hyperoc  # noqa: F401  (before JAX: hyperoc._jax sets JAX's flags)
 import numpy as np
 
+import hyperoc  # noqa: F401  (before JAX: hyperoc._jax sets JAX's flags)
 from hyperoc.paper import bounded_config
 from hyperoc.workflows import optimize_single
 

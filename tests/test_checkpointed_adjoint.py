@@ -17,11 +17,22 @@ import math
 from dataclasses import dataclass
 
 import jax.numpy as jnp
-import numpy as np
 import pytest
 
-from hyperoc import (BodyForce, ControlPoint, Objective, PressureAt, PressureRise, ReducedFunctional, Region,
-                     SaintVenantKirchhoff, StateModel, TimeTransform, box, interval)
+from hyperoc import (
+    BodyForce,
+    ControlPoint,
+    Objective,
+    PressureAt,
+    PressureRise,
+    ReducedFunctional,
+    Region,
+    SaintVenantKirchhoff,
+    StateModel,
+    TimeTransform,
+    box,
+    interval,
+)
 from hyperoc.errors import InputError
 from hyperoc.objectives import Running, Terminal
 from hyperoc.verification import random_directions

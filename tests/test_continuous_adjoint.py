@@ -3,15 +3,27 @@
 Implicit Euler backwards is first order, so the directional derivatives along smooth directions
 (and the tau-derivatives) should differ by O(dt): the observed rate over successive halvings is
 measured and must be at least first order on the finest pair. Measured (n = 40, T = 4, tau = 2):
-p(tau): xi rates 0.8-0.9, tau rates 1.6-1.3; pressure rise: xi 0.64 -> 0.83, tau 0.93 -> 0.97. The xi-gradients themselves are not compared in L2: p(tau) depends
-on xi(tau) pointwise, a Dirac in time that both gradients resolve only at grid scale.
+p(tau): xi rates 0.8-0.9, tau rates 1.6-1.3; pressure rise: xi 0.64 -> 0.83, tau 0.93 -> 0.97. The
+xi-gradients themselves are not compared in L2: p(tau) depends on xi(tau) pointwise, a Dirac in time
+that both gradients resolve only at grid scale.
 """
 
 import numpy as np
 import pytest
 
-from hyperoc import (BodyForce, ControlPoint, Objective, PressureAt, PressureRise, ReducedFunctional, Region,
-                     SaintVenantKirchhoff, StateModel, TimeTransform, interval)
+from hyperoc import (
+    BodyForce,
+    ControlPoint,
+    Objective,
+    PressureAt,
+    PressureRise,
+    ReducedFunctional,
+    Region,
+    SaintVenantKirchhoff,
+    StateModel,
+    TimeTransform,
+    interval,
+)
 from hyperoc.continuous_adjoint import continuous_gradient
 
 

@@ -7,11 +7,24 @@ order h^3, so on the asymptotic range it lies in [1.9, 2.1]. `taylor_test` picks
 import numpy as np
 import pytest
 
-from hyperoc import (ActiveStress, BodyForce, ControlPoint, NeoHookean, Objective, PressureAt, PressureRise,
-                     ReducedFunctional, Region, SaintVenantKirchhoff, StateModel, TimeTransform, box, interval,
-                     taylor_test)
+from hyperoc import (
+    ActiveStress,
+    BodyForce,
+    ControlPoint,
+    NeoHookean,
+    Objective,
+    PressureAt,
+    PressureRise,
+    ReducedFunctional,
+    Region,
+    SaintVenantKirchhoff,
+    StateModel,
+    TimeTransform,
+    box,
+    interval,
+    taylor_test,
+)
 from hyperoc.geometry import annulus
-from hyperoc.objectives import ControlCost
 from hyperoc.verification import random_directions
 
 

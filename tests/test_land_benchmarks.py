@@ -20,7 +20,15 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hyperoc.benchmarks import BEAM, PUBLISHED, VENTRICLE, beam_deflection, beam_problem, node_position, ventricle_problem
+from hyperoc.benchmarks import (
+    BEAM,
+    PUBLISHED,
+    VENTRICLE,
+    beam_deflection,
+    beam_problem,
+    node_position,
+    ventricle_problem,
+)
 from hyperoc.errors import InputError
 
 KAPPA = 1000.0  # kPa, = 500 C for the beam
@@ -48,7 +56,8 @@ def test_beam_setup_is_land_problem_1():
 def test_ventricle_pressure_resultant_is_the_lid_force():
     model, fol = ventricle_problem(6.0, kappa=KAPPA, degree=1)
     mesh = model.mesh
-    edges = np.sort(np.concatenate([mesh.boundary("endocardium")[:, [i, j]] for i, j in ((0, 1), (1, 2), (0, 2))]), axis=1)
+    endo = mesh.boundary("endocardium")
+    edges = np.sort(np.concatenate([endo[:, [i, j]] for i, j in ((0, 1), (1, 2), (0, 2))]), axis=1)
     uniq, counts = np.unique(edges, axis=0, return_counts=True)
     rim = np.unique(uniq[counts == 1])  # vertices of the open rim of the cavity wall
     x = mesh.points[rim]

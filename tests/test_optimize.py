@@ -4,8 +4,21 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from hyperoc import (BodyForce, ControlPoint, NeoHookean, Objective, ReducedFunctional, Region, SaintVenantKirchhoff,
-                     SolverError, StateModel, TimeTransform, barzilai_borwein, interval, lbfgsb)
+from hyperoc import (
+    BodyForce,
+    ControlPoint,
+    NeoHookean,
+    Objective,
+    ReducedFunctional,
+    Region,
+    SaintVenantKirchhoff,
+    SolverError,
+    StateModel,
+    TimeTransform,
+    barzilai_borwein,
+    interval,
+    lbfgsb,
+)
 from hyperoc.errors import InputError
 from hyperoc.objectives import ControlCost, PressureAt
 from hyperoc.optimize import BBStepRule, LumpedMetric, newton_cg, tau_scaling

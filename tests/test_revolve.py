@@ -13,8 +13,9 @@ them, as in `tests/test_checkpointed_adjoint.py`. On the traced path the stored 
 lax.scan and the revolve path the standalone jitted step: XLA rounds the same step differently,
 and the states then differ by ~1e-13 relative (measured: y0, p 1e-13, J 3.2e-13 of the sum of its
 terms' magnitudes, gradient 4e-15; unchanged with Newton rtol 1e-14 and the same iteration counts:
-round-off of the converged steps, some 500 ulps of the small states, not the stopping test). We allow ``RTOL = 1e-12`` relative on both paths, for J against the sum of
-the magnitudes of its terms and for the gradient in the Riesz norm. Sharper, within the revolve
+round-off of the converged steps, some 500 ulps of the small states, not the stopping test). We
+allow ``RTOL = 1e-12`` relative on both paths, for J against the sum of the magnitudes of its terms
+and for the gradient in the Riesz norm. Sharper, within the revolve
 path a recomputed state is the forward state bit for bit (same jitted step, same inputs, same
 Newton warm start ``p_{a-1/2}``): on the traced path the gradients for s = 1, 2, 3, N are equal
 exactly (s = N recomputes nothing, s = 2, 3 restart from interior levels, so a wrong warm start
@@ -28,14 +29,24 @@ from functools import cache
 
 import pytest
 
-from hyperoc import (BodyForce, Objective, PressureAt, PressureRise, ReducedFunctional, Region, SaintVenantKirchhoff,
-                     StateModel, TimeTransform, box, interval)
+from hyperoc import (
+    BodyForce,
+    Objective,
+    PressureAt,
+    PressureRise,
+    ReducedFunctional,
+    Region,
+    SaintVenantKirchhoff,
+    StateModel,
+    TimeTransform,
+    box,
+    interval,
+)
 from hyperoc.cli import main
 from hyperoc.config import parse_config
 from hyperoc.errors import InputError
-from hyperoc.revolve import (Advance, Free, Restore, Reverse, Store, minimal_advances, repetitions, schedule)
+from hyperoc.revolve import Advance, Free, Restore, Reverse, Store, minimal_advances, repetitions, schedule
 from hyperoc.workflows import build_reduced
-
 from test_checkpointed_adjoint import _LevelReads, _point
 
 RTOL = 1e-12

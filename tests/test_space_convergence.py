@@ -20,7 +20,6 @@ that the finest pair is asymptotic (observed rates approach the theoretical ones
 correction ~ h / L, so P1 needs h <= 1/16); rates are asserted within 0.1 on that pair.
 """
 
-import math
 
 import jax
 import jax.numpy as jnp

@@ -22,7 +22,6 @@ from hyperoc.materials import SaintVenantKirchhoff
 from hyperoc.mesh import interval
 from hyperoc.model import StateModel
 from hyperoc.timegrid import uniform_grid
-
 from test_regimes import constant_control
 
 EPS = np.finfo(float).eps

@@ -19,7 +19,7 @@ import pytest
 
 from hyperoc import geometry
 from hyperoc.controls import ActiveStress, BodyForce, Region
-from hyperoc.dynamics import Scheme, solve_state
+from hyperoc.dynamics import solve_state
 from hyperoc.materials import SaintVenantKirchhoff
 from hyperoc.mesh import box, interval
 from hyperoc.model import StateModel
