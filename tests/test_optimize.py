@@ -28,7 +28,8 @@ from hyperoc.problems import vibrating_bar
 def _J(tau=1.0, T=3.0, dt=0.05, n=20, alpha=2e-2, omega=(0.75, 1.0), material=SaintVenantKirchhoff(0.05, 0.05)):
     model = StateModel(interval(n), material, kappa=2e-3,
                        control=BodyForce(Region("box", lower=omega[:1], upper=omega[1:])))
-    return ReducedFunctional(model, TimeTransform.for_step(T, dt, tau), Objective(running=(ControlCost(alpha),), at_tau=PressureAt()))
+    return ReducedFunctional(model, TimeTransform.for_step(T, dt, tau),
+                             Objective(running=(ControlCost(alpha),), at_tau=PressureAt()))
 
 
 @pytest.mark.parametrize("method", ["bb", "bb-abbmin", "bb-blockwise", "bb-spg", "lbfgsb", "lbfgsb-tau-x10",
@@ -77,9 +78,9 @@ def test_bounded_optimizers_reach_the_same_kkt_point(bar_reference):
     lumped metric, from forward differences of the exact gradient), and J within ``eps^2 / lambda_F``
     of J* up to a factor 2 each.
 
-    Projected Newton-CG reaches it too. The spectral projected gradient method (``nonmonotone = 10``) reaches the same point and, by its
-    line search, never falls below the least J of its last 10 iterates, which projected BB (the
-    paper's Algorithm 1, unguarded) does here."""
+    Projected Newton-CG reaches it too. The spectral projected gradient method (``nonmonotone = 10``)
+    reaches the same point and, by its line search, never falls below the least J of its last 10
+    iterates, which projected BB (the paper's Algorithm 1, unguarded) does here."""
     _, _, J = bar_reference
     ref = bar_reference[0]
     b = 0.5 * np.max(np.abs(ref.point.xi))
@@ -111,7 +112,8 @@ def test_callback_reports_the_stopping_measure(run, bar_reference):
     b = 0.5 * np.max(np.abs(bar_reference[0].point.xi))
     seen = []
     res = run(J, J.zero(2.0), max_iter=8, xi_bounds=(-b, b),
-              callback=lambda k, m, value, measure: seen.append((k, value, measure, J.norm(J.value_and_gradient(m)[1]))))
+              callback=lambda k, m, value, measure: seen.append((k, value, measure,
+                                                                 J.norm(J.value_and_gradient(m)[1]))))
     assert [k for k, *_ in seen] == list(range(1, res.iterations + 1))
     assert [v for _, v, _, _ in seen] == res.history["objective"][1:]
     assert [e for _, _, e, _ in seen] == res.history["grad_norm"][1:]
