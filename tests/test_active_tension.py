@@ -100,7 +100,7 @@ def turning(x):
     return np.stack([f, s, np.cross(f, s)], axis=-2)
 
 
-@pytest.mark.parametrize("degree", [1, 2])
+@pytest.mark.parametrize("degree", [1, pytest.param(2, marks=pytest.mark.slow)])
 def test_homogeneous_contraction_is_exact(degree):
     mu, lam, T = 1.0, 1.0, 0.3
     model = StateModel(box(2, 2, 2, size=(1.0, 0.8, 0.6)), SaintVenantKirchhoff(mu=mu, lam=lam), degree=degree,
@@ -209,6 +209,7 @@ def test_contraction_problem_is_land_problem_3(problem3):
     np.testing.assert_allclose(np.einsum("ni,ni->n", f, circumferential), np.sin(np.pi * t), rtol=0, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_activation_shortens_the_fibres_and_keeps_the_volume(problem3):
     model, (pressure, tension) = problem3
     opts = dict(constrained=False, steps=10, line_search=False, cutbacks=8)

@@ -77,6 +77,7 @@ def _assert_same(J, m, ks):
         assert abs(gk.tau - grad.tau) <= RTOL * J.norm(grad), k
 
 
+@pytest.mark.slow
 def test_traced_1d():
     """Tridiagonal solver (lax.scan path), an objective reading y0(tau) and y1(T)."""
     model = StateModel(interval(20), SaintVenantKirchhoff(0.05, 0.05), kappa=2e-3,
@@ -88,6 +89,7 @@ def test_traced_1d():
     _assert_same(J, _point(J, 0.75, 0.05), ks=(1, 3, J.N))  # 3 does not divide N = 7 (scans of 3 and 1 steps)
 
 
+@pytest.mark.slow
 def test_python_loop_3d_sparse():
     """Sparse LU solver (jitted step driven from Python) on a 3D box."""
     model = StateModel(box(1, dirichlet="left"), SaintVenantKirchhoff(1.0, 1.0), kappa=0.05,

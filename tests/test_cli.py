@@ -95,6 +95,7 @@ def test_check_gradient_json(tmp_path, capsys):
         (('law = "svk"\nmu = 0.05\nlambda = 0.05', 'law = "guccione"\nisochoric = "yes"'), "isochoric must be"),
     ],
 )
+@pytest.mark.slow
 def test_bad_input_exit_2(tmp_path, change, message):
     cfg = _write(tmp_path, SMALL_1D.replace(*change))
     cmd = "optimize" if "tau0" in change[1] else "simulate"
@@ -204,6 +205,7 @@ def test_config_cell_mean_volumetric(tmp_path):
     assert abs(float(model.strain_energy(u)) - expected) <= 1e-13 * abs(expected)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["lbfgsb", "newton"])
 def test_set_overrides_config_entries_and_optimize_records_what_ran(tmp_path, capsys, method):
     """``--set`` and ``--method`` change the run (here a bound |xi| <= 0.01 that the optimizer hits,

@@ -45,7 +45,8 @@ def _model_1d(n=30):
                       control=BodyForce(Region("box", lower=(0.75,), upper=(1.0,))))
 
 
-@pytest.mark.parametrize("phi1, eps", [("pressure", 0.0), ("pressure", 0.2), ("rise", 0.2)])
+@pytest.mark.parametrize("phi1, eps", [("pressure", 0.0), pytest.param("pressure", 0.2, marks=pytest.mark.slow),
+                                        pytest.param("rise", 0.2, marks=pytest.mark.slow)])
 def test_taylor_1d(phi1, eps):
     at_tau = PressureAt() if phi1 == "pressure" else PressureRise(eps)
     # With eps > 0 the transform has three pieces; for p(tau) the middle one only shapes the grid,
@@ -54,6 +55,7 @@ def test_taylor_1d(phi1, eps):
     _assert_rates(J, _point(J, 2.0, 0.05))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("degree", [1, 2])
 def test_taylor_2d_annulus(degree):
     mesh = annulus(0.5, 1.0, structured=True, n_radial=2, n_theta=12)
@@ -63,6 +65,7 @@ def test_taylor_2d_annulus(degree):
     _assert_rates(J, _point(J, 0.5, 0.5))
 
 
+@pytest.mark.slow
 def test_taylor_3d_box():
     mesh = box(2, dirichlet="left")
     model = StateModel(mesh, SaintVenantKirchhoff(1.0, 1.0), kappa=0.05,
@@ -71,6 +74,7 @@ def test_taylor_3d_box():
     _assert_rates(J, _point(J, 0.3, 0.5))
 
 
+@pytest.mark.slow
 def test_wrong_gradient_is_detected():
     """The Taylor test can fail: a gradient off by 10% gives rate ~1."""
     J = ReducedFunctional(_model_1d(), TimeTransform.for_step(4.0, 0.05, 2.0), Objective())
@@ -84,6 +88,7 @@ def test_wrong_gradient_is_detected():
     assert np.all(np.abs(rates - 1.0) < 0.1)
 
 
+@pytest.mark.slow
 def test_taylor_2d_annulus_cell_mean():
     """The bulk term on each cell's mean J (mixed P2-P0, `StateModel` volumetric): still exact."""
     mesh = annulus(0.5, 1.0, structured=True, n_radial=2, n_theta=12)

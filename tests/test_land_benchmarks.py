@@ -69,6 +69,7 @@ def test_ventricle_pressure_resultant_is_the_lid_force():
     assert 0.8 * np.pi * 49 * (1 - 25 / 289) < area < np.pi * 49 * (1 - 25 / 289)  # inscribed in the base ellipse
 
 
+@pytest.mark.slow
 def test_coarse_beam_deflects_up_by_less_than_linear_beam_theory():
     res = beam_deflection(1, kappa=KAPPA, steps=4)
     C, bf, bt, bfs, p = (BEAM[k] for k in ("C", "bf", "bt", "bfs", "pressure"))

@@ -32,6 +32,7 @@ def _J(tau=1.0, T=3.0, dt=0.05, n=20, alpha=2e-2, omega=(0.75, 1.0), material=Sa
                              Objective(running=(ControlCost(alpha),), at_tau=PressureAt()))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["bb", "bb-abbmin", "bb-blockwise", "bb-spg", "lbfgsb", "lbfgsb-tau-x10",
                                     "lbfgsb-tau-x0.1", "lbfgsb-inactive-bounds", "newton"])
 def test_optimizers_converge_on_a_well_posed_case(method, bar_reference):
@@ -64,6 +65,7 @@ def test_optimizers_converge_on_a_well_posed_case(method, bar_reference):
     assert abs(res.objective - ref.objective) <= 4 * (1e-6 * G0) ** 2 / lam
 
 
+@pytest.mark.slow
 def test_bounded_optimizers_reach_the_same_kkt_point(bar_reference):
     """Bounds ``|xi| <= b`` at half the unconstrained maximizer's largest value, so that they are
     active: projected BB and L-BFGS-B must both reach a projected gradient ``||P(m + G) - m||`` <=
@@ -104,6 +106,7 @@ def test_bounded_optimizers_reach_the_same_kkt_point(bar_reference):
     assert falls[0] > 0 and falls[1] == 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("run", [barzilai_borwein, lbfgsb, newton_cg])
 def test_callback_reports_the_stopping_measure(run, bar_reference):
     """The callback (the CLI's progress bar) gets the measure the stopping test reads: with active
@@ -144,6 +147,7 @@ def _least_curvature_on(J, metric, m, free, h=1e-6):
     return lam
 
 
+@pytest.mark.slow
 def test_newton_cg_converges_superlinearly(bar_reference):
     """Near the nondegenerate maximizer Newton-CG with the forcing term ``min(0.5, sqrt(||G|| / ||G0||))``
     converges q-superlinearly (order 1.5 in exact arithmetic; the forward-difference Hessian adds a
@@ -232,6 +236,7 @@ def bar_reference():
     return ref, lam, J
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("run", [barzilai_borwein, newton_cg])
 def test_resume_replays_to_the_same_result(tmp_path, run):
     full = run(_J(), _J().zero(1.0), max_iter=8, checkpoint=tmp_path / "full")
@@ -294,6 +299,7 @@ def test_time_shift_of_a_control_keeps_J():
     assert J2(ControlPoint(xi2, 1.5)) == pytest.approx(J1(ControlPoint(xi1, 1.0)), rel=1e-9, abs=1e-15)
 
 
+@pytest.mark.slow
 def test_optimal_value_does_not_decrease_with_tau():
     """The property itself, on a small linear-ish case (alpha = 10 keeps the optimal control small;
     with smaller alpha the optimizer runs away to element collapse): maximize over xi at fixed tau (zero initial
@@ -310,6 +316,7 @@ def test_optimal_value_does_not_decrease_with_tau():
     assert all(b >= a * (1 - 1e-8) for a, b in zip(values, values[1:])), values
 
 
+@pytest.mark.slow
 def test_tau_scaling_normalizes_both_blocks_to_their_ranges(bar_reference):
     """``"range"``: c L_tau = (hi - lo) sqrt(|Q|), |Q| = 2 |omega| (omega = [0.25, 0.5], s in (0, 2));
     1 without two finite bounds or with tau fixed; a number passes through; anything else is an
@@ -325,6 +332,7 @@ def test_tau_scaling_normalizes_both_blocks_to_their_ranges(bar_reference):
             tau_scaling(J, bad, (0.5, 3.0), (-0.2, 0.2))
 
 
+@pytest.mark.slow
 def test_lbfgsb_with_a_p2_control_on_a_curved_annulus():
     """P2 control nodes (row-sum lumping of their mass is zero or negative at vertices): the scaled
     variables stay finite, J increases from the start and the bounds hold."""

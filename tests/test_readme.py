@@ -5,6 +5,7 @@ import re
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 
@@ -34,6 +35,7 @@ def test_readme_python_api_snippet_runs():
     assert np.all(np.diff(result.history["objective"]) > 0)
 
 
+@pytest.mark.slow
 def test_readme_ventricle_snippet_runs():
     names = snippet("The ventricle example (`examples/ventricle-3d.toml`) in Python", "max_iter=100")
     value, grad, taylor, result = names["value"], names["grad"], names["taylor"], names["result"]

@@ -153,6 +153,7 @@ def _assert_same(J, m, snapshots, exact_between_s):
         assert all((g.xi == grads[0].xi).all() and g.tau == grads[0].tau for g in grads), "recomputation not bitwise"
 
 
+@pytest.mark.slow
 def test_traced_1d():
     """Tridiagonal solver (the stored path is a compiled lax.scan), objective reading y0(tau), y1(T)."""
     model = StateModel(interval(20), SaintVenantKirchhoff(0.05, 0.05), kappa=2e-3,
@@ -163,6 +164,7 @@ def test_traced_1d():
     _assert_same(J, _point(J, 0.75, 0.05), snapshots=(1, 2, 3, J.N), exact_between_s=True)
 
 
+@pytest.mark.slow
 def test_python_loop_3d_sparse():
     """Sparse LU solver (jitted step driven from Python in every path) on a 3D box."""
     model = StateModel(box(1, dirichlet="left"), SaintVenantKirchhoff(1.0, 1.0), kappa=0.05,

@@ -31,6 +31,9 @@ from hyperoc.mesh import box, rectangle
 from hyperoc.model import StateModel
 from hyperoc.statics import solve_static
 
+# Mesh sequences chosen to reach the asymptotic range: the slow tier.
+pytestmark = pytest.mark.slow
+
 
 def u_2d(x, amp=0.03):
     X, Y = x[0], x[1]

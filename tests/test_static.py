@@ -206,6 +206,7 @@ def test_guess_of_the_wrong_size_is_an_input_error(loaded_problem):
         solve_static(model, load=load, guess=np.zeros(model.n + 1))
 
 
+@pytest.mark.slow
 def test_nested_iteration_from_the_prolonged_coarse_equilibrium():
     """Nested iteration on a smooth problem: the coarse equilibrium carried to the refined mesh
     (`StateModel.prolong`) is within the coarse discretization error of the fine one, so Newton at

@@ -127,6 +127,7 @@ def test_bad_region_exit_2_with_one_line(tmp_path, capsys, region, message):
 
 # ---- exact gradient -------------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_taylor_rates_on_a_coarse_ventricle(coarse):
     """Remainders |J(m + h dm) - J(m) - h dJ.dm| = O(h^2) for xi, tau and joint directions: the rate is
     2 up to O(h^3) terms, so in [1.9, 2.1] on the asymptotic range (`taylor_test` finds it); a wrong
@@ -152,6 +153,7 @@ def last_time_series_level(path: Path) -> tuple:
     return piece.point_data, piece.cell_data
 
 
+@pytest.mark.slow
 def test_example_optimizes_and_writes_the_paraview_fields(coarse, tmp_path):
     cfg, J = coarse
     model = J.model
