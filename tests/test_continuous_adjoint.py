@@ -11,25 +11,13 @@ that both gradients resolve only at grid scale.
 import numpy as np
 import pytest
 
-from hyperoc import (
-    BodyForce,
-    ControlPoint,
-    Objective,
-    PressureAt,
-    PressureRise,
-    ReducedFunctional,
-    Region,
-    SaintVenantKirchhoff,
-    StateModel,
-    TimeTransform,
-    interval,
-)
+from helpers import bar
+from hyperoc import ControlPoint, Objective, PressureAt, PressureRise, ReducedFunctional, TimeTransform
 from hyperoc.continuous_adjoint import continuous_gradient
 
 
 def _deviation(dt, at_tau, eps, cells):
-    model = StateModel(interval(cells), SaintVenantKirchhoff(0.05, 0.05), kappa=1e-2,
-                       control=BodyForce(Region("box", lower=(0.5,), upper=(1.0,))))
+    model = bar(cells, kappa=1e-2, omega=(0.5, 1.0))
     J = ReducedFunctional(model, TimeTransform.for_step(4.0, dt, 2.0, eps), Objective(at_tau=at_tau))
     s = J.transform.s_levels()
     x = model.control.coordinates(model.space)[:, 0]

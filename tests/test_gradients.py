@@ -7,6 +7,7 @@ order h^3, so on the asymptotic range it lies in [1.9, 2.1]. `taylor_test` picks
 import numpy as np
 import pytest
 
+from helpers import bar
 from hyperoc import (
     ActiveStress,
     BodyForce,
@@ -21,7 +22,6 @@ from hyperoc import (
     StateModel,
     TimeTransform,
     box,
-    interval,
     taylor_test,
 )
 from hyperoc.geometry import annulus
@@ -41,8 +41,7 @@ def _assert_rates(J, m, seed=5):
 
 
 def _model_1d(n=30):
-    return StateModel(interval(n), SaintVenantKirchhoff(0.05, 0.05), kappa=2e-3,
-                      control=BodyForce(Region("box", lower=(0.75,), upper=(1.0,))))
+    return bar(n)
 
 
 @pytest.mark.parametrize("phi1, eps", [("pressure", 0.0), pytest.param("pressure", 0.2, marks=pytest.mark.slow),

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import scipy.linalg
 
+from helpers import bar
 from hyperoc import (
-    BodyForce,
     ControlPoint,
     NeoHookean,
     Objective,
@@ -16,7 +16,6 @@ from hyperoc import (
     StateModel,
     TimeTransform,
     barzilai_borwein,
-    interval,
     lbfgsb,
 )
 from hyperoc.errors import InputError
@@ -26,8 +25,7 @@ from hyperoc.problems import vibrating_bar
 
 
 def _J(tau=1.0, T=3.0, dt=0.05, n=20, alpha=2e-2, omega=(0.75, 1.0), material=SaintVenantKirchhoff(0.05, 0.05)):
-    model = StateModel(interval(n), material, kappa=2e-3,
-                       control=BodyForce(Region("box", lower=omega[:1], upper=omega[1:])))
+    model = bar(n, omega=omega, material=material)
     return ReducedFunctional(model, TimeTransform.for_step(T, dt, tau),
                              Objective(running=(ControlCost(alpha),), at_tau=PressureAt()))
 
