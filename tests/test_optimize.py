@@ -1,5 +1,7 @@
 """Optimizers: ascent, rejected failing trials, exact resume, and the time-shift property."""
 
+from functools import cache
+
 import numpy as np
 import pytest
 import scipy.linalg
@@ -40,7 +42,17 @@ def test_optimizers_converge_on_a_well_posed_case(method, bar_reference):
     Near a nondegenerate maximizer |m - m*| <= ||G|| / lambda with lambda the curvature of -J; with
     ||G|| <= 1e-6 ||G0|| here and <= 1e-7 ||G0|| at the reference, the two points lie within
     1.1e-6 ||G0|| / lambda of each other, and their J within O(||G||^2 / lambda) (quadratic model)."""
-    ref, lam, J = bar_reference
+    _converges_to_the_reference(method, *bar_reference)
+
+
+@pytest.mark.parametrize("method", ["bb", "lbfgsb", "newton"])
+def test_optimizers_converge_on_a_coarse_well_posed_case(method):
+    """The test above, one method of each optimizer, on the coarse bar (h = 0.1, dt = 0.2): the same
+    bounds, with that problem's reference maximizer and curvature."""
+    _converges_to_the_reference(method, *_bar_reference(0.1, 0.2))
+
+
+def _converges_to_the_reference(method, ref, lam, J):
     if method == "lbfgsb-inactive-bounds":  # the "range" scaling of tau applies (`tau_scaling`)
         bound = 10 * np.max(np.abs(ref.point.xi))
         res = lbfgsb(J, J.zero(2.0), max_iter=100, gtol=1e-6, xi_bounds=(-bound, bound))
@@ -209,13 +221,13 @@ def test_bb_step_rules_on_a_quadratic():
             barzilai_borwein(None, None, nonmonotone=bad)
 
 
-@pytest.fixture(scope="module")
-def bar_reference():
+@cache
+def _bar_reference(h, dt):
     """Reference maximizer (L-BFGS-B to ||G|| <= 1e-7 ||G0||), lambda, the smallest eigenvalue of
     -Hessian(J) there in the inner product of the control space: ``-H v = lambda W v`` with H from
     forward differences of the exact gradient (one per coordinate) and W the Gram matrix of `inner`,
-    and the reduced functional (compiled once for the module)."""
-    J = vibrating_bar(0.05, 0.1)
+    and the reduced functional (compiled once per process)."""
+    J = vibrating_bar(h, dt)
     ref = lbfgsb(J, J.zero(2.0), max_iter=200, gtol=1e-7)
     assert ref.history["grad_norm"][-1] <= 1e-7 * ref.history["grad_norm"][0]
     flat = ref.point.flat()
@@ -232,6 +244,12 @@ def bar_reference():
     lam = scipy.linalg.eigh(-(H + H.T) / 2, W, eigvals_only=True)[0]
     assert lam > 0, "the reference point must be a nondegenerate maximizer"
     return ref, lam, J
+
+
+@pytest.fixture(scope="module")
+def bar_reference():
+    """`_bar_reference` of the bar with h = 0.05, dt = 0.1."""
+    return _bar_reference(0.05, 0.1)
 
 
 @pytest.mark.slow
