@@ -168,7 +168,8 @@ def solver_only(model, dt, methods, reps):
     base = np.median(times[methods[0]])
     print(f"{'method':11s} {'median s':>9s} {'min s':>8s} {'/ ' + methods[0]:>14s}")
     for name in methods:
-        print(f"{name:11s} {np.median(times[name]):9.3f} {np.min(times[name]):8.3f} {np.median(times[name]) / base:14.3f}")
+        print(f"{name:11s} {np.median(times[name]):9.3f} {np.min(times[name]):8.3f} "
+              f"{np.median(times[name]) / base:14.3f}")
 
 
 def main():

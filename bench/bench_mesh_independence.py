@@ -55,8 +55,9 @@ def run(h: float, dt: float, method: str, max_iter: int, alpha: float = ALPHA, t
         res = ho.barzilai_borwein(J, J.zero(tau0), gtol=1e-6, max_iter=max_iter, steps=steps, bb_step=bb_step)
     wall = time.perf_counter() - t0
     g = res.history["grad_norm"]
-    return {"h": h, "dt": dt, "tau0": tau0, "method": method, "iterations": res.iterations, "converged": bool(res.converged),
-            "tau": float(res.point.tau), "J": float(res.objective), "G0": float(g[0]), "G_final_rel": float(g[-1] / g[0]),
+    return {"h": h, "dt": dt, "tau0": tau0, "method": method, "iterations": res.iterations,
+            "converged": bool(res.converged), "tau": float(res.point.tau), "J": float(res.objective),
+            "G0": float(g[0]), "G_final_rel": float(g[-1] / g[0]),
             "state_solves": res.evaluations["state_solves"], "adjoint_solves": res.evaluations["adjoint_solves"],
             "failed_trials": res.failed_trials, "wall_s": wall, "grad_norm_history": [float(x) for x in g]}
 
@@ -86,13 +87,15 @@ def main():
     from results import table, command_line, write_results
 
     rows = []
-    print(f"{'method':12s} {'tau0':>5s} {'h':>6s} {'dt':>6s} {'iters':>6s} {'conv':>5s} {'tau':>9s} {'J':>12s} {'|G|/|G0|':>9s} "
+    print(f"{'method':12s} {'tau0':>5s} {'h':>6s} {'dt':>6s} {'iters':>6s} {'conv':>5s} {'tau':>9s} "
+          f"{'J':>12s} {'|G|/|G0|':>9s} "
           f"{'states':>7s} {'adjoints':>8s} {'failed':>6s} {'wall s':>7s}", flush=True)
     for method in args.methods.split(","):
         for (h, dt), tau0 in zip(pairs, starts):
             r = run(h, dt, method, args.max_iter, args.alpha, tau0)
             rows.append(r)
-            print(f"{method:12s} {tau0:5.2f} {h:6.3f} {dt:6.3f} {r['iterations']:6d} {str(r['converged']):>5s} {r['tau']:9.5f} "
+            print(f"{method:12s} {tau0:5.2f} {h:6.3f} {dt:6.3f} {r['iterations']:6d} "
+                  f"{str(r['converged']):>5s} {r['tau']:9.5f} "
                   f"{r['J']:12.6e} {r['G_final_rel']:9.2e} {r['state_solves']:7d} {r['adjoint_solves']:8d} "
                   f"{r['failed_trials']:6d} {r['wall_s']:7.1f}", flush=True)
     print()

@@ -6,8 +6,8 @@ P2-P1 at kappa = inf, isochoric Guccione, clamped base): the first Newton matrix
 Each (level, method) runs in a fresh subprocess, so its peak resident set (``ru_maxrss``) is its own:
 printed are the unknowns, the seconds of the first factorization (with PARDISO's METIS analysis) and of a
 refactorization, the stored factor entries, the backward error of the refined solve, the RSS before the
-first solve (current: mesh, model and element blocks) and the process's peak; then per level the ratios pardiso / lu. The
-children inherit the CPU affinity: PARDISO runs one thread per allowed core, SuperLU one.
+first solve (current: mesh, model and element blocks) and the process's peak; then per level the ratios
+pardiso / lu. The children inherit the CPU affinity: PARDISO runs one thread per allowed core, SuperLU one.
 ``--lu-levels``: the levels where SuperLU runs too (its level-3 factor, about 24 GB extrapolated from
 levels 0-2, does not fit a 23 GB machine).
 
@@ -39,6 +39,7 @@ def rss_gb() -> float:
 
 def child(level: int, method: str) -> dict:
     from bench_ordering import measure, step_blocks
+
     from hyperoc.benchmarks import ventricle_problem
 
     model, follower = ventricle_problem(6.0, kappa=math.inf, volumetric="taylor-hood", isochoric=True,

@@ -57,7 +57,8 @@ def main() -> None:
     runs = {"all": [], "one": []}
     for _ in range(args.rounds):
         for variant in runs:  # interleaved, so that load drifts hit both variants alike
-            out = subprocess.run([sys.executable, __file__, "--child", variant], capture_output=True, text=True, check=True)
+            out = subprocess.run([sys.executable, __file__, "--child", variant], capture_output=True, text=True,
+                                 check=True)
             r = json.loads(out.stdout.strip().splitlines()[-1])
             runs[variant].append(r)
             print(f"{variant:4s} CPUs: wall {r['wall']:6.2f} s, CPU {r['cpu']:6.2f} s, {r['iterations']} iterations, "

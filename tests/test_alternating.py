@@ -43,6 +43,9 @@ from hyperoc.mesh import interval
 from hyperoc.model import StateModel
 from hyperoc.timegrid import uniform_grid
 
+# Every test shares a 300-step run of the paper's bar at h = 0.01: the slow tier.
+pytestmark = pytest.mark.slow
+
 T, DT, A = 6.0, 0.02, 0.05
 GRID = uniform_grid(T, DT)
 N = GRID.num_steps

@@ -92,7 +92,7 @@ def boundary_discrepancy(cells, profile):
     return sol.pressure[idx] + flux[idx], sol.pressure[idx]
 
 
-@pytest.mark.parametrize("cells", CELLS)
+@pytest.mark.parametrize("cells", [pytest.param(c, marks=pytest.mark.slow) if c > CELLS[0] else c for c in CELLS])
 def test_multiplier_is_the_discrete_reaction_of_the_last_momentum_row(cells):
     model, grid, xi, sol = solve(cells, "nonzero_at_1")
     dt = grid.dt[:, None]
@@ -109,6 +109,7 @@ def test_multiplier_is_the_discrete_reaction_of_the_last_momentum_row(cells):
     assert np.max(np.abs((inertia - load)[:, -1])) < 0.2 * p_max
 
 
+@pytest.mark.slow
 def test_boundary_formula_discrepancy_is_first_order_with_the_predicted_leading_term():
     D, P = zip(*(boundary_discrepancy(c, "nonzero_at_1") for c in CELLS))
     D, P = np.abs(np.array(D)), np.abs(np.array(P))
@@ -124,6 +125,7 @@ def test_boundary_formula_discrepancy_is_first_order_with_the_predicted_leading_
     assert np.all(np.abs(D_signed / lead - 1) <= 3 * h[:, None])
 
 
+@pytest.mark.slow
 def test_boundary_formula_discrepancy_is_second_order_when_the_control_vanishes_at_the_end():
     D = np.abs(np.array([boundary_discrepancy(c, "zero_at_1")[0] for c in CELLS]))
     _, P = boundary_discrepancy(CELLS[-1], "zero_at_1")

@@ -325,7 +325,8 @@ def test_missing_frame_is_an_input_error():
 
 
 def test_config_builds_the_laws():
-    assert material_from_config({"law": "Guccione", "C": 10, "bf": 1, "bt": 1, "bfs": 1}) == Guccione(C=10.0, bf=1.0, bt=1.0, bfs=1.0)
+    assert (material_from_config({"law": "Guccione", "C": 10, "bf": 1, "bt": 1, "bfs": 1})
+            == Guccione(C=10.0, bf=1.0, bt=1.0, bfs=1.0))
     assert material_from_config({"law": "guccione", "isochoric": True}) == Guccione(isochoric=True)
     ho = material_from_config({"law": "holzapfel-ogden", "as": 2.0, "kappa": 500})
     assert ho == HolzapfelOgden(as_=2.0, kappa=500.0)

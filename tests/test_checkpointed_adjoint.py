@@ -17,25 +17,14 @@ import math
 from dataclasses import dataclass
 
 import jax.numpy as jnp
-import numpy as np
 import pytest
 
-from hyperoc import (BodyForce, ControlPoint, Objective, PressureAt, PressureRise, ReducedFunctional, Region,
-                     SaintVenantKirchhoff, StateModel, TimeTransform, box, interval)
+from helpers import bar, checkpointing_problem, control_point
+from hyperoc import Objective, PressureAt, ReducedFunctional, TimeTransform
 from hyperoc.errors import InputError
-from hyperoc.objectives import Running, Terminal
-from hyperoc.verification import random_directions
+from hyperoc.objectives import Running
 
 RTOL = 5e-13
-
-
-@dataclass(frozen=True)
-class _LevelReads(Terminal):
-    """Reads single levels, as a term must for checkpointing: y1 at T and y0 at tau."""
-
-    def value(self, traj):
-        v = traj.y1[-1]
-        return -0.5 * v @ (traj.mass @ v) + 0.3 * jnp.sum(traj.y0[traj.tau_index])
 
 
 @dataclass(frozen=True)
@@ -44,10 +33,6 @@ class _WholeTrajectory(Running):
 
     def density(self, traj):
         return jnp.sum(traj.y0 ** 2, axis=1)
-
-
-def _point(J, tau, amplitude):
-    return ControlPoint(amplitude * random_directions(J, J.zero(tau), seed=3)["xi"].xi, tau)
 
 
 def _assert_same(J, m, ks):
@@ -66,30 +51,25 @@ def _assert_same(J, m, ks):
         assert abs(gk.tau - grad.tau) <= RTOL * J.norm(grad), k
 
 
+@pytest.mark.slow
 def test_traced_1d():
     """Tridiagonal solver (lax.scan path), an objective reading y0(tau) and y1(T)."""
-    model = StateModel(interval(20), SaintVenantKirchhoff(0.05, 0.05), kappa=2e-3,
-                       control=BodyForce(Region("box", lower=(0.75,), upper=(1.0,))))
-    J = ReducedFunctional(model, TimeTransform.for_step(1.75, 0.25, 0.75, 0.25),
-                          Objective(at_tau=PressureRise(0.25), terminal=(_LevelReads(),)))
+    J = checkpointing_problem("traced-1d")
     assert J.stepper.solver.traced and J.N == 7
     assert J.objective_levels == (3, 7)
-    _assert_same(J, _point(J, 0.75, 0.05), ks=(1, 3, J.N))  # 3 does not divide N = 7 (scans of 3 and 1 steps)
+    _assert_same(J, control_point(J, 0.75, 0.05), ks=(1, 3, J.N))  # 3 does not divide N = 7 (scans of 3 and 1 steps)
 
 
+@pytest.mark.slow
 def test_python_loop_3d_sparse():
     """Sparse LU solver (jitted step driven from Python) on a 3D box."""
-    model = StateModel(box(1, dirichlet="left"), SaintVenantKirchhoff(1.0, 1.0), kappa=0.05,
-                       control=BodyForce(Region("box", lower=(0.5, 0.0, 0.0), upper=(1.0, 1.0, 1.0))))
-    J = ReducedFunctional(model, TimeTransform.for_step(0.7, 0.1, 0.3), Objective(at_tau=PressureAt()), solver="lu")
+    J = checkpointing_problem("sparse-3d")
     assert not J.stepper.solver.traced and J.N == 7
-    _assert_same(J, _point(J, 0.3, 0.5), ks=(1, 3, J.N))  # 3 does not divide N = 7
+    _assert_same(J, control_point(J, 0.3, 0.5), ks=(1, 3, J.N))  # 3 does not divide N = 7
 
 
 def test_whole_trajectory_objective_is_refused():
-    model = StateModel(interval(8), SaintVenantKirchhoff(0.05, 0.05), kappa=2e-3,
-                       control=BodyForce(Region("box", lower=(0.75,), upper=(1.0,))))
-    J = ReducedFunctional(model, TimeTransform.for_step(1.0, 0.25, 0.5),
+    J = ReducedFunctional(bar(8), TimeTransform.for_step(1.0, 0.25, 0.5),
                           Objective(running=(_WholeTrajectory(),), at_tau=PressureAt()), checkpoint_every=2)
     with pytest.raises(InputError, match="whole arrays"):
         J(J.zero(0.5))

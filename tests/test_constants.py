@@ -14,6 +14,9 @@ import textwrap
 
 import pytest
 
+# Three fresh interpreters, each importing JAX and compiling a P2 model: the slow tier.
+pytestmark = pytest.mark.slow
+
 #: Lowers the volume of a P2 box model and reports whether the shape-gradient array (nc, nq, nloc, 3)
 #: appears as a dense literal of the program, and a digest of the force and volume at a fixed u.
 PROGRAM = """

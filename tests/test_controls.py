@@ -3,8 +3,18 @@
 import numpy as np
 import pytest
 
-from hyperoc import (ActiveStress, BodyForce, InputError, NeoHookean, Region, SaintVenantKirchhoff, StateModel, annulus,
-                     interval, rectangle)
+from hyperoc import (
+    ActiveStress,
+    BodyForce,
+    InputError,
+    NeoHookean,
+    Region,
+    SaintVenantKirchhoff,
+    StateModel,
+    annulus,
+    interval,
+    rectangle,
+)
 from hyperoc.config import parse_config
 
 

@@ -36,6 +36,9 @@ from hyperoc.mesh import interval
 from hyperoc.model import StateModel
 from hyperoc.timegrid import TimeGrid
 
+# Convergence studies over three halvings of dt on fine meshes: the slow tier.
+pytestmark = pytest.mark.slow
+
 
 def padded_uniform_levels(T, n, num_steps):
     """n uniform steps on [0, T], continued with the same step up to ``num_steps`` steps (one

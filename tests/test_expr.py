@@ -14,17 +14,25 @@ T = np.array([[0.0], [0.3], [1.0]])
 @pytest.mark.parametrize(
     "source, reference",
     [
-        ("0.1*sin(pi*t)*exp(-((x-0.9)/0.05)**2)", lambda x, t: 0.1 * np.sin(np.pi * t) * np.exp(-(((x - 0.9) / 0.05) ** 2))),
+        ("0.1*sin(pi*t)*exp(-((x-0.9)/0.05)**2)",
+         lambda x, t: 0.1 * np.sin(np.pi * t) * np.exp(-(((x - 0.9) / 0.05) ** 2))),
         ("where(r < 0.7, 1.0, 0.0)*t", lambda x, t: np.where(np.abs(x) < 0.7, 1.0, 0.0) * t),
         ("-x**2 + 3 % 2 - x/4 + +t", lambda x, t: -(x**2) + 1 - x / 4 + t),
         ("2**-1 * e", lambda x, t: 0.5 * np.e + 0 * x * t),
         ("x % 0.5", lambda x, t: np.mod(x, 0.5) + 0 * t),
-        ("arctan2(x, 1 + t) + minimum(x, t) - maximum(x, t)", lambda x, t: np.arctan2(x, 1 + t) + np.minimum(x, t) - np.maximum(x, t)),
-        ("clip(x, 0, 1) + heaviside(x, 0.5) + sign(x) + floor(x) + ceil(t)", lambda x, t: np.clip(x, 0, 1) + np.heaviside(x, 0.5) + np.sign(x) + np.floor(x) + np.ceil(t)),
-        ("sqrt(abs(x)) + log(1 + t) + tanh(x) + cosh(t) - sinh(t)", lambda x, t: np.sqrt(np.abs(x)) + np.log(1 + t) + np.tanh(x) + np.cosh(t) - np.sinh(t)),
-        ("(0 < x <= 1) + (x == 2) - (x != 2) * (t >= 0.3)", lambda x, t: 1.0 * ((0 < x) & (x <= 1)) + (x == 2) - 1.0 * (x != 2) * (t >= 0.3)),
-        ("(x > 0 and t > 0) + 2*(x < 0 or t == 1) + 4*(not x)", lambda x, t: ((x > 0) & (t > 0)) + 2 * ((x < 0) | (t == 1)) + 4 * (x == 0)),
-        ("-(x < 1) + tan(0.1*x) + arcsin(0.5*t) + arccos(0.5*t) + arctan(x) + cos(x)", lambda x, t: -1.0 * (x < 1) + np.tan(0.1 * x) + np.arcsin(0.5 * t) + np.arccos(0.5 * t) + np.arctan(x) + np.cos(x)),
+        ("arctan2(x, 1 + t) + minimum(x, t) - maximum(x, t)",
+         lambda x, t: np.arctan2(x, 1 + t) + np.minimum(x, t) - np.maximum(x, t)),
+        ("clip(x, 0, 1) + heaviside(x, 0.5) + sign(x) + floor(x) + ceil(t)",
+         lambda x, t: np.clip(x, 0, 1) + np.heaviside(x, 0.5) + np.sign(x) + np.floor(x) + np.ceil(t)),
+        ("sqrt(abs(x)) + log(1 + t) + tanh(x) + cosh(t) - sinh(t)",
+         lambda x, t: np.sqrt(np.abs(x)) + np.log(1 + t) + np.tanh(x) + np.cosh(t) - np.sinh(t)),
+        ("(0 < x <= 1) + (x == 2) - (x != 2) * (t >= 0.3)",
+         lambda x, t: 1.0 * ((0 < x) & (x <= 1)) + (x == 2) - 1.0 * (x != 2) * (t >= 0.3)),
+        ("(x > 0 and t > 0) + 2*(x < 0 or t == 1) + 4*(not x)",
+         lambda x, t: ((x > 0) & (t > 0)) + 2 * ((x < 0) | (t == 1)) + 4 * (x == 0)),
+        ("-(x < 1) + tan(0.1*x) + arcsin(0.5*t) + arccos(0.5*t) + arctan(x) + cos(x)",
+         lambda x, t: (-1.0 * (x < 1) + np.tan(0.1 * x) + np.arcsin(0.5 * t) + np.arccos(0.5 * t) + np.arctan(x)
+                       + np.cos(x))),
     ],
 )
 def test_matches_numpy_with_broadcasting(source, reference):
@@ -124,7 +132,8 @@ def test_evaluation_never_compiles_code(monkeypatch):
 
 def test_expression_field_pads_coordinates_and_computes_r():
     points = np.array([[3.0, 4.0], [1.0, 0.0]])
-    np.testing.assert_allclose(expression_field("r + 10*x + 100*y + 1000*z + t", points, 2.0), [5 + 30 + 400 + 2, 1 + 10 + 2])
+    np.testing.assert_allclose(expression_field("r + 10*x + 100*y + 1000*z + t", points, 2.0),
+                               [5 + 30 + 400 + 2, 1 + 10 + 2])
     time_only = parse_expression("sin(pi*t)", variables={"t"})
     value = expression_field(time_only, points, 0.5)
     assert value.shape == (2,)

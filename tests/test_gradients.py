@@ -7,11 +7,24 @@ order h^3, so on the asymptotic range it lies in [1.9, 2.1]. `taylor_test` picks
 import numpy as np
 import pytest
 
-from hyperoc import (ActiveStress, BodyForce, ControlPoint, NeoHookean, Objective, PressureAt, PressureRise,
-                     ReducedFunctional, Region, SaintVenantKirchhoff, StateModel, TimeTransform, box, interval,
-                     taylor_test)
+from helpers import bar
+from hyperoc import (
+    ActiveStress,
+    BodyForce,
+    ControlPoint,
+    NeoHookean,
+    Objective,
+    PressureAt,
+    PressureRise,
+    ReducedFunctional,
+    Region,
+    SaintVenantKirchhoff,
+    StateModel,
+    TimeTransform,
+    box,
+    taylor_test,
+)
 from hyperoc.geometry import annulus
-from hyperoc.objectives import ControlCost
 from hyperoc.verification import random_directions
 
 
@@ -28,11 +41,11 @@ def _assert_rates(J, m, seed=5):
 
 
 def _model_1d(n=30):
-    return StateModel(interval(n), SaintVenantKirchhoff(0.05, 0.05), kappa=2e-3,
-                      control=BodyForce(Region("box", lower=(0.75,), upper=(1.0,))))
+    return bar(n)
 
 
-@pytest.mark.parametrize("phi1, eps", [("pressure", 0.0), ("pressure", 0.2), ("rise", 0.2)])
+@pytest.mark.parametrize("phi1, eps", [("pressure", 0.0), pytest.param("pressure", 0.2, marks=pytest.mark.slow),
+                                        pytest.param("rise", 0.2, marks=pytest.mark.slow)])
 def test_taylor_1d(phi1, eps):
     at_tau = PressureAt() if phi1 == "pressure" else PressureRise(eps)
     # With eps > 0 the transform has three pieces; for p(tau) the middle one only shapes the grid,
@@ -41,6 +54,7 @@ def test_taylor_1d(phi1, eps):
     _assert_rates(J, _point(J, 2.0, 0.05))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("degree", [1, 2])
 def test_taylor_2d_annulus(degree):
     mesh = annulus(0.5, 1.0, structured=True, n_radial=2, n_theta=12)
@@ -50,6 +64,7 @@ def test_taylor_2d_annulus(degree):
     _assert_rates(J, _point(J, 0.5, 0.5))
 
 
+@pytest.mark.slow
 def test_taylor_3d_box():
     mesh = box(2, dirichlet="left")
     model = StateModel(mesh, SaintVenantKirchhoff(1.0, 1.0), kappa=0.05,
@@ -58,6 +73,7 @@ def test_taylor_3d_box():
     _assert_rates(J, _point(J, 0.3, 0.5))
 
 
+@pytest.mark.slow
 def test_wrong_gradient_is_detected():
     """The Taylor test can fail: a gradient off by 10% gives rate ~1."""
     J = ReducedFunctional(_model_1d(), TimeTransform.for_step(4.0, 0.05, 2.0), Objective())
@@ -71,6 +87,7 @@ def test_wrong_gradient_is_detected():
     assert np.all(np.abs(rates - 1.0) < 0.1)
 
 
+@pytest.mark.slow
 def test_taylor_2d_annulus_cell_mean():
     """The bulk term on each cell's mean J (mixed P2-P0, `StateModel` volumetric): still exact."""
     mesh = annulus(0.5, 1.0, structured=True, n_radial=2, n_theta=12)

@@ -235,7 +235,8 @@ def test_pvd_rewrite_is_atomic_and_removes_stale_pieces(tmp_path, monkeypatch):
         hio.write_time_series(tmp_path, "state", **{**series, "times": series["times"] + 1.0}, fmt="pvd")
     assert path.read_bytes() == original and _hidden(tmp_path) == []
     monkeypatch.setattr(meshio, "write", real_write)
-    shorter = {**series, "times": series["times"][:2], "point_data": {"p": series["point_data"]["p"][:2]}, "cell_data": None}
+    shorter = {**series, "times": series["times"][:2], "point_data": {"p": series["point_data"]["p"][:2]},
+               "cell_data": None}
     hio.write_time_series(tmp_path, "state", **shorter, fmt="pvd")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["state.pvd", "state_000000.vtu", "state_000001.vtu"]
 

@@ -208,6 +208,7 @@ def linearized_inner_displacement(mesh, mu, lam, p):
     return np.einsum("ni,ni->n", model.expand(u)[nodes], x / np.linalg.norm(x, axis=1, keepdims=True))
 
 
+@pytest.mark.slow
 def test_inflated_cylinder_converges_faster_on_curved_cells():
     """Linear elasticity (the neo-Hookean law linearized at rest: Lame moduli mu, lam) against
     Lame's solution; the error of u_r on the inner wall, max over its nodes, relative."""

@@ -139,6 +139,7 @@ def test_linear_model_is_nontrivial(setting):
     assert np.max(np.abs(U_lin)) > 1e-2 and np.max(np.abs(p_lin)) > 1e-2
 
 
+@pytest.mark.slow
 def test_nonlinear_solution_tends_to_linearized_solution_at_first_order(setting):
     model, grid, xi_hat, U_lin, p_lin = setting
     epsilons = [1e-1, 1e-2, 1e-3]

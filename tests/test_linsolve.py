@@ -151,6 +151,7 @@ def taylor_hood_saddle_point():
     return model, np.asarray(model.tangent_blocks(x0, 1.0, 0.0))
 
 
+@pytest.mark.slow
 def test_saddle_point_solve_meets_the_forward_error_bound():
     model, blocks = taylor_hood_saddle_point()
     solver = solve_within_forward_error_bound(model, SparseSolver(model, "lu"), blocks)

@@ -39,10 +39,10 @@ def _fixed_frame(dim):
 
 
 @pytest.mark.parametrize("mesh,material,bulk", [
-    (rectangle(2), ho.NeoHookean(1.0, 40.0), None),
-    (box(1), ho.Guccione(isochoric=True), None),
-    (box(1), ho.Guccione(kappa=0.0), math.inf),
-], ids=["neo-Hookean-2d", "Guccione-isochoric-3d", "Guccione-incompressible-3d"])
+    pytest.param(rectangle(2), ho.NeoHookean(1.0, 40.0), None, id="neo-Hookean-2d", marks=pytest.mark.slow),
+    pytest.param(box(1), ho.Guccione(isochoric=True), None, id="Guccione-isochoric-3d", marks=pytest.mark.slow),
+    pytest.param(box(1), ho.Guccione(kappa=0.0), math.inf, id="Guccione-incompressible-3d", marks=pytest.mark.slow),
+])
 def test_tangent_is_the_hessian_of_the_lagrangian(mesh, material, bulk):
     model = TaylorHoodModel(mesh, material, bulk_modulus=bulk, frames=_fixed_frame(mesh.dim), dirichlet=None,
                             pin_rigid=False)
@@ -62,6 +62,7 @@ def uniaxial_patch(mesh, mu: float, stretch: float) -> TaylorHoodModel:
                            neumann="right", traction=(mu * (stretch - stretch**-2), 0.0, 0.0))
 
 
+@pytest.mark.slow
 def test_uniaxial_patch_test_is_exact():
     """Cube [0, 1]^3 on three symmetry planes (u_x = 0 at x = 0, u_y = 0 at y = 0, u_z = 0 at z = 0), dead
     traction t e_x on x = 1, incompressible neo-Hookean (``W_rest = mu/2 (I1 - 3) - mu ln J``). Exact:
@@ -82,6 +83,7 @@ def test_uniaxial_patch_test_is_exact():
 
 
 
+@pytest.mark.slow
 def test_newton_monitor_reports_the_pressure_field_apart():
     """The uniaxial patch above, monitored: every record has the pressure field's residual and
     increment besides the displacement's. The first iteration starts at the stress-free reference
@@ -99,6 +101,7 @@ def test_newton_monitor_reports_the_pressure_field_apart():
     assert [r.converged for r in log.records].count(True) == steps == len(sol.newton_iterations)
     assert all("|dq|" in line for line in text.getvalue().splitlines())
 
+@pytest.mark.slow
 def test_incompressible_beam_keeps_its_volume_and_does_not_lock():
     moduli = BEAM["C"] * max(BEAM["bf"], BEAM["bt"], BEAM["bfs"])  # kPa, the largest small-strain modulus
     res = {kappa: beam_deflection(1, kappa=kappa, volumetric="taylor-hood") for kappa in (1e3, math.inf)}
@@ -117,6 +120,7 @@ def incompressible_ventricle():
     return ventricle_apex(6.0, kappa=math.inf, volumetric="taylor-hood", isochoric=True, steps=20)
 
 
+@pytest.mark.slow
 def test_incompressible_ventricle_needs_the_isochoric_law(incompressible_ventricle):
     """Land problem 2, h = 6 mm (1706 unknowns), kappa = inf: with Q on the full strain J folds to 0
     between the vertices although every hat-weighted mean of J - 1 vanishes; on the isochoric strain the
@@ -131,6 +135,7 @@ def test_incompressible_ventricle_needs_the_isochoric_law(incompressible_ventric
     assert set(PUBLISHED[2]) == set(res.values)  # bench_land.py compares every reported value
 
 
+@pytest.mark.slow
 def test_ventricle_restarted_from_its_own_solution_needs_no_load_stepping(incompressible_ventricle):
     """``coarse=`` wiring: a mesh is its own 0-fold refinement, so the prolongation of a solution to
     the same mesh is that solution (displacement and pressure), and Newton at the full load stops at
@@ -145,6 +150,7 @@ def test_ventricle_restarted_from_its_own_solution_needs_no_load_stepping(incomp
         ventricle_apex(9.0, kappa=math.inf, volumetric="taylor-hood", isochoric=True, coarse=res)
 
 
+@pytest.mark.slow
 def test_saved_state_reloads_with_the_same_mesh_and_solution(incompressible_ventricle, tmp_path):
     """`save_state` / `load_state`: the model rebuilt from the saved parameters is the same mesh (gmsh
     and refinement are deterministic: bitwise equal points), so the state prolongs as the original

@@ -2,6 +2,8 @@
 
 import tomllib
 
+import pytest
+
 from hyperoc.config import parse_config
 from hyperoc.io import read_json
 from hyperoc.workflows import optimize
@@ -29,6 +31,7 @@ max_iter = 3
 """
 
 
+@pytest.mark.slow
 def test_multistart_runs_every_start_and_resumes(tmp_path):
     cfg = parse_config(tomllib.loads(TEXT), tmp_path)
     summary = optimize(cfg, tmp_path / "out", workers=2)

@@ -1,11 +1,25 @@
 """Optimizers: ascent, rejected failing trials, exact resume, and the time-shift property."""
 
+from functools import cache
+
 import numpy as np
 import pytest
 import scipy.linalg
 
-from hyperoc import (BodyForce, ControlPoint, NeoHookean, Objective, ReducedFunctional, Region, SaintVenantKirchhoff,
-                     SolverError, StateModel, TimeTransform, barzilai_borwein, interval, lbfgsb)
+from helpers import bar
+from hyperoc import (
+    ControlPoint,
+    NeoHookean,
+    Objective,
+    ReducedFunctional,
+    Region,
+    SaintVenantKirchhoff,
+    SolverError,
+    StateModel,
+    TimeTransform,
+    barzilai_borwein,
+    lbfgsb,
+)
 from hyperoc.errors import InputError
 from hyperoc.objectives import ControlCost, PressureAt
 from hyperoc.optimize import BBStepRule, LumpedMetric, newton_cg, tau_scaling
@@ -13,11 +27,12 @@ from hyperoc.problems import vibrating_bar
 
 
 def _J(tau=1.0, T=3.0, dt=0.05, n=20, alpha=2e-2, omega=(0.75, 1.0), material=SaintVenantKirchhoff(0.05, 0.05)):
-    model = StateModel(interval(n), material, kappa=2e-3,
-                       control=BodyForce(Region("box", lower=omega[:1], upper=omega[1:])))
-    return ReducedFunctional(model, TimeTransform.for_step(T, dt, tau), Objective(running=(ControlCost(alpha),), at_tau=PressureAt()))
+    model = bar(n, omega=omega, material=material)
+    return ReducedFunctional(model, TimeTransform.for_step(T, dt, tau),
+                             Objective(running=(ControlCost(alpha),), at_tau=PressureAt()))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["bb", "bb-abbmin", "bb-blockwise", "bb-spg", "lbfgsb", "lbfgsb-tau-x10",
                                     "lbfgsb-tau-x0.1", "lbfgsb-inactive-bounds", "newton"])
 def test_optimizers_converge_on_a_well_posed_case(method, bar_reference):
@@ -27,7 +42,17 @@ def test_optimizers_converge_on_a_well_posed_case(method, bar_reference):
     Near a nondegenerate maximizer |m - m*| <= ||G|| / lambda with lambda the curvature of -J; with
     ||G|| <= 1e-6 ||G0|| here and <= 1e-7 ||G0|| at the reference, the two points lie within
     1.1e-6 ||G0|| / lambda of each other, and their J within O(||G||^2 / lambda) (quadratic model)."""
-    ref, lam, J = bar_reference
+    _converges_to_the_reference(method, *bar_reference)
+
+
+@pytest.mark.parametrize("method", ["bb", "lbfgsb", "newton"])
+def test_optimizers_converge_on_a_coarse_well_posed_case(method):
+    """The test above, one method of each optimizer, on the coarse bar (h = 0.1, dt = 0.2): the same
+    bounds, with that problem's reference maximizer and curvature."""
+    _converges_to_the_reference(method, *_bar_reference(0.1, 0.2))
+
+
+def _converges_to_the_reference(method, ref, lam, J):
     if method == "lbfgsb-inactive-bounds":  # the "range" scaling of tau applies (`tau_scaling`)
         bound = 10 * np.max(np.abs(ref.point.xi))
         res = lbfgsb(J, J.zero(2.0), max_iter=100, gtol=1e-6, xi_bounds=(-bound, bound))
@@ -50,6 +75,7 @@ def test_optimizers_converge_on_a_well_posed_case(method, bar_reference):
     assert abs(res.objective - ref.objective) <= 4 * (1e-6 * G0) ** 2 / lam
 
 
+@pytest.mark.slow
 def test_bounded_optimizers_reach_the_same_kkt_point(bar_reference):
     """Bounds ``|xi| <= b`` at half the unconstrained maximizer's largest value, so that they are
     active: projected BB and L-BFGS-B must both reach a projected gradient ``||P(m + G) - m||`` <=
@@ -64,9 +90,9 @@ def test_bounded_optimizers_reach_the_same_kkt_point(bar_reference):
     lumped metric, from forward differences of the exact gradient), and J within ``eps^2 / lambda_F``
     of J* up to a factor 2 each.
 
-    Projected Newton-CG reaches it too. The spectral projected gradient method (``nonmonotone = 10``) reaches the same point and, by its
-    line search, never falls below the least J of its last 10 iterates, which projected BB (the
-    paper's Algorithm 1, unguarded) does here."""
+    Projected Newton-CG reaches it too. The spectral projected gradient method (``nonmonotone = 10``)
+    reaches the same point and, by its line search, never falls below the least J of its last 10
+    iterates, which projected BB (the paper's Algorithm 1, unguarded) does here."""
     _, _, J = bar_reference
     ref = bar_reference[0]
     b = 0.5 * np.max(np.abs(ref.point.xi))
@@ -90,6 +116,7 @@ def test_bounded_optimizers_reach_the_same_kkt_point(bar_reference):
     assert falls[0] > 0 and falls[1] == 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("run", [barzilai_borwein, lbfgsb, newton_cg])
 def test_callback_reports_the_stopping_measure(run, bar_reference):
     """The callback (the CLI's progress bar) gets the measure the stopping test reads: with active
@@ -98,7 +125,8 @@ def test_callback_reports_the_stopping_measure(run, bar_reference):
     b = 0.5 * np.max(np.abs(bar_reference[0].point.xi))
     seen = []
     res = run(J, J.zero(2.0), max_iter=8, xi_bounds=(-b, b),
-              callback=lambda k, m, value, measure: seen.append((k, value, measure, J.norm(J.value_and_gradient(m)[1]))))
+              callback=lambda k, m, value, measure: seen.append((k, value, measure,
+                                                                 J.norm(J.value_and_gradient(m)[1]))))
     assert [k for k, *_ in seen] == list(range(1, res.iterations + 1))
     assert [v for _, v, _, _ in seen] == res.history["objective"][1:]
     assert [e for _, _, e, _ in seen] == res.history["grad_norm"][1:]
@@ -129,6 +157,7 @@ def _least_curvature_on(J, metric, m, free, h=1e-6):
     return lam
 
 
+@pytest.mark.slow
 def test_newton_cg_converges_superlinearly(bar_reference):
     """Near the nondegenerate maximizer Newton-CG with the forcing term ``min(0.5, sqrt(||G|| / ||G0||))``
     converges q-superlinearly (order 1.5 in exact arithmetic; the forward-difference Hessian adds a
@@ -192,14 +221,14 @@ def test_bb_step_rules_on_a_quadratic():
             barzilai_borwein(None, None, nonmonotone=bad)
 
 
-@pytest.fixture(scope="module")
-def bar_reference():
+@cache
+def _bar_reference(h, dt):
     """Reference maximizer (Algorithm 1 to ||G|| <= 1e-7 ||G0||: L-BFGS-B's line search ends at ~3e-7,
     where J's changes reach round-off), lambda, the smallest eigenvalue of
     -Hessian(J) there in the inner product of the control space: ``-H v = lambda W v`` with H from
     forward differences of the exact gradient (one per coordinate) and W the Gram matrix of `inner`,
-    and the reduced functional (compiled once for the module)."""
-    J = vibrating_bar(0.05, 0.1)
+    and the reduced functional (compiled once per process)."""
+    J = vibrating_bar(h, dt)
     ref = barzilai_borwein(J, J.zero(2.0), max_iter=300, gtol=1e-7)
     assert ref.history["grad_norm"][-1] <= 1e-7 * ref.history["grad_norm"][0]
     flat = ref.point.flat()
@@ -218,6 +247,13 @@ def bar_reference():
     return ref, lam, J
 
 
+@pytest.fixture(scope="module")
+def bar_reference():
+    """`_bar_reference` of the bar with h = 0.05, dt = 0.1."""
+    return _bar_reference(0.05, 0.1)
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("run", [barzilai_borwein, newton_cg])
 def test_resume_replays_to_the_same_result(tmp_path, run):
     full = run(_J(), _J().zero(1.0), max_iter=8, checkpoint=tmp_path / "full")
@@ -280,6 +316,7 @@ def test_time_shift_of_a_control_keeps_J():
     assert J2(ControlPoint(xi2, 1.5)) == pytest.approx(J1(ControlPoint(xi1, 1.0)), rel=1e-9, abs=1e-15)
 
 
+@pytest.mark.slow
 def test_optimal_value_does_not_decrease_with_tau():
     """The property itself, on a small linear-ish case (alpha = 10 keeps the optimal control small;
     with smaller alpha the optimizer runs away to element collapse): maximize over xi at fixed tau (zero initial
@@ -296,6 +333,7 @@ def test_optimal_value_does_not_decrease_with_tau():
     assert all(b >= a * (1 - 1e-8) for a, b in zip(values, values[1:])), values
 
 
+@pytest.mark.slow
 def test_tau_scaling_normalizes_both_blocks_to_their_ranges(bar_reference):
     """``"range"``: c L_tau = (hi - lo) sqrt(|Q|), |Q| = 2 |omega| (omega = [0.25, 0.5], s in (0, 2));
     1 without two finite bounds or with tau fixed; a number passes through; anything else is an
@@ -311,6 +349,7 @@ def test_tau_scaling_normalizes_both_blocks_to_their_ranges(bar_reference):
             tau_scaling(J, bad, (0.5, 3.0), (-0.2, 0.2))
 
 
+@pytest.mark.slow
 def test_lbfgsb_with_a_p2_control_on_a_curved_annulus():
     """P2 control nodes (row-sum lumping of their mass is zero or negative at vertices): the scaled
     variables stay finite, J increases from the start and the bounds hold."""

@@ -21,6 +21,7 @@ def parallel(tmp_path_factory):
     return out, reproduce_paper_1d(out, progress=False, workers=2, overrides=SMALL)
 
 
+@pytest.mark.slow
 def test_every_study_writes_its_outputs(parallel):
     out, summary = parallel
     for name in ("summary.json", "ray.json", "resolution.json", "pressure.png", "control.png", "displacement.png",
@@ -32,6 +33,7 @@ def test_every_study_writes_its_outputs(parallel):
     assert on_disk["tau"] == summary["tau"] and on_disk["workers"] == 2
 
 
+@pytest.mark.slow
 def test_studies_use_the_stated_variants(parallel):
     _, summary = parallel
     T = summary["config"]["dynamics"]["T"]
@@ -51,6 +53,7 @@ def test_studies_use_the_stated_variants(parallel):
     assert scales == sorted(scales) and 1.0 in scales
 
 
+@pytest.mark.slow
 def test_parallel_and_serial_runs_agree(parallel, tmp_path):
     """The optimizers are deterministic: worker processes and the shared compiled problem change
     where and how often things are compiled, not what is computed."""
@@ -61,6 +64,30 @@ def test_parallel_and_serial_runs_agree(parallel, tmp_path):
         assert serial["runs"][key]["tau"] == summary["runs"][key]["tau"]
         assert serial["runs"][key]["objective"] == summary["runs"][key]["objective"]
     np.testing.assert_array_equal([r["J"] for r in serial["ray"]], [r["J"] for r in summary["ray"]])
+
+
+def test_quick_serial_job_writes_its_outputs_and_uses_the_stated_variants(tmp_path):
+    """The fast tier's run of the job: ``quick`` (no resolution study), one process, a coarser grid
+    (h = 0.1, dt = 0.2) and 2 iterations; the outputs and study variants of the tests above."""
+    small = {"mesh__n": 10, "dynamics__dt": 0.2, "optimize__max_iter": 2}
+    summary = reproduce_paper_1d(tmp_path, quick=True, progress=False, workers=1, overrides=small)
+    for name in ("summary.json", "ray.json", "pressure.png", "control.png", "displacement.png", "velocity.png",
+                 "results.npz"):
+        assert (tmp_path / name).is_file(), name
+    for folder in ("algorithm1", "bounded"):
+        assert (tmp_path / folder / "summary.json").is_file(), folder
+    assert summary["resolution"] == [] and not (tmp_path / "resolution.json").exists()
+    on_disk = json.loads((tmp_path / "summary.json").read_text())
+    assert on_disk["tau"] == summary["tau"] and on_disk["workers"] == 1
+    T = summary["config"]["dynamics"]["T"]
+    runs = summary["runs"]
+    assert runs["algorithm1"]["xi_bounds"] is None and runs["algorithm1"]["nonmonotone"] == 0
+    assert runs["bounded"]["xi_bounds"] == [-XI_MAX, XI_MAX] and runs["bounded"]["max_abs_xi"] <= XI_MAX
+    assert runs["bounded"]["nonmonotone"] == SPG_WINDOW
+    for r in runs.values():
+        assert 0 < r["tau"] < T and r["iterations"] <= small["optimize__max_iter"]
+    scales = [row["scale"] for row in summary["ray"]]
+    assert scales == sorted(scales) and 1.0 in scales
 
 
 def test_bad_worker_count_is_an_input_error(tmp_path, capsys):

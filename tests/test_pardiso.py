@@ -23,10 +23,14 @@ import scipy.sparse as sp
 
 from hyperoc.linsolve import SparseSolver
 from hyperoc.pardiso import PardisoLDL, available
-
-from test_linsolve import model  # noqa: F401  (the fixture)
-from test_linsolve import (bordered_rhs, check_non_finite_tangent_fails_cleanly, solve_within_forward_error_bound,
-                           spd_blocks, taylor_hood_saddle_point)
+from test_linsolve import (
+    bordered_rhs,
+    check_non_finite_tangent_fails_cleanly,
+    model,  # noqa: F401  (the fixture)
+    solve_within_forward_error_bound,
+    spd_blocks,
+    taylor_hood_saddle_point,
+)
 
 pytestmark = pytest.mark.skipif(not available(), reason="MKL (pip install mkl) is not installed")
 EPS = np.finfo(float).eps
@@ -117,7 +121,7 @@ def test_tiny_diagonal_pivots(model):  # noqa: F811
     assert solver.stats["failed"] == 0 and solver.stats["factorizations"] == 1
 
 
-def skewed_blocks(model, size):
+def skewed_blocks(model, size):  # noqa: F811
     """SPD blocks plus a skew-symmetric part of relative ``size``."""
     S = np.random.default_rng(5).standard_normal(model.pattern.element_shape)
     blocks = spd_blocks(model)

@@ -5,6 +5,7 @@ import re
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
@@ -36,6 +37,7 @@ def test_readme_python_api_snippet_runs():
     assert np.all(np.diff(result.history["objective"]) > 0)
 
 
+@pytest.mark.slow
 def test_readme_ventricle_snippet_runs():
     names = snippet("The ventricle example in Python", "max_iter=100", CARDIAC)
     value, grad, taylor, result = names["value"], names["grad"], names["taylor"], names["result"]

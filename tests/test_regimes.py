@@ -29,6 +29,9 @@ from hyperoc.mesh import interval
 from hyperoc.model import StateModel
 from hyperoc.timegrid import uniform_grid
 
+# Long runs of the paper's bar at h = 0.01 (up to T = 15) and a 2D blow-up: the slow tier.
+pytestmark = pytest.mark.slow
+
 LIMIT = -1.0 + 1.0 / math.sqrt(3.0)  # 1D SVK: dP/dF < 0 iff u_x < LIMIT
 DT = 0.02
 ELLIPTICITY = re.compile(r"loss of (strong ellipticity|convexity) from t = ([0-9.eE+-]+)")

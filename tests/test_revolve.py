@@ -13,8 +13,9 @@ them, as in `tests/test_checkpointed_adjoint.py`. On the traced path the stored 
 lax.scan and the revolve path the standalone jitted step: XLA rounds the same step differently,
 and the states then differ by ~1e-13 relative (measured: y0, p 1e-13, J 3.2e-13 of the sum of its
 terms' magnitudes, gradient 4e-15; unchanged with Newton rtol 1e-14 and the same iteration counts:
-round-off of the converged steps, some 500 ulps of the small states, not the stopping test). We allow ``RTOL = 1e-12`` relative on both paths, for J against the sum of
-the magnitudes of its terms and for the gradient in the Riesz norm. Sharper, within the revolve
+round-off of the converged steps, some 500 ulps of the small states, not the stopping test). We
+allow ``RTOL = 1e-12`` relative on both paths, for J against the sum of the magnitudes of its terms
+and for the gradient in the Riesz norm. Sharper, within the revolve
 path a recomputed state is the forward state bit for bit (same jitted step, same inputs, same
 Newton warm start ``p_{a-1/2}``): on the traced path the gradients for s = 1, 2, 3, N are equal
 exactly (s = N recomputes nothing, s = 2, 3 restart from interior levels, so a wrong warm start
@@ -28,15 +29,13 @@ from functools import cache
 
 import pytest
 
-from hyperoc import (BodyForce, Objective, PressureAt, PressureRise, ReducedFunctional, Region, SaintVenantKirchhoff,
-                     StateModel, TimeTransform, box, interval)
+from helpers import bar, checkpointing_problem, control_point
+from hyperoc import Objective, PressureAt, ReducedFunctional, TimeTransform
 from hyperoc.cli import main
 from hyperoc.config import parse_config
 from hyperoc.errors import InputError
-from hyperoc.revolve import (Advance, Free, Restore, Reverse, Store, minimal_advances, repetitions, schedule)
+from hyperoc.revolve import Advance, Free, Restore, Reverse, Store, minimal_advances, repetitions, schedule
 from hyperoc.workflows import build_reduced
-
-from test_checkpointed_adjoint import _LevelReads, _point
 
 RTOL = 1e-12
 
@@ -142,28 +141,24 @@ def _assert_same(J, m, snapshots, exact_between_s):
         assert all((g.xi == grads[0].xi).all() and g.tau == grads[0].tau for g in grads), "recomputation not bitwise"
 
 
+@pytest.mark.slow
 def test_traced_1d():
     """Tridiagonal solver (the stored path is a compiled lax.scan), objective reading y0(tau), y1(T)."""
-    model = StateModel(interval(20), SaintVenantKirchhoff(0.05, 0.05), kappa=2e-3,
-                       control=BodyForce(Region("box", lower=(0.75,), upper=(1.0,))))
-    J = ReducedFunctional(model, TimeTransform.for_step(1.75, 0.25, 0.75, 0.25),
-                          Objective(at_tau=PressureRise(0.25), terminal=(_LevelReads(),)))
+    J = checkpointing_problem("traced-1d")
     assert J.stepper.solver.traced and J.N == 7 and J.objective_levels == (3, 7)
-    _assert_same(J, _point(J, 0.75, 0.05), snapshots=(1, 2, 3, J.N), exact_between_s=True)
+    _assert_same(J, control_point(J, 0.75, 0.05), snapshots=(1, 2, 3, J.N), exact_between_s=True)
 
 
+@pytest.mark.slow
 def test_python_loop_3d_sparse():
     """Sparse LU solver (jitted step driven from Python in every path) on a 3D box."""
-    model = StateModel(box(1, dirichlet="left"), SaintVenantKirchhoff(1.0, 1.0), kappa=0.05,
-                       control=BodyForce(Region("box", lower=(0.5, 0.0, 0.0), upper=(1.0, 1.0, 1.0))))
-    J = ReducedFunctional(model, TimeTransform.for_step(0.7, 0.1, 0.3), Objective(at_tau=PressureAt()), solver="lu")
+    J = checkpointing_problem("sparse-3d")
     assert not J.stepper.solver.traced and J.N == 7
-    _assert_same(J, _point(J, 0.3, 0.5), snapshots=(2, J.N), exact_between_s=False)
+    _assert_same(J, control_point(J, 0.3, 0.5), snapshots=(2, J.N), exact_between_s=False)
 
 
 def test_bad_snapshots_are_refused(tmp_path):
-    model = StateModel(interval(8), SaintVenantKirchhoff(0.05, 0.05), kappa=2e-3,
-                       control=BodyForce(Region("box", lower=(0.75,), upper=(1.0,))))
+    model = bar(8)
     J = ReducedFunctional(model, TimeTransform.for_step(1.0, 0.25, 0.5), Objective(at_tau=PressureAt()))
     for bad in (0, -3, 1.5, True, "4"):
         with pytest.raises(InputError, match="checkpoint_snapshots"):

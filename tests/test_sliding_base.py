@@ -32,6 +32,7 @@ def compressed_box(**kw):
     return model, solve_static(model, load=model.load_vector(traction=(0.0, 0.0, -T), neumann="back"), steps=2)
 
 
+@pytest.mark.slow
 def test_sliding_base_expands_laterally_as_the_exact_homogeneous_solution():
     model, sol = compressed_box(dirichlet=None, dirichlet_components={"front": (2,)})
     assert len(model.pinned_dofs) == 3 and model.rigid_modes.shape == (model.n, 0)
@@ -50,6 +51,7 @@ def test_sliding_base_expands_laterally_as_the_exact_homogeneous_solution():
     assert width == pytest.approx(l, rel=1e-9)
 
 
+@pytest.mark.slow
 def test_clamped_base_does_not_expand():
     model, sol = compressed_box()
     assert len(model.pinned_dofs) == 0
@@ -104,6 +106,7 @@ def test_sliding_a_clamped_boundary_is_an_input_error():
         ho.StateModel(box(1, dirichlet="front"), ho.NeoHookean(), dirichlet_components={"front": (2,)})
 
 
+@pytest.mark.slow
 def test_prolonged_sliding_solution_is_moved_onto_the_refined_meshs_pins():
     """The pins are picked on each mesh anew (here the coarse P1 box pins u_y at (0, 0.5, 0), its
     refinement at (0, 0, 0) and (1, 0, 0)), and the homogeneous solution is exact on both meshes,

@@ -20,7 +20,6 @@ that the finest pair is asymptotic (observed rates approach the theoretical ones
 correction ~ h / L, so P1 needs h <= 1/16); rates are asserted within 0.1 on that pair.
 """
 
-import math
 
 import jax
 import jax.numpy as jnp
@@ -31,6 +30,9 @@ from hyperoc.materials import NeoHookean, SaintVenantKirchhoff
 from hyperoc.mesh import box, rectangle
 from hyperoc.model import StateModel
 from hyperoc.statics import solve_static
+
+# Mesh sequences chosen to reach the asymptotic range: the slow tier.
+pytestmark = pytest.mark.slow
 
 
 def u_2d(x, amp=0.03):

@@ -22,7 +22,6 @@ from hyperoc.materials import SaintVenantKirchhoff
 from hyperoc.mesh import interval
 from hyperoc.model import StateModel
 from hyperoc.timegrid import uniform_grid
-
 from test_regimes import constant_control
 
 EPS = np.finfo(float).eps
@@ -84,6 +83,7 @@ def test_monitor_sees_the_failing_step_before_the_error(bar_1d):
         assert last.min_det_F <= 0
 
 
+@pytest.mark.slow
 def test_monitor_with_host_solver_and_progress_bar_2d():
     """Annulus, P1, active stress on a quarter, sparse LU driven from Python with the progress bar:
     the records match the solution; the constraint holds at every step (as in test_volume.py:

@@ -86,9 +86,17 @@ def _case_id(case):
     return f"{type(case[1]).__name__}{iso}-{case[0]().dim}d-P{case[2]}"
 
 
-@pytest.mark.parametrize("mesh_fn,material,degree,frames,a,b,volumetric",
-                         [c + ("pointwise",) for c in CASES] + [c + ("cell-mean",) for c in CELL_MEAN_CASES],
-                         ids=[_case_id(c) for c in CASES] + [_case_id(c) + "-cell-mean" for c in CELL_MEAN_CASES])
+SLOW_CASES = {"Guccione-3d-P2", "HolzapfelOgden-3d-P1", "NeoHookean-3d-P1-cell-mean", "Guccione-3d-P2-cell-mean",
+              "Guccione-isochoric-3d-P2-cell-mean"}  # the largest element matrices: the slow tier
+
+
+def _params():
+    cases = [(c + ("pointwise",), _case_id(c)) for c in CASES]
+    cases += [(c + ("cell-mean",), _case_id(c) + "-cell-mean") for c in CELL_MEAN_CASES]
+    return [pytest.param(*c, id=i, marks=[pytest.mark.slow] if i in SLOW_CASES else []) for c, i in cases]
+
+
+@pytest.mark.parametrize("mesh_fn,material,degree,frames,a,b,volumetric", _params())
 def test_tangent_equals_hessian_of_the_element_energy(mesh_fn, material, degree, frames, a, b, volumetric):
     model = ho.StateModel(mesh_fn(), material, degree=degree, frames=frames, volumetric=volumetric)
     # A smooth finite strain (|grad u| ~ 0.3), different in every component.
@@ -101,6 +109,7 @@ def test_tangent_equals_hessian_of_the_element_energy(mesh_fn, material, degree,
     assert err <= TOL
 
 
+@pytest.mark.slow
 def test_chunked_tangent_equals_one_batch():
     """Cells in chunks (here 7 points at a time, with a remainder) give the same blocks as all at once."""
     model = ho.StateModel(box(2), ho.Guccione(), degree=1, frames=FRAME3)
@@ -112,6 +121,7 @@ def test_chunked_tangent_equals_one_batch():
     assert np.max(np.abs(chunked - whole)) <= TOL * np.max(np.abs(whole))
 
 
+@pytest.mark.slow
 def test_det_hessian_alone():
     """a = 0: only the closed-form Hessian of det F remains (it is not a material property)."""
     model = ho.StateModel(box(1), ho.SaintVenantKirchhoff(1.0, 1.0), degree=1)

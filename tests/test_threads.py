@@ -38,6 +38,7 @@ def run_pinned(code: str, timeout: float, env: dict | None = None) -> str:
     return out.stdout
 
 
+@pytest.mark.slow
 def test_import_starts_a_multithreaded_pool_and_keeps_the_pinning():
     out = run_pinned(POOL_SIZE, timeout=120)
     pool, distinct_sets, cpus = map(int, out.split())
@@ -45,12 +46,14 @@ def test_import_starts_a_multithreaded_pool_and_keeps_the_pinning():
     assert distinct_sets == 1 and cpus == 1  # every thread still on the one CPU the process was given
 
 
+@pytest.mark.slow
 def test_one_thread_pool_on_request():
     """``HYPEROC_ONE_THREAD_POOL=1`` (set by `hyperoc.paper` for its 1D workers) keeps the one-thread pool."""
     out = run_pinned(POOL_SIZE, timeout=120, env={ONE_THREAD_POOL: "1"})
     assert int(out.split()[0]) == 1
 
 
+@pytest.mark.slow
 def test_pinned_host_solve_of_the_ventricle_completes():
     """The case that hung (no CPU use, forever) before the backend was started on every CPU."""
     out = run_pinned("""

@@ -33,6 +33,9 @@ from hyperoc.mesh import interval
 from hyperoc.model import StateModel
 from hyperoc.timegrid import TimeGrid, TimeTransform
 
+# Step sequences chosen to reach the asymptotic range: the slow tier.
+pytestmark = pytest.mark.slow
+
 # Order tolerance: the rate estimator carries an O(dt) bias; on the grids used it is below 0.05.
 RATE_TOL = 0.1
 

@@ -19,7 +19,7 @@ import pytest
 
 from hyperoc import geometry
 from hyperoc.controls import ActiveStress, BodyForce, Region
-from hyperoc.dynamics import Scheme, solve_state
+from hyperoc.dynamics import solve_state
 from hyperoc.materials import SaintVenantKirchhoff
 from hyperoc.mesh import box, interval
 from hyperoc.model import StateModel
@@ -81,6 +81,7 @@ def test_volume_and_end_displacement_conserved_1d_paper_parameters():
     assert np.max(np.abs(sol.displacement())) > 1e-3
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("degree,n_radial,n_theta", [(1, 4, 32), (2, 2, 16)])
 def test_volume_conserved_2d_annulus_active_stress(degree, n_radial, n_theta):
     mesh = geometry.annulus(0.5, 1.0, structured=True, n_radial=n_radial, n_theta=n_theta)
@@ -91,6 +92,7 @@ def test_volume_conserved_2d_annulus_active_stress(degree, n_radial, n_theta):
     run_and_check(model, grid, xi, min_spread=1e-2)
 
 
+@pytest.mark.slow
 def test_volume_conserved_3d_box_body_force():
     mesh = box(3)
     control = BodyForce(Region("box", lower=(0.3, 0.0, 0.0), upper=(1.0, 1.0, 1.0)))

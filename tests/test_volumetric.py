@@ -38,11 +38,11 @@ def _fixed_frame(dim):
 
 
 @pytest.mark.parametrize("mesh,material,degree", [
-    (rectangle(3), ho.NeoHookean(1.0, 40.0), 2),
-    (box(2), ho.Guccione(), 1),
-    (box(1), ho.HolzapfelOgden(), 2),
-    (box(1), ho.Guccione(isochoric=True), 2),
-], ids=["neo-Hookean-2d-P2", "Guccione-3d-P1", "Holzapfel-Ogden-3d-P2", "Guccione-isochoric-3d-P2"])
+    pytest.param(rectangle(3), ho.NeoHookean(1.0, 40.0), 2, id="neo-Hookean-2d-P2", marks=pytest.mark.slow),
+    pytest.param(box(2), ho.Guccione(), 1, id="Guccione-3d-P1", marks=pytest.mark.slow),
+    pytest.param(box(1), ho.HolzapfelOgden(), 2, id="Holzapfel-Ogden-3d-P2", marks=pytest.mark.slow),
+    pytest.param(box(1), ho.Guccione(isochoric=True), 2, id="Guccione-isochoric-3d-P2"),
+])
 def test_homogeneous_deformation_is_unchanged(mesh, material, degree):
     G = np.array([[0.08, 0.03, -0.02], [0.01, -0.05, 0.04], [0.02, 0.06, 0.03]])[: mesh.dim, : mesh.dim]
     energy, force = [], []
@@ -65,6 +65,7 @@ def test_bad_choices_are_input_errors():
         ho.StateModel(box(1), ho.SaintVenantKirchhoff(1.0, 1.0), volumetric="cell-mean")
 
 
+@pytest.mark.slow
 def test_cell_mean_beam_does_not_lock():
     moduli = BEAM["C"] * max(BEAM["bf"], BEAM["bt"], BEAM["bfs"])  # kPa, the largest small-strain modulus
     bound = moduli / 1e3
@@ -78,6 +79,7 @@ def test_cell_mean_beam_does_not_lock():
     assert change["pointwise"] > bound  # the locking the mixed form removes
 
 
+@pytest.mark.slow
 def test_cell_mean_ventricle_needs_the_isochoric_law():
     """Land problem 2, h = 6 mm (1602 dofs), kappa = 1000 kPa. Full strain: a cell folds and the solve
     stops before 0.4 of the load (20 increments, halved up to 8 times). Isochoric strain: 10 kPa is
