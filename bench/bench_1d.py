@@ -11,9 +11,9 @@ Writes ``bench/results/bench_1d.json`` (`bench/results.py`).
 import time
 
 import numpy as np
+from results import command_line, table, write_results
 
 import hyperoc as ho
-from results import command_line, table, write_results
 from hyperoc.workflows import build_reduced
 
 

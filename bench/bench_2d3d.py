@@ -212,7 +212,7 @@ def main():
     if args.json:
         with open(args.json, "w") as f:
             json.dump(rows, f, indent=1)
-    from results import table, command_line, write_results
+    from results import command_line, table, write_results
 
     write_results(f"bench_2d3d_{args.case}", command_line(), [table(
         f"Case {args.case}: {model.n} free dofs, {model.mesh.num_cells} cells, {steps} of {full_steps} steps "

@@ -54,12 +54,10 @@ import os
 import sys
 from pathlib import Path
 
-
 from hyperoc.benchmarks import FORMULATIONS, PUBLISHED, beam_deflection, load_state, save_state, ventricle_apex
 from hyperoc.errors import SolverError
 from hyperoc.linsolve import SparseSolver
 from hyperoc.newton import NewtonLog
-
 
 #: Problem 2 values: apex z (mm) and deformed cavity volume (mm^3; missing in rows that lack it).
 LV_KEYS = ["z_endo", "z_epi", "V_cavity"]

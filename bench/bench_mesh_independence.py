@@ -84,7 +84,7 @@ def main():
         tau0s = [float(t) for t in args.grid_starts.split(",")]
         pairs = [g for g in grids for _ in tau0s]
         starts = tau0s * len(grids)
-    from results import table, command_line, write_results
+    from results import command_line, table, write_results
 
     rows = []
     print(f"{'method':12s} {'tau0':>5s} {'h':>6s} {'dt':>6s} {'iters':>6s} {'conv':>5s} {'tau':>9s} "

@@ -22,7 +22,6 @@ import argparse
 
 import jax.numpy as jnp
 import numpy as np
-
 from results import Table, command_line, write_results
 
 from hyperoc.benchmarks import ventricle_problem

@@ -33,9 +33,9 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
+from results import Table, command_line, write_results
 
 import hyperoc as ho
-from results import Table, command_line, write_results
 from hyperoc.fibres import rule_based_fibres
 from hyperoc.geometry import thick_shell, ventricle
 from hyperoc.linsolve import SparseSolver

@@ -18,12 +18,11 @@ from __future__ import annotations
 import argparse
 import time
 
-import hyperoc  # noqa: F401  (before JAX: hyperoc._jax sets JAX's flags)
 import jax
 import jax.numpy as jnp
-
 from results import Table, command_line, write_results
 
+import hyperoc  # noqa: F401  (before JAX: hyperoc._jax sets JAX's flags)
 from hyperoc.benchmarks import ventricle_problem
 from hyperoc.model import VOLUMETRIC as MODES  # the baseline, "pointwise", first
 
