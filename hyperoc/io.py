@@ -157,8 +157,11 @@ def write_npz(path, **arrays) -> Path:
 
 def read_npz(path) -> dict:
     """All arrays of an ``.npz`` file (path or binary file object), loaded into memory (pickle disabled)."""
-    with np.load(path, allow_pickle=False) as f:
-        return {name: f[name] for name in f.files}
+    if hasattr(path, "read"):
+        with np.load(path, allow_pickle=False) as f:
+            return {name: f[name] for name in f.files}
+    with open(path, "rb") as fh:  # closed also when a damaged file makes np.load raise
+        return read_npz(fh)
 
 
 # ----------------------------------------------------------------------------- time series

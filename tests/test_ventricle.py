@@ -106,11 +106,11 @@ def test_transmural_bands_split_the_wall(lv):
 
 BAD_REGIONS = [
     ('{ kind = "band", transmural = [0.5, 1.5] }', "0 <= a < b <= 1"),
-    ('{ kind = "band", transmural = [0.6, 0.2] }', "0 <= a < b <= 1"),
+    ('{ kind = "band", transmural = [0.6, 0.2] }', "lower < upper"),
     ('{ kind = "cap", z_max = 10.0 }', "at or above the base"),
     ('{ kind = "cap", z_max = -30.0 }', "contains no cell"),
     ('{ kind = "cap", z_max = "low" }', "z_max must be a number"),
-    ('{ kind = "slab" }', "unknown kind"),
+    ('{ kind = "slab" }', "region kind must be"),
 ]
 
 
