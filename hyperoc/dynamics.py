@@ -34,8 +34,8 @@ import numpy as np
 from . import _jax  # noqa: F401
 from .errors import InputError, SolverError
 from .linsolve import make_solver
-from .newton import newton
 from .model import StateModel
+from .newton import newton
 from .timegrid import TimeGrid
 
 __all__ = ["Scheme", "StateSolution", "StepRecord", "TimeStepper", "solve_state", "level_pressure"]

@@ -39,8 +39,8 @@ from pathlib import Path
 import meshio
 import numpy as np
 
-from .errors import InputError
 from .assembly import solve_dirichlet
+from .errors import InputError
 from .mesh import Mesh, refine
 from .spaces import VectorSpace
 

@@ -23,8 +23,8 @@ import jax
 import jax.numpy as jnp
 
 from .dynamics import level_pressure
-from .materials import det
 from .errors import InputError
+from .materials import det
 
 __all__ = ["Trajectory", "Objective", "ControlCost", "ControlRateCost", "PressureAt", "PressureMean", "PressureRise", "Terminal", "objective_from_config"]
 

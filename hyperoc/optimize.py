@@ -24,9 +24,9 @@ from pathlib import Path
 import numpy as np
 import scipy.optimize as sopt
 
-from .errors import HyperocError, InputError, SolverError
-from .io import read_npz, write_npz
 from .control_space import ControlSpace
+from .errors import InputError, SolverError
+from .io import read_npz, write_npz
 from .reduced import ControlPoint, ReducedFunctional
 
 __all__ = ["OptimizationResult", "EvaluationCache", "BBStepRule", "LumpedMetric", "barzilai_borwein", "lbfgsb",

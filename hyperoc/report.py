@@ -16,9 +16,9 @@ from .dynamics import StateSolution
 from .fibres import FibreFrames
 from .io import write_json, write_npz, write_time_series
 from .materials import det
+from .plotting import plot_control_spacetime, plot_history, plot_pressure, plot_snapshots
 from .quadrature import simplex_rule
 from .spaces import VectorSpace, reference_shape
-from .plotting import plot_control_spacetime, plot_history, plot_pressure, plot_snapshots
 
 __all__ = ["write_state_outputs", "cavity_volume", "cell_det_F", "PAPER_SNAPSHOT_TIMES"]
 

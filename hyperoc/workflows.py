@@ -6,7 +6,6 @@ too. Every run writes its files atomically into an output folder.
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
