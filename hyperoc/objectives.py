@@ -26,7 +26,8 @@ from .dynamics import level_pressure
 from .errors import InputError
 from .materials import det
 
-__all__ = ["Trajectory", "Objective", "ControlCost", "ControlRateCost", "PressureAt", "PressureMean", "PressureRise", "Terminal", "objective_from_config"]
+__all__ = ["Trajectory", "Objective", "ControlCost", "ControlRateCost", "PressureAt", "PressureMean", "PressureRise",
+           "Terminal", "objective_from_config"]
 
 
 @dataclass(frozen=True)
@@ -201,8 +202,8 @@ class Objective:
 
 
 def objective_from_config(cfg: dict) -> Objective:
-    """``{"phi1": "pressure" | "pressure_mean" | "pressure_rise", "eps": 0.1, "alpha": 2e-3, "beta": 0.0}`` -> Objective;
-    beta > 0 adds the `ControlRateCost` (controls H^1 in time)."""
+    """``{"phi1": "pressure" | "pressure_mean" | "pressure_rise", "eps": 0.1, "alpha": 2e-3, "beta": 0.0}``
+    -> Objective; beta > 0 adds the `ControlRateCost` (controls H^1 in time)."""
     cfg = dict(cfg or {})
     phi1 = cfg.pop("phi1", "pressure")
     alpha = cfg.pop("alpha", 2e-3)
