@@ -124,7 +124,8 @@ def child(case: str, size: float, k) -> dict:
     N, n = J.N, model.n
     stored = N + 1 if k is None else J.record(ho.ControlPoint(1.03 * xi, tau)).stored_states
     segment = 2 * (min(J.checkpoint_every, N) + 1) * n * 8 if J.checkpoint_every else 0
-    return {"case": case, "size": size, "k": k, "dofs": n, "steps": N, "first_s": times[0], "gradient_s": min(times[1:]),
+    return {"case": case, "size": size, "k": k, "dofs": n, "steps": N, "first_s": times[0],
+            "gradient_s": min(times[1:]),
             "stored_bytes": 2 * stored * n * 8, "segment_bytes": segment, "step_evaluations": step_evaluations(k, N),
             "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
 
@@ -163,7 +164,8 @@ def sizes_child(hs: list) -> dict:
     Js = {}
     for h in hs:
         model, transform, objective, solver, tau, shape = build_lv(h)
-        Js[h] = ho.ReducedFunctional(model, transform, objective, solver=solver), shape * np.ones((1, model.control.size))
+        Js[h] = (ho.ReducedFunctional(model, transform, objective, solver=solver),
+                 shape * np.ones((1, model.control.size)))
     best = {str(h): math.inf for h in hs}
     for r in range(4):  # round 0 compiles
         for h, (J, xi) in Js.items():
@@ -226,7 +228,8 @@ def main():
         if case == "lv-sizes":
             print(json.dumps(sizes_child([float(v) for v in k.split(",")])))
         elif k.startswith("interleaved:"):
-            print(json.dumps(interleaved_child(case, float(size), [parse_variant(v) for v in k.split(":")[1].split(",")])))
+            variants = [parse_variant(v) for v in k.split(":")[1].split(",")]
+            print(json.dumps(interleaved_child(case, float(size), variants)))
         else:
             print(json.dumps(child(case, float(size), parse_variant(k))))
         return

@@ -11,7 +11,8 @@ sequence of uniform refinements (`hyperoc.mesh.refine`, h halved per level, new 
 the exact ellipsoids), the setting in which the observed order and the Richardson limit mean
 something (computed with h = h0 / 2^k; the "h" column stays the largest edge); Gmsh meshes of
 decreasing size are unrelated to each other. Both:
-Guccione with the volumetric penalty ``kappa`` (kPa), no global volume constraint, follower pressure, full Newton steps with load stepping (halving on failure).
+Guccione with the volumetric penalty ``kappa`` (kPa), no global volume constraint, follower pressure, full
+Newton steps with load stepping (halving on failure).
 ``--volumetric cell-mean``: the penalty on each cell's mean J (mixed P2-P0 formulation, condensed;
 `hyperoc.model.StateModel`), which does not lock as kappa grows. ``--isochoric``: Guccione's Q on
 the isochoric strain (`hyperoc.materials.Guccione`), which problem 2 needs with ``cell-mean``.
@@ -42,7 +43,7 @@ Seconds are wall time per solve, JIT compilation included.
 Writes ``bench/results/bench_land.json`` (`bench/results.py`) for the docs; ``--results NAME`` writes
 ``bench/results/NAME.json`` instead, so that several studies can be kept side by side (for example
 ``--results bench_land_p2_taylor_hood``), and ``--results ""`` writes none.
-"""
+"""  # noqa: E501  (the example command lines above stay whole, to be copied)
 
 from __future__ import annotations
 
@@ -87,7 +88,8 @@ def _table(title: str, rows: list[dict], level_key: str, value_keys: list[str]) 
     """Markdown table: per value, the difference to the previous level, and from the last three
     levels the observed order and the Richardson-extrapolated limit (h -> 0 at this kappa)."""
     unit = lambda k: "mm^3" if k.startswith("V_") else "mm"
-    head = f"| {level_key} | h (mm) | dofs | " + " | ".join(f"{k} ({unit(k)}) | diff | order | extrap." for k in value_keys)
+    head = f"| {level_key} | h (mm) | dofs | " + " | ".join(f"{k} ({unit(k)}) | diff | order | extrap."
+                                                           for k in value_keys)
     head += " | Newton its (total / max per step) | load steps | s |"
     lines = [f"**{title}**", "", head, "|" + "---|" * (head.count("|") - 1)]
     for i, r in enumerate(rows):
@@ -123,7 +125,8 @@ def _table_dict(title: str, rows: list[dict], level_key: str, value_keys: list[s
             order = limit = None
             if i >= 2:
                 p, lim = _richardson(rows[: i + 1], key)
-                order, limit = (round(p, 2) if math.isfinite(p) else None), (round(lim, 4) if math.isfinite(lim) else None)
+                order, limit = ((round(p, 2) if math.isfinite(p) else None),
+                                (round(lim, 4) if math.isfinite(lim) else None))
             cells += [round(z[-1], 5), float(f"{z[-1] - z[-2]:.2e}") if i else None, order, limit]
         its = r["newton_iterations"]
         cells += [sum(its), max(its), r.get("rejected_iterations") or 0, len(its), round(r["seconds"], 1)]
@@ -172,7 +175,8 @@ def _extrapolate(by_kappa: dict, key: str) -> str:
     """``z_inf ~ z(k2) + (z(k2) - z(k1)) k1 / (k2 - k1)`` (linear in 1/kappa) from the two largest kappa."""
     k1, k2 = sorted(by_kappa)[-2:]
     z1, z2 = by_kappa[k1], by_kappa[k2]
-    return f"{key}: kappa {k1:g} -> {z1:.5f}, {k2:g} -> {z2:.5f}, linear in 1/kappa -> {z2 + (z2 - z1) * k1 / (k2 - k1):.5f}"
+    return (f"{key}: kappa {k1:g} -> {z1:.5f}, {k2:g} -> {z2:.5f}, linear in 1/kappa -> "
+            f"{z2 + (z2 - z1) * k1 / (k2 - k1):.5f}")
 
 
 def _formulation(params: dict) -> str:
@@ -217,7 +221,8 @@ def render(paths: list[str]):
         mine = [r for r in rows if r["params"]["problem"] == problem]
         label = (lambda r: _formulation(r["params"])) if problem == 1 else (lambda r: ", " + _variant(r["params"]))
         for kappa, variant in sorted({(r["params"]["kappa"], label(r)) for r in mine}):
-            group = sorted((r for r in mine if (r["params"]["kappa"], label(r)) == (kappa, variant)), key=lambda r: -r["h"])
+            group = sorted((r for r in mine if (r["params"]["kappa"], label(r)) == (kappa, variant)),
+                           key=lambda r: -r["h"])
             key = level_key if problem == 1 else _level_key(group[0]["params"])
             print(_table(f"{name}, P2{variant}, kappa = {kappa:g} kPa", group, key, keys)
                   + _published(problem, group, keys) + "\n")
@@ -266,7 +271,8 @@ def main():
                          "previous level's prolonged solution (nested iteration, hyperoc.statics.solve_static's "
                          "guess), stepping the load only if Newton fails from there")
     ap.add_argument("--save-states", default=None, metavar="DIR",
-                    help="write each ventricle level's solution to DIR/p<problem>-h<h0>-kappa<kappa>-<base>-L<level>.npz "
+                    help="write each ventricle level's solution to "
+                         "DIR/p<problem>-h<h0>-kappa<kappa>-<base>-L<level>.npz "
                          "(hyperoc.benchmarks.save_state)")
     ap.add_argument("--coarse-state", default=None, metavar="NPZ",
                     help="a --save-states file of the level below the first of --lv-refinements: that level starts "

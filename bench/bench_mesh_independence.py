@@ -120,7 +120,8 @@ def main():
     if args.grid_starts:
         tables.append(table("Median iterations over the starts, per grid",
                             ["method", *(f"h = {h:g}, dt = {dt:g}" for h, dt in grids), "max / min of the medians"],
-                            [[m, *med, round(max(med) / min(med), 2)] for m, med in medians(rows, args.methods.split(","), grids)]))
+                            [[m, *med, round(max(med) / min(med), 2)]
+                             for m, med in medians(rows, args.methods.split(","), grids)]))
     write_results("bench_mesh_independence", command_line(), tables)
 
 

@@ -6,9 +6,10 @@ reports next to the paper's values.
 
 Runs the job twice in fresh processes into a temporary folder, with an empty persistent compilation
 cache (cold: imports and every compilation included) and then with the cache the first run filled
-(warm), then tabulates the first run's ``summary.json``: per run tau, J, iterations, whether the stopping test was met, the first
-and last gradient norm (projected, for the bounded runs), the least det F, the largest |xi|, when the
-control switches off and the times of the largest pressure maxima; and the paper's reported values.
+(warm), then tabulates the first run's ``summary.json``: per run tau, J, iterations, whether the stopping
+test was met, the first and last gradient norm (projected, for the bounded runs), the least det F, the
+largest |xi|, when the control switches off and the times of the largest pressure maxima; and the paper's
+reported values.
 """
 
 from __future__ import annotations
@@ -30,7 +31,8 @@ COLUMNS = ["run", "tau", "J", "iterations", "converged", "gradient first", "grad
 
 def run_job(quick: bool, cache: Path, out: Path) -> tuple[dict, float]:
     """``(summary, wall time in s)`` of one run of the job in a fresh process, compilation cache ``cache``."""
-    cmd = [sys.executable, "-m", "hyperoc.cli", "reproduce", "paper-1d", "--out", str(out)] + (["--quick"] if quick else [])
+    cmd = ([sys.executable, "-m", "hyperoc.cli", "reproduce", "paper-1d", "--out", str(out)]
+           + (["--quick"] if quick else []))
     started = time.perf_counter()
     subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                    env={**os.environ, "HYPEROC_CACHE_DIR": str(cache)})
@@ -64,7 +66,8 @@ def main() -> None:
     write_results("bench_paper_job", command_line(), [
         table("hyperoc reproduce paper-1d: the runs and the paper's values", COLUMNS, rows,
               "gradient: the stopping test's measure (projected for the bounded runs); min det F over all levels"),
-        table("Wall time of the job (fresh processes)", ["compilation cache", "wall time (s)", "job clock (s)", "workers"],
+        table("Wall time of the job (fresh processes)",
+              ["compilation cache", "wall time (s)", "job clock (s)", "workers"],
               [["empty (cold)", cold, summary["wall_time_s"], summary["workers"]],
                ["filled by the cold run (warm)", warm, warm_summary["wall_time_s"], warm_summary["workers"]]],
               "job clock: from the job's start to its summary, imports excluded"),

@@ -39,7 +39,8 @@ def main():
     runs = {}
     for method in methods:
         model, transform, objective, _, tau, shape = build_lv(args.h)
-        runs[method] = ho.ReducedFunctional(model, transform, objective, solver=method), shape * np.ones((1, model.control.size))
+        runs[method] = (ho.ReducedFunctional(model, transform, objective, solver=method),
+                        shape * np.ones((1, model.control.size)))
     first, best, result = {}, {m: math.inf for m in methods}, {}
     for r in range(4):  # round 0 compiles
         for method, (J, xi) in runs.items():

@@ -101,7 +101,8 @@ def build(name):
     mesh_key, degree, material, frames_fn = CASES[name]
     mesh = mesh_of(*mesh_key)
     frames = None if frames_fn is None else frames_fn(mesh)
-    return {cls: cls(mesh, material, degree=degree, kappa=0.01, frames=frames) for cls in (HessianTangentModel, ho.StateModel)}
+    return {cls: cls(mesh, material, degree=degree, kappa=0.01, frames=frames)
+            for cls in (HessianTangentModel, ho.StateModel)}
 
 
 def smooth_displacement(model):
@@ -172,7 +173,8 @@ def kernel_case(name, reps, lu):
                 round(t["new total"] / t["old total"], 3), float(f"{diff:.1e}"))
     print(f"  {'scatter':16s} {t_scatter:8.3f}   (np.bincount into CSR, same for both)")
     if lu:
-        print(f"  {'lu':16s} {solver.stats['host_s']:8.3f}   (factor {solver.stats['factor_s']:.3f} s + solves, same for both)")
+        print(f"  {'lu':16s} {solver.stats['host_s']:8.3f}   (factor {solver.stats['factor_s']:.3f} s "
+              f"+ solves, same for both)")
     return models
 
 
@@ -195,7 +197,8 @@ def newton_case(name, models, steps):
         its = int(np.sum(sol.newton_iterations))
         lin = solver.stats["host_s"]
         rows[label] = (wall / its, lin / its, (wall - lin) / its)
-        print(f"  {label:8s} {its:10d} {wall / its:9.3f} {lin / its:12.3f} {(wall - lin) / its:9.3f} {sol.pressure[-1]:22.15g}")
+        print(f"  {label:8s} {its:10d} {wall / its:9.3f} {lin / its:12.3f} {(wall - lin) / its:9.3f} "
+              f"{sol.pressure[-1]:22.15g}")
         NEWTON.add(name, label, its, round(wall / its, 3), round(lin / its, 3), round((wall - lin) / its, 3))
     o, n_ = rows["old"], rows["new"]
     print(f"  new/old: s/Newton {n_[0] / o[0]:.3f}, JAX part {n_[2] / o[2]:.3f}")

@@ -50,13 +50,15 @@ def main():
         c = tau_scaling(J, scale, _tau_range(J, cfg["optimize"].get("tau_margin"), False, tau0), cfg.xi_bounds())
         before = J.counts["state"]
         t0 = time.perf_counter()
-        res = lbfgsb(J, J.zero(tau0), xi_bounds=cfg.xi_bounds(), gtol=args.gtol, max_iter=args.max_iter, tau_scale=scale)
+        res = lbfgsb(J, J.zero(tau0), xi_bounds=cfg.xi_bounds(), gtol=args.gtol, max_iter=args.max_iter,
+                     tau_scale=scale)
         seconds = time.perf_counter() - t0
         g = res.history["grad_norm"]
         baseline = baseline or res.iterations
         label = f"range ({c:.4g})" if scale == "range" else f"{c:g}"
         out.add(label, res.iterations, bool(res.converged), round(res.objective, 8), round(res.point.tau, 4),
-                float(f"{g[-1] / g[0]:.2e}"), J.counts["state"] - before, round(seconds), round(res.iterations / baseline, 2))
+                float(f"{g[-1] / g[0]:.2e}"), J.counts["state"] - before, round(seconds),
+                round(res.iterations / baseline, 2))
     write_results("bench_tau_scale", command_line(), [out.as_dict()])
 
 

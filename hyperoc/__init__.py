@@ -108,5 +108,6 @@ __all__ = [
     "transmural_coordinate", "Mesh", "box", "interval", "rectangle", "refine", "StateModel", "TaylorHoodModel",
     "ControlCost", "Objective", "PressureAt", "PressureRise", "barzilai_borwein", "lbfgsb", "newton_cg",
     "ControlPoint",
-    "ReducedFunctional", "solve_static", "NewtonLog", "FollowerPressure", "FibreTension", "TimeGrid", "TimeTransform", "uniform_grid", "taylor_test",
+    "ReducedFunctional", "solve_static", "NewtonLog", "FollowerPressure", "FibreTension", "TimeGrid", "TimeTransform",
+    "uniform_grid", "taylor_test",
 ]

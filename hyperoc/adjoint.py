@@ -207,8 +207,10 @@ class Adjoint:
             for store, o in zip((P, its, status, mindet), out[2:6]):
                 store.append(np.asarray(o))
             if np.any(status[-1] != 0):
-                self.stepper._raise_on_failure(np.concatenate(status), grid, np.concatenate(its), np.concatenate(mindet))
-            kept.update({k: (jnp.asarray(out[0][k - a - 1]), jnp.asarray(out[1][k - a - 1])) for k in keep if a < k <= b})
+                self.stepper._raise_on_failure(np.concatenate(status), grid, np.concatenate(its),
+                                               np.concatenate(mindet))
+            kept.update({k: (jnp.asarray(out[0][k - a - 1]), jnp.asarray(out[1][k - a - 1]))
+                         for k in keep if a < k <= b})
             y0, y1 = jnp.asarray(out[0][-1]), jnp.asarray(out[1][-1])
         return Checkpoints(grid, xi, loads, V0, bounds, states, np.concatenate(P), kept)
 

@@ -59,9 +59,9 @@ from .mixed import TaylorHoodModel
 from .model import VOLUMETRIC, StateModel
 from .statics import solve_static
 
-__all__ = ["BEAM", "VENTRICLE", "CONTRACTION", "PUBLISHED", "BASE_CONDITIONS", "FORMULATIONS", "BenchmarkResult", "beam_mesh",
-           "beam_problem", "ventricle_problem", "contraction_problem", "node_position", "beam_deflection", "ventricle_apex",
-           "save_state", "load_state"]
+__all__ = ["BEAM", "VENTRICLE", "CONTRACTION", "PUBLISHED", "BASE_CONDITIONS", "FORMULATIONS", "BenchmarkResult",
+           "beam_mesh", "beam_problem", "ventricle_problem", "contraction_problem", "node_position", "beam_deflection",
+           "ventricle_apex", "save_state", "load_state"]
 
 #: Problem 1 parameters (Land et al. 2015): Guccione moduli (kPa, dimensionless) and pressure (kPa).
 BEAM = {"C": 2.0, "bf": 8.0, "bt": 2.0, "bfs": 4.0, "pressure": 0.004, "point": (10.0, 0.5, 1.0)}

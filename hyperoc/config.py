@@ -96,7 +96,8 @@ class Config:
             return box(c["nx"], c.get("ny"), c.get("nz"), tuple(c.get("size", (1.0, 1.0, 1.0))), c["dirichlet"])
         if kind == "file":
             return self.file_mesh()
-        raise InputError(f"config: [mesh] kind {kind!r} unknown (interval, rectangle, box, annulus, shell, ventricle, file)")
+        raise InputError(f"config: [mesh] kind {kind!r} unknown "
+                         "(interval, rectangle, box, annulus, shell, ventricle, file)")
 
     def _curved_mesh(self, kind: str, refinements: int):
         """The generators that put refined boundary vertices on their exact surfaces."""
@@ -158,7 +159,8 @@ class Config:
         material = self.material()
         frames = self.fibres(mesh)
         if frames is None and isinstance(material, (Guccione, HolzapfelOgden)):
-            raise InputError(f"config: [material] law {self['material']['law']!r} needs fibres: add [fibres] kind = 'rule_based'")
+            raise InputError(f"config: [material] law {self['material']['law']!r} needs fibres: "
+                             "add [fibres] kind = 'rule_based'")
         return StateModel(mesh, material, degree=self["mesh"]["degree"], kappa=float(d["kappa"]),
                           density=float(d["density"]), control=self.control_operator(frames), traction=traction,
                           neumann="gamma_n", frames=frames, volumetric=self["material"]["volumetric"],
@@ -170,7 +172,8 @@ class Config:
         if comps is None:
             return {"dirichlet": "gamma_d"}
         if not all(c < dim for c in comps):
-            raise InputError(f"config: [mesh] fixed_components must be integers in [0, {dim}) on this mesh, got {comps}")
+            raise InputError(f"config: [mesh] fixed_components must be integers in [0, {dim}) on this mesh, "
+                             f"got {comps}")
         return {"dirichlet": None, "dirichlet_components": {"gamma_d": tuple(comps)}}
 
     def scheme(self):
@@ -283,7 +286,8 @@ def _region(cfg):
 def _control_from_npz(path: Path, size: int, levels: int) -> np.ndarray:
     xi = read_control_file(path)
     if xi.shape != (levels, size):
-        raise InputError(f"control file {path}: 'xi' must have shape (levels, n_ctrl) = {(levels, size)}, got {xi.shape}")
+        raise InputError(f"control file {path}: 'xi' must have shape (levels, n_ctrl) = {(levels, size)}, "
+                         f"got {xi.shape}")
     return xi
 
 
@@ -293,7 +297,8 @@ def read_control_file(path: Path) -> np.ndarray:
     import zipfile
 
     if not path.is_file():
-        raise InputError(f"control file not found: {path}" if not path.exists() else f"control file {path} is not a file")
+        raise InputError(f"control file not found: {path}" if not path.exists()
+                         else f"control file {path} is not a file")
     try:
         data = np.load(path, allow_pickle=False)
     except (zipfile.BadZipFile, ValueError, OSError, EOFError) as err:
@@ -308,7 +313,8 @@ def read_control_file(path: Path) -> np.ndarray:
         except (zipfile.BadZipFile, ValueError, OSError, EOFError) as err:
             raise InputError(f"control file {path}: array 'xi' is unreadable ({type(err).__name__})") from None
     if xi.ndim != 2 or not np.issubdtype(xi.dtype, np.number) or np.iscomplexobj(xi):
-        raise InputError(f"control file {path}: 'xi' must be a 2D real array (levels, n_ctrl), got {xi.dtype} {xi.shape}")
+        raise InputError(f"control file {path}: 'xi' must be a 2D real array (levels, n_ctrl), "
+                         f"got {xi.dtype} {xi.shape}")
     xi = xi.astype(np.float64)
     if not np.all(np.isfinite(xi)):
         k, j = np.argwhere(~np.isfinite(xi))[0]

@@ -54,7 +54,7 @@ def continuous_gradient(J: ReducedFunctional, m: ControlPoint) -> ControlPoint:
         raise InputError("the continuous-adjoint gradient supports phi1 = p(tau) or the pressure rise only")
     sol = J.state(m)
     model, st = J.model, J.stepper
-    t, dt = sol.t, sol.dt
+    dt = sol.dt
     N = dt.size
     n1, n2, _ = J.transform.steps
     f = st.external_loads(None, J.transform.grid(m.tau))

@@ -162,4 +162,5 @@ def control_space(transform, control, alpha: float, beta: float) -> ControlSpace
     if beta <= 0:
         return ControlSpace(transform.ds(), control.mass, control.lumped_mass)
     weight = alpha * transform.T / 2 if alpha > 0 else beta
-    return ControlSpace(transform.ds(), control.mass, control.lumped_mass, s_time_scale(alpha, beta, transform.T), weight)
+    return ControlSpace(transform.ds(), control.mass, control.lumped_mass, s_time_scale(alpha, beta, transform.T),
+                        weight)

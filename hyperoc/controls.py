@@ -67,7 +67,8 @@ class Region:
             mask = np.ones(mesh.num_cells, bool)
         elif self.kind == "tag":
             if self.tag not in mesh.subdomains:
-                raise InputError(f"control region: the mesh has no subdomain {self.tag!r} (available: {sorted(mesh.subdomains)})")
+                raise InputError(f"control region: the mesh has no subdomain {self.tag!r} "
+                                 f"(available: {sorted(mesh.subdomains)})")
             mask = mesh.subdomains[self.tag]
         elif self.kind == "box":
             lo, hi = np.asarray(self.lower, float), np.asarray(self.upper, float)
@@ -90,7 +91,8 @@ class Region:
         else:
             raise InputError(f"control region: unknown kind {self.kind!r} (all, tag, box, sector, cap, band)")
         if not mask.any():
-            raise InputError(f"control region {self.describe()} contains no cell of the mesh (is it outside the domain?)")
+            raise InputError(f"control region {self.describe()} contains no cell of the mesh "
+                             "(is it outside the domain?)")
         return mask
 
     def _cap_level(self, mesh: Mesh) -> float:

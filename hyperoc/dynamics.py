@@ -34,8 +34,8 @@ import numpy as np
 from . import _jax  # noqa: F401
 from .errors import InputError, SolverError
 from .linsolve import make_solver
-from .newton import newton
 from .model import StateModel
+from .newton import newton
 from .timegrid import TimeGrid
 
 __all__ = ["Scheme", "StateSolution", "StepRecord", "TimeStepper", "solve_state", "level_pressure"]
@@ -298,7 +298,8 @@ class TimeStepper:
     def _scan(self):
         def run(y0, y1, p0, xis, fs, dts, V0):
             V = jnp.full(dts.shape, V0)
-            _, out = jax.lax.scan(self.step, (y0, y1, p0, jnp.asarray(False)), (xis[:-1], xis[1:], fs[:-1], fs[1:], dts, V))
+            _, out = jax.lax.scan(self.step, (y0, y1, p0, jnp.asarray(False)),
+                                  (xis[:-1], xis[1:], fs[:-1], fs[1:], dts, V))
             return out
 
         return jax.jit(run)
@@ -446,7 +447,8 @@ class TimeStepper:
         outs = []
         steps = tqdm(range(grid.num_steps), disable=not progress, desc="compiling", leave=False)
         for n in steps:
-            inputs = (jnp.asarray(xis[n]), jnp.asarray(xis[n + 1]), jnp.asarray(fs[n]), jnp.asarray(fs[n + 1]), grid.dt[n], V0)
+            inputs = (jnp.asarray(xis[n]), jnp.asarray(xis[n + 1]), jnp.asarray(fs[n]), jnp.asarray(fs[n + 1]),
+                      grid.dt[n], V0)
             carry, out = self._jit_step(carry, inputs)
             out = [np.asarray(o) for o in out]
             outs.append(out)
@@ -505,7 +507,8 @@ def detect_regimes(sol: StateSolution) -> list:
     eig = m.min_acoustic_eigenvalues(sol.y0[levels])
     if np.any(eig < 0):
         k = levels[int(np.argmax(eig < 0))]
-        out.append(f"loss of strong ellipticity from t = {sol.t[k]:.4g} (min acoustic-tensor eigenvalue {eig.min():.3g}): "
+        out.append(f"loss of strong ellipticity from t = {sol.t[k]:.4g} "
+                   f"(min acoustic-tensor eigenvalue {eig.min():.3g}): "
                    "the material is unstable there (e.g. Saint Venant-Kirchhoff in strong compression)")
     if m.dim == 1 and m.space.degree == 1:
         ux = np.diff(sol.displacement()[..., 0], axis=1) / np.diff(m.space.nodes[:, 0])[None, :]

@@ -7,7 +7,6 @@ exit with status 2. `SolverError` names the time step and the cause (Newton dive
 
 from __future__ import annotations
 
-
 QUOTE_LIMIT = 80  # characters of a user's value quoted in a message
 
 

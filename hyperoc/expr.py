@@ -222,7 +222,8 @@ def _parse(source) -> ast.Expression:
     except SyntaxError as err:
         raise InputError(f"expression {quote(source)}: invalid syntax ({err.msg}, column {err.offset})") from None
     except (ValueError, RecursionError, MemoryError) as err:
-        raise InputError(f"expression {quote(source)}: cannot be parsed ({type(err).__name__}: nested too deeply)") from None
+        raise InputError(f"expression {quote(source)}: cannot be parsed "
+                         f"({type(err).__name__}: nested too deeply)") from None
 
 
 @contextmanager

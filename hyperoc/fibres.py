@@ -35,7 +35,8 @@ from .io import atomic_write_bytes
 from .mesh import Mesh
 from .spaces import VectorSpace
 
-__all__ = ["FibreFrames", "ProlateFibres", "transmural_coordinate", "rule_based_fibres", "prolate_fibres", "write_fibres"]
+__all__ = ["FibreFrames", "ProlateFibres", "transmural_coordinate", "rule_based_fibres", "prolate_fibres",
+           "write_fibres"]
 
 
 def _p1_stiffness_blocks(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
@@ -132,7 +133,8 @@ class FibreFrames:
         if x.ndim < 2 or x.shape[0] != cells.size or x.shape[-1] != 3:
             raise InputError(f"fibre frames: expected points (number of cells = {cells.size}, ..., 3), got {x.shape}")
         if cells.size and (cells.min() < 0 or cells.max() >= self.num_cells):
-            raise InputError(f"fibre frames: cell indices must lie in [0, {self.num_cells}), got {cells.min()}..{cells.max()}")
+            raise InputError(f"fibre frames: cell indices must lie in [0, {self.num_cells}), "
+                             f"got {cells.min()}..{cells.max()}")
         return cells
 
     def __call__(self, x, cells=None) -> np.ndarray:
@@ -186,7 +188,8 @@ def rule_based_fibres(mesh: Mesh, *, helix_endo: float = 60.0, helix_epi: float 
     d_cell = d[mesh.cells]
     return FibreFrames(transmural=d, sheet=n_t, circumferential=c, longitudinal=np.cross(n_t, c),
                        grad_d=np.einsum("caj,ca->cj", dN, d_cell), x0=mesh.points[mesh.cells[:, 0]], d0=d_cell[:, 0],
-                       centroids=mesh.cell_centroids(), helix=(float(np.deg2rad(helix_endo)), float(np.deg2rad(helix_epi))))
+                       centroids=mesh.cell_centroids(),
+                       helix=(float(np.deg2rad(helix_endo)), float(np.deg2rad(helix_epi))))
 
 
 @dataclass(frozen=True)
@@ -261,7 +264,8 @@ def prolate_fibres(*, endo=(7.0, 17.0), epi=(10.0, 20.0), helix_endo: float = 90
     if len(endo) != 2 or len(epi) != 2 or not (0 < endo[0] < epi[0] and 0 < endo[1] < epi[1]):
         raise InputError(f"prolate_fibres: need 0 < endo < epi semi-axes (short, long), got {endo}, {epi}")
     if any(r1 - r0 > r0 for r0, r1 in zip(endo, epi)):  # keeps rs(t), rl(t) > 0 on the bisection bracket
-        raise InputError(f"prolate_fibres: the wall may be at most as thick as the cavity's semi-axes, got {endo}, {epi}")
+        raise InputError(f"prolate_fibres: the wall may be at most as thick as the cavity's semi-axes, "
+                         f"got {endo}, {epi}")
     if not (np.isfinite(helix_endo) and np.isfinite(helix_epi)):
         raise InputError(f"prolate_fibres: helix angles must be finite, got {helix_endo}, {helix_epi}")
     return ProlateFibres(endo, epi, (float(np.deg2rad(helix_endo)), float(np.deg2rad(helix_epi))))

@@ -39,8 +39,8 @@ from pathlib import Path
 import meshio
 import numpy as np
 
-from .errors import InputError
 from .assembly import solve_dirichlet
+from .errors import InputError
 from .mesh import Mesh, refine
 from .spaces import VectorSpace
 
@@ -252,7 +252,8 @@ def _refined(mesh: Mesh, tag: Callable, curved: bool, refinements: int) -> Mesh:
     """``tag(mesh, curved)`` (boundary names and curved edges) after ``refinements`` uniform refinements
     (`hyperoc.mesh.refine`), each of the curved mesh: the new vertices of the boundary edges land on
     the exact surfaces, so the refined meshes approximate the true domain, not the first mesh's."""
-    _require(isinstance(refinements, int) and refinements >= 0, f"need refinements >= 0 (an integer), got {refinements!r}")
+    _require(isinstance(refinements, int) and refinements >= 0,
+             f"need refinements >= 0 (an integer), got {refinements!r}")
     for _ in range(refinements):
         mesh = refine(tag(mesh, True))
     return tag(mesh, curved)
@@ -275,7 +276,8 @@ def _tagged(mesh: Mesh, walls: dict, flat: dict, *, dirichlet: str, neumann: str
     inside = on_cavity[mesh.cells].all(axis=1)
     if inside.any():
         points, cells, _ = _drop_unused_points(mesh.points, mesh.cells[~inside], {})
-        return _tagged(Mesh(points, cells), walls, flat, dirichlet=dirichlet, neumann=neumann, curved=curved, planes=planes)
+        return _tagged(Mesh(points, cells), walls, flat, dirichlet=dirichlet, neumann=neumann, curved=curved,
+                       planes=planes)
     return _curve_edges(mesh, walls, planes)
 
 

@@ -251,7 +251,8 @@ def _prepare_series(points, cells, cell_type, times, point_data, cell_data, stat
     points = points[:, None] if points.ndim == 1 else points
     cells = np.asarray(cells, dtype=np.int64)
     if cells.ndim != 2 or cells.shape[1] != NODES_PER_CELL[cell_type]:
-        raise ValueError(f"write_time_series: {cell_type} cells need shape (nc, {NODES_PER_CELL[cell_type]}), got {cells.shape}")
+        raise ValueError(f"write_time_series: {cell_type} cells need shape (nc, {NODES_PER_CELL[cell_type]}), "
+                         f"got {cells.shape}")
     times = np.asarray(times, dtype=np.float64).reshape(-1)
     nt, nv, nc = len(times), len(points), len(cells)
     return {
@@ -414,6 +415,7 @@ class Checkpoint:
         except FileNotFoundError:
             raise CheckpointError(f"checkpoint {self.json_path} refers to a missing {self.npz_path}") from None
         if hashlib.sha256(data).hexdigest() != expected:
-            raise CheckpointError(f"checkpoint {self.npz_path} does not match the hash in {self.json_path}; delete both to start over")
+            raise CheckpointError(f"checkpoint {self.npz_path} does not match the hash in {self.json_path}; "
+                                  "delete both to start over")
         arrays = read_npz(io.BytesIO(data))
         return {key: a[()] if a.ndim == 0 else a for key, a in arrays.items()}, record["meta"]

@@ -145,7 +145,8 @@ class Ogden(Material):
         return sum(c * (_trace_power(C, g) - E.shape[0]) for c, g in zip(self.coefficients, self.exponents))
 
     def validate(self):
-        _require(len(self.coefficients) == len(self.exponents) >= 1, "Ogden: need as many coefficients as exponents (>= 1)")
+        _require(len(self.coefficients) == len(self.exponents) >= 1,
+                 "Ogden: need as many coefficients as exponents (>= 1)")
         _require(all(c > 0 for c in self.coefficients), f"Ogden: coefficients must be > 0, got {self.coefficients}")
         _require(all(g >= 1 for g in self.exponents), f"Ogden: exponents must be >= 1, got {self.exponents}")
         return self

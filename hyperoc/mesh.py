@@ -96,7 +96,8 @@ class Mesh:
         return len(self.curved_edges) > 0
 
     def cell_jacobians(self) -> np.ndarray:
-        """Affine maps of the straight-sided cells ``J[c] = [x_1 - x_0, ..., x_d - x_0]`` as (nc, dim, dim) arrays (columns = edges)."""
+        """Affine maps of the straight-sided cells ``J[c] = [x_1 - x_0, ..., x_d - x_0]`` as (nc, dim, dim) arrays
+        (columns = edges)."""
         x = self.points[self.cells]
         return np.swapaxes(x[:, 1:, :] - x[:, :1, :], 1, 2)
 
@@ -220,7 +221,8 @@ def _edge_index(edges: np.ndarray, wanted: np.ndarray, nv: int) -> np.ndarray:
 def _octahedron(nodes: np.ndarray, points: np.ndarray) -> np.ndarray:
     """The four tetrahedra (nc, 4, 4) of each cell's inner octahedron around its shortest diagonal
     (local node indices as in `_CORNERS`)."""
-    length = np.stack([np.linalg.norm(points[nodes[:, a]] - points[nodes[:, b]], axis=1) for (a, b), _ in _DIAGONALS], 1)
+    length = np.stack([np.linalg.norm(points[nodes[:, a]] - points[nodes[:, b]], axis=1)
+                       for (a, b), _ in _DIAGONALS], 1)
     templates = np.array([[[a, b, ring[i], ring[(i + 1) % 4]] for i in range(4)] for (a, b), ring in _DIAGONALS])
     local = templates[np.argmin(length, axis=1)]  # (nc, 4, 4)
     return np.take_along_axis(nodes[:, None, :], local, axis=2)
@@ -293,7 +295,8 @@ def rectangle(nx: int = 8, ny: int | None = None, size=(1.0, 1.0), dirichlet: st
     return _with_sides(Mesh(pts, cells), sides, dirichlet)
 
 
-def box(nx: int = 4, ny: int | None = None, nz: int | None = None, size=(1.0, 1.0, 1.0), dirichlet: str = "left") -> Mesh:
+def box(nx: int = 4, ny: int | None = None, nz: int | None = None, size=(1.0, 1.0, 1.0),
+        dirichlet: str = "left") -> Mesh:
     """Structured tetrahedral mesh of a box, six tetrahedra per hexahedron (Kuhn split, conforming).
 
     Boundaries: ``left/right`` (x), ``bottom/top`` (y), ``front/back`` (z); ``gamma_d`` is the side

@@ -88,7 +88,8 @@ class TaylorHoodModel(StateModel):
         self._point_material, self.bulk_modulus = _bulk_modulus(self.material, bulk_modulus)
         self.n_u = self.n
         self.n = self.n_u + self.n_p
-        self._set_cell_dofs(np.concatenate([self.cell_dofs, mesh.cells + self.n_u], axis=1))  # `pattern` is built from these
+        # `pattern` is built from these
+        self._set_cell_dofs(np.concatenate([self.cell_dofs, mesh.cells + self.n_u], axis=1))
         self._Np = jnp.asarray(reference_shape(self.dim, 1, self.quad.xi)[0])  # (nq, d + 1) P1 hats at the points
 
     # --- unknowns ---------------------------------------------------------------------------------

@@ -185,7 +185,8 @@ class StateModel:
         self.dim = mesh.dim
         constrained, sliding = self._dirichlet_dofs(dirichlet, dirichlet_components or {})
         rigid = _rigid_motions(self.space.nodes)
-        self.pinned_dofs = _isostatic_pins(rigid, constrained, sliding) if pin_rigid and sliding.size else np.zeros(0, int)
+        self.pinned_dofs = (_isostatic_pins(rigid, constrained, sliding) if pin_rigid and sliding.size
+                            else np.zeros(0, int))
         constrained = np.union1d(constrained, self.pinned_dofs)
         self.free, self.to_reduced = reduced_numbering(self.space.num_dofs, constrained)
         self.rigid_modes = _free_motions(rigid, constrained)[self.free]

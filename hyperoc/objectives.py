@@ -23,10 +23,11 @@ import jax
 import jax.numpy as jnp
 
 from .dynamics import level_pressure
-from .materials import det
 from .errors import InputError
+from .materials import det
 
-__all__ = ["Trajectory", "Objective", "ControlCost", "ControlRateCost", "PressureAt", "PressureMean", "PressureRise", "Terminal", "objective_from_config"]
+__all__ = ["Trajectory", "Objective", "ControlCost", "ControlRateCost", "PressureAt", "PressureMean", "PressureRise",
+           "Terminal", "objective_from_config"]
 
 
 @dataclass(frozen=True)
@@ -201,8 +202,8 @@ class Objective:
 
 
 def objective_from_config(cfg: dict) -> Objective:
-    """``{"phi1": "pressure" | "pressure_mean" | "pressure_rise", "eps": 0.1, "alpha": 2e-3, "beta": 0.0}`` -> Objective;
-    beta > 0 adds the `ControlRateCost` (controls H^1 in time)."""
+    """``{"phi1": "pressure" | "pressure_mean" | "pressure_rise", "eps": 0.1, "alpha": 2e-3, "beta": 0.0}``
+    -> Objective; beta > 0 adds the `ControlRateCost` (controls H^1 in time)."""
     cfg = dict(cfg or {})
     phi1 = cfg.pop("phi1", "pressure")
     alpha = cfg.pop("alpha", 2e-3)

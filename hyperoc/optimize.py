@@ -24,9 +24,9 @@ from pathlib import Path
 import numpy as np
 import scipy.optimize as sopt
 
-from .errors import HyperocError, InputError, SolverError
-from .io import read_npz, write_npz
 from .control_space import ControlSpace
+from .errors import InputError, SolverError
+from .io import read_npz, write_npz
 from .reduced import ControlPoint, ReducedFunctional
 
 __all__ = ["OptimizationResult", "EvaluationCache", "BBStepRule", "LumpedMetric", "barzilai_borwein", "lbfgsb",
@@ -206,7 +206,8 @@ def control_metric(J: ReducedFunctional, xi_bounds=(None, None)):
 def _project(J: ReducedFunctional, m: ControlPoint, tau_range, xi_bounds=(None, None)) -> ControlPoint:
     """Projection onto the admissible set: tau in tau_range = (lo, hi), xi in xi_bounds."""
     lo, hi = tau_range
-    xi = m.xi if xi_bounds == (None, None) else np.clip(m.xi, *(b if b is not None else s * np.inf for b, s in zip(xi_bounds, (-1, 1))))
+    xi = (m.xi if xi_bounds == (None, None)
+          else np.clip(m.xi, *(b if b is not None else s * np.inf for b, s in zip(xi_bounds, (-1, 1)))))
     return ControlPoint(xi, float(np.clip(m.tau, lo, hi)))
 
 
@@ -272,7 +273,8 @@ def _take(J, metric, res, k, step, tau_range, xi_bounds, callback):
 
 def _evaluations(J: ReducedFunctional, cache_hits: int, **counts) -> dict:
     """``OptimizationResult.evaluations``: J's state and adjoint solves, the cache's hits, method counts."""
-    return {"state_solves": J.counts["state"], "adjoint_solves": J.counts["adjoint"], "cache_hits": cache_hits, **counts}
+    return {"state_solves": J.counts["state"], "adjoint_solves": J.counts["adjoint"], "cache_hits": cache_hits,
+            **counts}
 
 
 def _safe_eval(evaluate, m):
@@ -442,8 +444,8 @@ def tau_scaling(J: ReducedFunctional, tau_scale: float | str, tau_range, xi_boun
     bound-constrained codes commonly normalize variables. Why: tau and xi have unrelated units, while
     scipy's line search and L-BFGS's initial Hessian ``gamma I`` treat all variables alike (the
     ventricle example converges to gtol = 1e-4 in 50-57 iterations for c from 10 to 67, and not in
-    120 with c = 1 or 0.1: ``python bench/bench_tau_scale.py``). c = 1 without finite bounds or with tau fixed. A number:
-    that factor (> 0).
+    120 with c = 1 or 0.1: ``python bench/bench_tau_scale.py``). c = 1 without finite bounds or with tau fixed.
+    A number: that factor (> 0).
     """
     if check_tau_scale(tau_scale) == "range":
         lo, hi = xi_bounds
@@ -458,7 +460,8 @@ def check_tau_scale(tau_scale):
     """``tau_scale`` itself if it is ``"range"`` or a finite positive number, else `InputError`."""
     if tau_scale == "range":
         return tau_scale
-    if isinstance(tau_scale, bool) or not isinstance(tau_scale, (int, float)) or not np.isfinite(tau_scale) or tau_scale <= 0:
+    if (isinstance(tau_scale, bool) or not isinstance(tau_scale, (int, float)) or not np.isfinite(tau_scale)
+            or tau_scale <= 0):
         raise InputError(f"tau_scale must be 'range' or a positive number, got {tau_scale!r}")
     return tau_scale
 

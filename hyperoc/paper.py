@@ -279,7 +279,8 @@ def _print_report(out: Path, summary: dict) -> None:
           f"pressure maxima near t = {p['pressure_maxima_near_t']}")
     for key, r in summary["runs"].items():
         print(f"{r['label']}: tau = {r['tau']:.4f}, J = {r['objective']:.5g}, iterations = {r['iterations']}, "
-              f"converged = {r['converged']}, min det F = {r['min_det_F']:.3g}, control off from t = {r['control_off_from_t']}, "
+              f"converged = {r['converged']}, min det F = {r['min_det_F']:.3g}, "
+              f"control off from t = {r['control_off_from_t']}, "
               f"pressure maxima at t = {[round(x, 2) for x in r['pressure_local_maxima_t']]}")
     for r in summary["resolution"]:
         print(f"{r['label']}: tau = {r['tau']:.4f}, J = {r['objective']:.5g}, converged = {r['converged']}")

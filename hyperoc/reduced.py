@@ -260,7 +260,8 @@ class ReducedFunctional:
         n1, n2, _ = self.transform.steps
 
         def value(y0, y1, p, xi, dt):
-            traj = Trajectory(states(y0), states(y1), p, xi, dt, n1, n1 + n2, self._control_mass, self.stepper._M, self.model)
+            traj = Trajectory(states(y0), states(y1), p, xi, dt, n1, n1 + n2, self._control_mass, self.stepper._M,
+                              self.model)
             return self.objective.value(traj)
 
         return jax.jit(value), jax.jit(jax.value_and_grad(value, argnums=(0, 1, 2, 3, 4)))
@@ -281,8 +282,9 @@ class ReducedFunctional:
                 Trajectory(*recorders, p, xi, dt, n1, n1 + n2, self._control_mass, self.stepper._M, self.model)),
                 f64(N), f64(N + 1, nc), f64(N))
         except (TypeError, AttributeError) as err:
-            raise InputError(f"checkpointing: the objective uses traj.y0 / traj.y1 as whole arrays ({err}); index "
-                             "single levels (traj.y1[-1]) or set checkpoint_every and checkpoint_snapshots to None") from err
+            raise InputError(f"checkpointing: the objective uses traj.y0 / traj.y1 as whole arrays ({err}); "
+                             "index single levels (traj.y1[-1]) or set checkpoint_every and "
+                             "checkpoint_snapshots to None") from err
         return tuple(sorted(recorders[0].read | recorders[1].read))
 
     @cached_property
@@ -318,7 +320,8 @@ class ReducedFunctional:
         return float(value(*self._arrays(sol)))
 
     def _arrays(self, sol):
-        return jnp.asarray(sol.y0), jnp.asarray(sol.y1), jnp.asarray(sol.p_steps), jnp.asarray(sol.xi), jnp.asarray(sol.dt)
+        return (jnp.asarray(sol.y0), jnp.asarray(sol.y1), jnp.asarray(sol.p_steps), jnp.asarray(sol.xi),
+                jnp.asarray(sol.dt))
 
     def value_and_derivative(self, m: ControlPoint) -> tuple[float, ControlPoint]:
         """J(m) and dJ(m) as a dual vector: ``dJ.dm = sum(d.xi * dm.xi) + d.tau dm.tau``."""
@@ -327,7 +330,8 @@ class ReducedFunctional:
             _, vg = self._checkpointed_objective
             J, (gY0, gY1, gP, gXi, gdt) = vg(*self._checkpointed_arrays(ck))
             g_kept = {k: (gY0[i], gY1[i]) for i, k in enumerate(self.objective_levels)}
-            backward = self.adjoint.backward_revolve if self.checkpoint_snapshots else self.adjoint.backward_checkpointed
+            backward = (self.adjoint.backward_revolve if self.checkpoint_snapshots
+                        else self.adjoint.backward_checkpointed)
             gXi_state, gdt_state = backward(ck, g_kept, gP)
         else:
             sol = self.state(m)
@@ -335,9 +339,9 @@ class ReducedFunctional:
             J, (gY0, gY1, gP, gXi, gdt) = vg(*self._arrays(sol))
             F = self.stepper.external_loads(None, self.transform.grid(m.tau))
             V0 = float(sol.volume[0])
-            gXi_state, gdt_state = self.adjoint.backward(jnp.asarray(sol.y0), jnp.asarray(sol.y1), jnp.asarray(sol.p_steps),
-                                                         jnp.asarray(sol.xi), jnp.asarray(F), jnp.asarray(sol.dt), V0,
-                                                         gY0, gY1, gP)
+            gXi_state, gdt_state = self.adjoint.backward(jnp.asarray(sol.y0), jnp.asarray(sol.y1),
+                                                         jnp.asarray(sol.p_steps), jnp.asarray(sol.xi), jnp.asarray(F),
+                                                         jnp.asarray(sol.dt), V0, gY0, gY1, gP)
         self.counts["adjoint"] += 1
         dxi = np.asarray(gXi) + gXi_state
         ddt = np.asarray(gdt) + gdt_state

@@ -16,16 +16,17 @@ from .dynamics import StateSolution
 from .fibres import FibreFrames
 from .io import write_json, write_npz, write_time_series
 from .materials import det
+from .plotting import plot_control_spacetime, plot_history, plot_pressure, plot_snapshots
 from .quadrature import simplex_rule
 from .spaces import VectorSpace, reference_shape
-from .plotting import plot_control_spacetime, plot_history, plot_pressure, plot_snapshots
 
 __all__ = ["write_state_outputs", "cavity_volume", "cell_det_F", "PAPER_SNAPSHOT_TIMES"]
 
 # Times of the paper's Figures figDisp / figVelo / figControl.
 PAPER_SNAPSHOT_TIMES = (0.02, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 4.5, 5.0, 5.5, 6.0, 6.5, 7.0, 7.46, 7.48)
 
-_CELL_TYPES = {(1, 1): "line", (1, 2): "line3", (2, 1): "triangle", (2, 2): "triangle6", (3, 1): "tetra", (3, 2): "tetra10"}
+_CELL_TYPES = {(1, 1): "line", (1, 2): "line3", (2, 1): "triangle", (2, 2): "triangle6", (3, 1): "tetra",
+               (3, 2): "tetra10"}
 
 
 def _series_levels(n_levels: int, every: int | None, max_frames: int = 200) -> np.ndarray:
@@ -99,7 +100,8 @@ def _cell_series(sol: StateSolution, levels: np.ndarray, frames: FibreFrames | N
         f = control.fibres
         xi_c = control.cell_values(sol.xi[levels])[..., 0]  # (nl, nc_omega)
         stress = np.zeros((levels.size, nc, model.dim * model.dim))
-        stress[:, control.cell_mask] = (xi_c[..., None, None] * np.einsum("ci,cj->cij", f, f)).reshape(levels.size, -1, model.dim**2)
+        stress[:, control.cell_mask] = (xi_c[..., None, None] * np.einsum("ci,cj->cij", f, f)).reshape(
+            levels.size, -1, model.dim**2)
         fields["active_stress"] = stress
     return fields
 
@@ -114,9 +116,9 @@ def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = No
     coordinates ``xi_nodes`` when there is a control, and in 3D with an ``endocardium`` boundary the
     `cavity_volume`. pressure.png shows p (tau marked), the body-volume drift and the cavity volume;
     control.png the control's space-time map (1D; 2D/3D scalar controls: means over slices of the
-    last coordinate, the long axis of a ventricle); 1D adds snapshot figures. The series ``paraview/state`` has the point
-    fields ``displacement``, ``velocity``, ``control`` (the control's space-time field, zero outside
-    omega) and the cell fields of `_cell_series` (``frames``: the fibre frames, for output only).
+    last coordinate, the long axis of a ventricle); 1D adds snapshot figures. The series ``paraview/state``
+    has the point fields ``displacement``, ``velocity``, ``control`` (the control's space-time field, zero
+    outside omega) and the cell fields of `_cell_series` (``frames``: the fibre frames, for output only).
     Returns the summary.
     """
     out = Path(out)
@@ -146,8 +148,8 @@ def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = No
         full = np.zeros((levels.size, model.space.num_nodes, xi_nodal.shape[-1]))
         full[:, model.control.nodes] = xi_nodal[levels]
         point_data["control"] = full
-    series = write_time_series(out / "paraview", "state", model.space.nodes, cells, cell_type, sol.t[levels], point_data,
-                               cell_data=_cell_series(sol, levels, frames))
+    series = write_time_series(out / "paraview", "state", model.space.nodes, cells, cell_type, sol.t[levels],
+                               point_data, cell_data=_cell_series(sol, levels, frames))
     files["time_series"] = str(Path(series).relative_to(out))
     if model.dim == 1:
         files.update(_write_1d_figures(out, sol, u, v, xi_nodal, snapshot_times or PAPER_SNAPSHOT_TIMES))

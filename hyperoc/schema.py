@@ -129,7 +129,8 @@ class Mesh(Section):
                                 "or a mesh file")
     n: Count = Field(100, description="cells of the interval (0, length)")
     length: Positive = Field(1.0, description="length of the interval")
-    nx: Count = Field(8, description="cells along x (rectangle: squares split in 2 triangles, box: cubes in 6 tetrahedra)")
+    nx: Count = Field(
+        8, description="cells along x (rectangle: squares split in 2 triangles, box: cubes in 6 tetrahedra)")
     ny: Optional[Count] = Field(None, description="cells along y (default: nx)")
     nz: Optional[Count] = Field(None, description="cells along z (default: nx)")
     size: Optional[Annotated[list[Positive], Field(min_length=2, max_length=3)]] = Field(
@@ -141,7 +142,8 @@ class Mesh(Section):
     structured: bool = Field(False, description="annulus: a structured (radial x angular) mesh instead of Gmsh's")
     n_radial: Optional[Count] = Field(None, description="structured annulus: cells across the wall")
     n_theta: Optional[Count] = Field(None, description="structured annulus: cells around")
-    file: Optional[str] = Field(None, description="mesh file read by meshio (.msh, .vtu, .xdmf), relative to the config")
+    file: Optional[str] = Field(
+        None, description="mesh file read by meshio (.msh, .vtu, .xdmf), relative to the config")
     degree: Literal[1, 2] = Field(1, description="polynomial degree of the displacement (P1 or P2)")
     refinements: Annotated[int, Field(ge=0)] = Field(
         0, description="uniform refinements of the mesh built (curved boundaries stay on their exact surfaces)")
@@ -229,7 +231,8 @@ class Dynamics(Section):
         0.5, description="theta scheme: 1/2 Crank-Nicolson, 1 implicit Euler")
     multiplier: Literal["step", "theta"] = Field(
         "step", description="volume multiplier per step, or theta-weighted (comparison with the paper)")
-    solver: str = Field("auto", description="linear solver: auto, tridiagonal, dense, lu, lu_reuse, pardiso, ..., minres")
+    solver: str = Field(
+        "auto", description="linear solver: auto, tridiagonal, dense, lu, lu_reuse, pardiso, ..., minres")
     newton_rtol: Annotated[float, Field(allow_inf_nan=False, gt=0, lt=1)] = Field(
         1e-11, description="Newton's relative residual tolerance")
     newton_max_iter: Count = Field(30, description="Newton iterations per step")
@@ -298,7 +301,8 @@ class Objective(Section):
     KINDS: ClassVar[dict] = {"pressure": set(), "pressure_rise": {"eps"}, "pressure_mean": {"eps"}}
 
     phi1: Literal["pressure", "pressure_rise", "pressure_mean"] = Field(
-        "pressure", description="p(tau), the rise (p(tau + eps) - p(tau)) / eps, or the mean (1/eps) int_tau^{tau+eps} p dt")
+        "pressure", description="p(tau), the rise (p(tau + eps) - p(tau)) / eps, or the mean (1/eps) "
+                                "int_tau^{tau+eps} p dt")
     alpha: NonNegative = Field(2e-3, description="weight of the control cost alpha/2 ||xi||^2_{L2(0,T;L2(omega))}")
     beta: NonNegative = Field(
         0.0, description="weight of the cost beta/2 ||d xi/dt||^2_{L2(0,T;L2(omega))} (controls regular in time)")
@@ -452,7 +456,8 @@ def _requirement(kind: str, ctx: dict) -> str:
     if kind == "literal_error":
         return f"must be {ctx['expected']}"
     if kind in ("too_short", "too_long"):
-        return f"must have {'at least ' + str(ctx['min_length']) if kind == 'too_short' else 'at most ' + str(ctx['max_length'])} item(s)"
+        count = "at least " + str(ctx["min_length"]) if kind == "too_short" else "at most " + str(ctx["max_length"])
+        return f"must have {count} item(s)"
     if kind == "missing":
         return "is required"
     word = _TYPE_WORDS.get(kind.split("_")[0])

@@ -291,7 +291,8 @@ def prolong(coarse: VectorSpace, fine: VectorSpace, u: np.ndarray) -> np.ndarray
     node_bary = np.concatenate([eye, [(eye[i] + eye[j]) / 2 for i, j in _local_edges(dim)]])
     bary = node_bary[local]  # (ncf, dim + 1, dim + 1): the fine cells' vertices in their parents
     if fine.degree == 2:
-        bary = np.concatenate([bary, np.stack([(bary[:, i] + bary[:, j]) / 2 for i, j in _local_edges(dim)], axis=1)], axis=1)
+        bary = np.concatenate(
+            [bary, np.stack([(bary[:, i] + bary[:, j]) / 2 for i, j in _local_edges(dim)], axis=1)], axis=1)
     xi = bary[..., 1:]  # (ncf, nloc_fine, dim)
     if geometry.isoparametric:
         xi = _inverse_map(geometry.nodes[geometry.cell_nodes[parent]], fine.nodes[fine.cell_nodes], xi)
@@ -317,7 +318,8 @@ def _inverse_map(cell_x: np.ndarray, X: np.ndarray, xi: np.ndarray, max_iter: in
         xi = xi - step
         if np.abs(step).max() < 1e-13:
             return xi
-    raise InputError("prolong: the inverse isoparametric map of a fine node did not converge (a fine node far outside its parent)")
+    raise InputError("prolong: the inverse isoparametric map of a fine node did not converge "
+                     "(a fine node far outside its parent)")
 
 
 def _parents(geometry: VectorSpace, fine: Mesh) -> tuple[np.ndarray, np.ndarray]:
@@ -326,7 +328,8 @@ def _parents(geometry: VectorSpace, fine: Mesh) -> tuple[np.ndarray, np.ndarray]
     scale = np.ptp(geometry.nodes, axis=0).max()
     dist, node = cKDTree(geometry.nodes).query(fine.points)
     if np.any(dist > 1e-9 * scale):
-        raise InputError("prolong: the fine mesh is not a refinement of the coarse one (a vertex is not a coarse P2 node)")
+        raise InputError("prolong: the fine mesh is not a refinement of the coarse one "
+                         "(a vertex is not a coarse P2 node)")
     nodes = node[fine.cells]  # (ncf, dim + 1) coarse node of each fine vertex
     nc, nloc = geometry.cell_nodes.shape
     incidence = sp.csr_matrix((np.ones(nc * nloc), geometry.cell_nodes.ravel(), np.arange(nc + 1) * nloc),

@@ -80,9 +80,11 @@ class TimeTransform:
     def __post_init__(self):
         n1, n2, n3 = (int(k) for k in self.steps)
         if self.T <= 0 or n1 < 1 or n3 < 1 or n2 < 0:
-            raise InputError(f"time transform: need T > 0, N1 >= 1, N3 >= 1, N2 >= 0; got T={self.T}, steps={self.steps}")
+            raise InputError(f"time transform: need T > 0, N1 >= 1, N3 >= 1, N2 >= 0; "
+                             f"got T={self.T}, steps={self.steps}")
         if (self.eps > 0) != (n2 > 0) or self.eps < 0:
-            raise InputError("time transform: eps > 0 needs N2 > 0 steps on [tau, tau + eps] (and eps = 0 needs N2 = 0)")
+            raise InputError("time transform: eps > 0 needs N2 > 0 steps on [tau, tau + eps] "
+                             "(and eps = 0 needs N2 = 0)")
         et = self.eps_tilde if self.eps_tilde is not None else (n2 / (n2 + n3))
         if self.eps > 0 and not 0 < et < 1:
             raise InputError(f"time transform: eps_tilde must lie in (0, 1), got {et}")
@@ -130,7 +132,8 @@ class TimeTransform:
     def dt(self, tau: float) -> np.ndarray:
         """Step sizes ``dt_n = mu_dot(s_n, tau) ds_n``, shape (N,)."""
         n1, n2, n3 = self.steps
-        return np.concatenate([np.full(n1, tau / n1), np.full(n2, self.eps / max(n2, 1)), np.full(n3, (self.T - tau - self.eps) / n3)])
+        return np.concatenate([np.full(n1, tau / n1), np.full(n2, self.eps / max(n2, 1)),
+                               np.full(n3, (self.T - tau - self.eps) / n3)])
 
     def ddt_dtau(self) -> np.ndarray:
         """``d dt_n / d tau`` (independent of tau): 1/N1, 0, -1/N3 on the three pieces."""
@@ -154,5 +157,6 @@ class TimeTransform:
         return np.where(
             s <= 1,
             tau * s,
-            np.where(s <= 1 + et, tau + (self.eps / et if et else 0.0) * (s - 1), self.T - (2 - s) * (self.T - tau - self.eps) / (1 - et)),
+            np.where(s <= 1 + et, tau + (self.eps / et if et else 0.0) * (s - 1),
+                     self.T - (2 - s) * (self.T - tau - self.eps) / (1 - et)),
         )

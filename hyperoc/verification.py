@@ -59,7 +59,7 @@ def taylor_test(J: ReducedFunctional, m: ControlPoint, dm: ControlPoint, *, step
 
     ``h0`` defaults to a step that moves tau by two time steps (J varies in tau on the time scale
     of the dynamics, which the grid resolves) and the control by 10% of its scale. Steps are
-    halved ``steps - 1`` times, and further (up to ``max_halvings``) while the last observed rates' 
+    halved ``steps - 1`` times, and further (up to ``max_halvings``) while the last observed rates'
     pair is not yet within 0.1 of 2 (pre-asymptotic range). Remainders below ``1e3 * noise * |J|`` are
     round-off, not Taylor, and are dropped.
     """

@@ -6,7 +6,6 @@ too. Every run writes its files atomically into an output folder.
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
@@ -63,8 +62,8 @@ def simulate(cfg: Config, out, *, progress: bool = False, monitor=None, model=No
     stepper = TimeStepper(model, cfg.scheme(), cfg["dynamics"]["solver"])
     sol = stepper.run(grid, xi, progress=progress, monitor=monitor)
     o = cfg["output"]
-    return write_state_outputs(Path(out), sol, snapshot_times=o.get("snapshot_times"), series_every=o.get("series_every"),
-                               frames=cfg.fibres(model.mesh))
+    return write_state_outputs(Path(out), sol, snapshot_times=o.get("snapshot_times"),
+                               series_every=o.get("series_every"), frames=cfg.fibres(model.mesh))
 
 
 def build_reduced(cfg: Config, tau0: float, model=None) -> ReducedFunctional:
@@ -72,11 +71,13 @@ def build_reduced(cfg: Config, tau0: float, model=None) -> ReducedFunctional:
     o = cfg["optimize"]
     return ReducedFunctional(model, cfg.transform(tau0), cfg.objective(), scheme=cfg.scheme(),
                              solver=cfg["dynamics"]["solver"], gradient=o["gradient"],
-                             checkpoint_every=o.get("checkpoint_every"), checkpoint_snapshots=o.get("checkpoint_snapshots"))
+                             checkpoint_every=o.get("checkpoint_every"),
+                             checkpoint_snapshots=o.get("checkpoint_snapshots"))
 
 
 def optimize_single(cfg: Config, tau0: float, *, checkpoint=None, progress: bool = False,
-                    J: ReducedFunctional | None = None, iterations_done: int = 0) -> tuple[ReducedFunctional, OptimizationResult]:
+                    J: ReducedFunctional | None = None,
+                    iterations_done: int = 0) -> tuple[ReducedFunctional, OptimizationResult]:
     """One optimization from ``(xi, tau) = (0, tau0)`` with the method of ``[optimize]`` (whose
     method-specific options the schema keeps only for that method).
 
@@ -151,7 +152,8 @@ def _progress_bar(enabled: bool, total: int, desc: str, initial: int = 0):
     return tqdm(total=total, desc=desc, leave=False, initial=initial)
 
 
-def write_optimization_outputs(out: Path, cfg: Config, J: ReducedFunctional, res: OptimizationResult, extra=None) -> dict:
+def write_optimization_outputs(out: Path, cfg: Config, J: ReducedFunctional, res: OptimizationResult,
+                               extra=None) -> dict:
     sol = J.state(res.point)
     sol.warnings = detect_regimes(sol)
     parts = J.objective.parts(J.trajectory(sol))
@@ -165,7 +167,8 @@ def write_optimization_outputs(out: Path, cfg: Config, J: ReducedFunctional, res
     o = cfg["output"]
     return write_state_outputs(out, sol, tau=res.point.tau, eps=J.transform.eps or None, history=hist,
                                snapshot_times=o.get("snapshot_times"), series_every=o.get("series_every"),
-                               frames=cfg.fibres(J.model.mesh), extra_summary={"optimization": summary, "tau": summary["tau"],
+                               frames=cfg.fibres(J.model.mesh),
+                               extra_summary={"optimization": summary, "tau": summary["tau"],
                                               "objective": summary["objective"], "iterations": summary["iterations"],
                                               "converged": summary["converged"],
                                               "grad_norm_history": summary["grad_norm_history"],

@@ -68,7 +68,8 @@ def test_coordinates_make_the_lumped_metric_euclidean(bar):
 
 
 def test_time_scale_balances_the_two_costs_at_half_time():
-    """At tau = T/2 (mu_dot = T/2), ``alpha T/4 (||xi||_s^2 + l_s^2 ||xi_s||_s^2)`` is the cost: l_s = (2/T) sqrt(beta/alpha)."""
+    """At tau = T/2 (mu_dot = T/2), ``alpha T/4 (||xi||_s^2 + l_s^2 ||xi_s||_s^2)`` is the cost:
+    l_s = (2/T) sqrt(beta/alpha)."""
     assert s_time_scale(2e-3, 2e-3 * 0.25, 15.0) == pytest.approx(2 / 15 * 0.5)
     assert s_time_scale(2e-3, 0.0, 15.0) == 0.0
 

@@ -180,7 +180,8 @@ def _paths(tmp_path) -> dict:
     _write(tmp_path / "bad.toml", "[mesh\nkind = ")
     (tmp_path / "binary.toml").write_bytes(b"\xff\xfe\x00[mesh]")
     _write(tmp_path / "garbage.msh", "garbage")
-    mesh = _write(tmp_path / "mesh.toml", SMALL_1D.replace('kind = "interval"\nn = 20', 'kind = "file"\nfile = "garbage.msh"'))
+    mesh = _write(tmp_path / "mesh.toml",
+                  SMALL_1D.replace('kind = "interval"\nn = 20', 'kind = "file"\nfile = "garbage.msh"'))
     return {"cfg": str(_write(tmp_path / "c.toml", SMALL_1D)), "file": str(tmp_path / "a_file"), "mesh": str(mesh),
             "folder": str(tmp_path / "folder.toml"), "bad": str(tmp_path / "bad.toml"),
             "binary": str(tmp_path / "binary.toml"), "missing": str(tmp_path / "missing.toml")}
@@ -253,7 +254,8 @@ def test_keys_of_other_kinds_at_their_defaults_are_dropped(tmp_path):
     from hyperoc.config import load_config
 
     text = SMALL_1D.replace("n = 20", "n = 20\nr_inner = 0.5\nstructured = false").replace(
-        "alpha = 2e-3", "alpha = 2e-3\neps = 0.0").replace("max_iter = 4", 'max_iter = 4\ntau_scale = "range"\nmax_cg = 20')
+        "alpha = 2e-3", "alpha = 2e-3\neps = 0.0").replace(
+        "max_iter = 4", 'max_iter = 4\ntau_scale = "range"\nmax_cg = 20')
     cfg = load_config(_write(tmp_path / "c.toml", text))
     assert cfg["mesh"] == {"kind": "interval", "n": 20, "length": 1.0, "degree": 1, "refinements": 0}
     assert "eps" not in cfg["objective"] and not {"tau_scale", "max_cg"} & set(cfg["optimize"])
