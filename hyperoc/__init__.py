@@ -20,14 +20,21 @@ The curated API (see the README for a tour)::
 Importing hyperoc is cheap: the names above are imported on first use (PEP 562), so that the
 command line answers at once. It sets JAX's float64 mode (``JAX_ENABLE_X64``) and, before JAX is
 imported, passes closed-over arrays to XLA as arguments (`hyperoc._jax`); every module that builds
-JAX kernels also turns float64 on when it is imported.
+JAX kernels also turns float64 on when it is imported. A process pinned to one CPU imports JAX at
+once, so that XLA's thread pool is started with two threads before anything else starts it with one
+(`hyperoc.threads`).
 """
 
 import importlib
 import os
 import sys
 
-if "jax" in sys.modules:  # too late for the environment: configure the imported JAX now
+def _pinned_to_one_cpu() -> bool:
+    return hasattr(os, "sched_getaffinity") and len(os.sched_getaffinity(0)) == 1
+
+
+if "jax" in sys.modules or _pinned_to_one_cpu():  # configure (and, pinned, start) JAX now
+    os.environ.setdefault("JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS", "1")
     from . import _jax  # noqa: F401
 else:
     os.environ.setdefault("JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS", "1")  # read by JAX on import (`hyperoc._jax`)

@@ -86,8 +86,9 @@ def _cell_series(sol: StateSolution, levels: np.ndarray, frames: FibreFrames | N
 
     ``det_F`` (min over the cell's quadrature points); with ``frames`` the unit vectors ``fibre``,
     ``sheet``, ``normal`` at the centroids (constant in time); with an active-stress control the tensor
-    ``active_stress = xi_c fhat (x) fhat`` (9 components in 3D, stress units, zero outside omega;
-    ``xi_c`` the mean of the cell's nodal control values, ``fhat`` the control's fibre at the centroid).
+    ``active_stress = xi_c fhat (x) fhat`` (9 components, a 2D tensor padded with zeros to 3 x 3 as
+    ParaView and XDMF expect, stress units, zero outside omega; ``xi_c`` the mean of the cell's nodal
+    control values, ``fhat`` the control's fibre at the centroid).
     """
     model, nc = sol.model, sol.model.mesh.num_cells
     fields = {"det_F": cell_det_F(sol, levels)}
@@ -99,10 +100,10 @@ def _cell_series(sol: StateSolution, levels: np.ndarray, frames: FibreFrames | N
     if sol.xi is not None and control is not None and control.fibres is not None:
         f = control.fibres
         xi_c = control.cell_values(sol.xi[levels])[..., 0]  # (nl, nc_omega)
-        stress = np.zeros((levels.size, nc, model.dim * model.dim))
-        stress[:, control.cell_mask] = (xi_c[..., None, None] * np.einsum("ci,cj->cij", f, f)).reshape(
-            levels.size, -1, model.dim**2)
-        fields["active_stress"] = stress
+        d = model.dim
+        stress = np.zeros((levels.size, nc, 3, 3))
+        stress[:, control.cell_mask, :d, :d] = xi_c[..., None, None] * np.einsum("ci,cj->cij", f, f)
+        fields["active_stress"] = stress.reshape(levels.size, nc, 9)
     return fields
 
 
