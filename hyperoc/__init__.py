@@ -29,6 +29,7 @@ import importlib
 import os
 import sys
 
+
 def _pinned_to_one_cpu() -> bool:
     return hasattr(os, "sched_getaffinity") and len(os.sched_getaffinity(0)) == 1
 
