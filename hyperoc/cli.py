@@ -103,6 +103,7 @@ def _checked_config(config, overrides, out, command: str, force: bool):
     if out is not None:
         check_output_dir(out)
     mesh = check_inputs(cfg, command, force)
+    _start_compiler()  # before anything compiles: JAX fixes its cache at the first compilation
     from .workflows import check_run  # the solvers and JAX: only for input that passed the checks above
 
     return cfg, check_run(cfg, command, mesh)
@@ -123,7 +124,6 @@ def _optimize(args) -> None:
             raise InputError("optimize needs CONFIG and --out DIR (or --resume DIR)")
         out, config = Path(args.out), Path(args.config)
     cfg, model = _checked_config(config, overrides, out, "optimize", args.force)
-    _start_compiler()
     from .workflows import optimize, resume_state
 
     done = 0
@@ -179,7 +179,6 @@ def _print_step(record) -> None:
 
 def _simulate(args) -> None:
     cfg, model = _checked_config(args.config, args.overrides, args.out, "simulate", args.force)
-    _start_compiler()
     from .workflows import simulate
 
     _record_config(cfg, Path(args.out))
@@ -193,7 +192,6 @@ def _simulate(args) -> None:
 
 def _check_gradient(args) -> None:
     cfg, _ = _checked_config(args.config, args.overrides, None, "optimize", args.force)
-    _start_compiler()
     from .workflows import check_gradient
 
     if not args.json:

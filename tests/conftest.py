@@ -2,11 +2,18 @@
 scripts, so the suite runs with the JAX settings the package makes on import (`hyperoc._jax`).
 
 Two tiers: ``python -m pytest`` runs the fast tier; tests marked ``slow`` are skipped unless
-``--runslow`` is given (``--runslow -m slow`` runs the slow tier alone)."""
+``--runslow`` is given (``--runslow -m slow`` runs the slow tier alone).
+
+The command line's persistent compilation cache is off in the tests (they run the CLI in-process and
+in subprocesses, and must not depend on, or fill, the user's cache); tests of the cache turn it on."""
+
+import os
 
 import pytest
 
 import hyperoc  # noqa: F401
+
+os.environ.setdefault("HYPEROC_COMPILATION_CACHE", "0")
 
 
 def pytest_addoption(parser):
