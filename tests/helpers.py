@@ -76,3 +76,31 @@ def checkpointing_problem(kind: str) -> ReducedFunctional:
     J.checkpoint_every = None
     J.checkpoint_snapshots = None
     return J
+
+
+def small_1d_toml(*, n: int = 20, dt: float = 0.05, lower: float = 0.75, value: str | None = "0.05 * sin(pi * t)",
+                  max_iter: int = 4) -> str:
+    """The TOML text of a small 1D run (SVK bar, T = 2, body force on [lower, 1]); ``value`` the prescribed
+    control's expression (None: none)."""
+    control = f'\nvalue = "{value}"' if value is not None else ""
+    return f"""
+[mesh]
+kind = "interval"
+n = {n}
+[material]
+law = "svk"
+mu = 0.05
+lambda = 0.05
+[dynamics]
+T = 2.0
+dt = {dt}
+kappa = 2e-3
+[control]
+kind = "body_force"
+region = {{ kind = "box", lower = [{lower}], upper = [1.0] }}{control}
+[objective]
+alpha = 2e-3
+[optimize]
+tau0 = 1.0
+max_iter = {max_iter}
+"""

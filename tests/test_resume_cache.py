@@ -7,31 +7,12 @@ import re
 import numpy as np
 import pytest
 
+from helpers import small_1d_toml
 from hyperoc.cli import main
 from hyperoc.optimize import EvaluationCache
 from hyperoc.reduced import ControlPoint
 
-SMALL_1D = """
-[mesh]
-kind = "interval"
-n = 10
-[material]
-law = "svk"
-mu = 0.05
-lambda = 0.05
-[dynamics]
-T = 2.0
-dt = 0.1
-kappa = 2e-3
-[control]
-kind = "body_force"
-region = { kind = "box", lower = [0.5], upper = [1.0] }
-[objective]
-alpha = 2e-3
-[optimize]
-tau0 = 1.0
-max_iter = 3
-"""
+SMALL_1D = small_1d_toml(n=10, dt=0.1, lower=0.5, value=None, max_iter=3)
 
 
 def _damage(entries: list) -> None:

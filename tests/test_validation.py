@@ -9,32 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from helpers import small_1d_toml
 from hyperoc.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 
-SMALL_1D = """
-[mesh]
-kind = "interval"
-n = 20
-[material]
-law = "svk"
-mu = 0.05
-lambda = 0.05
-[dynamics]
-T = 2.0
-dt = 0.05
-kappa = 2e-3
-[control]
-kind = "body_force"
-region = { kind = "box", lower = [0.75], upper = [1.0] }
-value = "0.05 * sin(pi * t)"
-[objective]
-alpha = 2e-3
-[optimize]
-tau0 = 1.0
-max_iter = 4
-"""
+SMALL_1D = small_1d_toml()
 
 # --set overrides of SMALL_1D -> a fragment of the one-line message
 BAD_SETTINGS = [
