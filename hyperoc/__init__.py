@@ -35,7 +35,6 @@ def _pinned_to_one_cpu() -> bool:
 
 
 if "jax" in sys.modules or _pinned_to_one_cpu():  # configure (and, pinned, start) JAX now
-    os.environ.setdefault("JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS", "1")
     from . import _jax  # noqa: F401
 else:
     os.environ.setdefault("JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS", "1")  # read by JAX on import (`hyperoc._jax`)

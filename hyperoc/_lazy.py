@@ -10,12 +10,13 @@ class LazyModule:
     JAX's environment, which must come before JAX) and then the module."""
 
     def __init__(self, name: str):
-        self._name = name
+        self._name, self._module = name, None
 
     def __getattr__(self, attr: str):
-        importlib.import_module("hyperoc._jax")
-        module = importlib.import_module(self._name)
-        return getattr(module, attr)
+        if self._module is None:
+            importlib.import_module("hyperoc._jax")
+            self._module = importlib.import_module(self._name)
+        return getattr(self._module, attr)
 
 
 jax = LazyModule("jax")

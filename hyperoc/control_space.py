@@ -121,9 +121,18 @@ class ControlSpace:
 
     # --- coordinates in which the Euclidean geometry is the (lumped) control metric --------------
     @cached_property
+    def lumped_weights(self) -> np.ndarray:
+        """``w_k D_i`` (N+1, n_ctrl): the L2-in-time part of the metric with the spatial mass lumped."""
+        return self._w[:, None] * self.lumped_mass[None, :]
+
+    @cached_property
     def _diagonal_scale(self) -> np.ndarray:
         """``sqrt(w_k D_i)`` (N+1, n_ctrl): the coordinate scale when the metric is L2 in time."""
-        return np.sqrt(self._w[:, None] * self.lumped_mass[None, :])
+        return np.sqrt(self.lumped_weights)
+
+    def l2_in_time(self) -> "ControlSpace":
+        """The same space with the plain L2(0, 2; L2(omega)) metric in time (unit weight)."""
+        return ControlSpace(self.ds, self.mass, self.lumped_mass)
 
     def to_coordinates(self, xi: np.ndarray) -> np.ndarray:
         """``z = U xi D^(1/2)`` (U the Cholesky factor of A_t; ``sqrt(w) xi sqrt(D)`` in L2): Euclidean

@@ -25,7 +25,7 @@ the names back (Gmsh MSH 2.2 for ``.msh``).
 
 Gmsh is imported on first use and finalized at the end of every call, so no Gmsh state outlives
 a call; Gmsh being a process-wide singleton, do not run the Gmsh-based generators concurrently in
-threads of one process, nor while the caller holds a Gmsh session of its own.
+threads of one process, nor while the caller has Gmsh initialized itself.
 """
 
 from __future__ import annotations
@@ -342,7 +342,7 @@ def _tag_boundary(mesh: Mesh, surfaces: dict[str, _Distance], *, dirichlet: str,
 
 @contextlib.contextmanager
 def _gmsh_model(name: str):
-    """A fresh, silent Gmsh session holding one model; the ``gmsh`` module is yielded."""
+    """A fresh, silent Gmsh instance holding one model; the ``gmsh`` module is yielded."""
     import gmsh
 
     # interruptible=False: no SIGINT handler, so this also works outside the main thread.

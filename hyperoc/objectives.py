@@ -128,7 +128,9 @@ class InjectivityPenalty(Running):
 
     def density(self, traj):
         model = traj.model
-        excess = lambda u: jnp.sum(model._w * jnp.maximum(self.delta - det(model.deformation_gradient(u)), 0.0) ** 3)
+        def excess(u):  # int_Omega max(0, delta - det F)^3 dx at one level
+            shortfall = jnp.maximum(self.delta - det(model.deformation_gradient(u)), 0.0)
+            return jnp.sum(model.quad.wdx * shortfall**3)
         return -self.gamma * jax.vmap(excess)(traj.y0)
 
 

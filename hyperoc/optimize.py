@@ -173,7 +173,7 @@ class LumpedMetric:
 
     def __init__(self, J: ReducedFunctional):
         self.J = J
-        self.weights = J.s_weights[:, None] * J.model.control.lumped_mass[None, :]  # (N+1, n_ctrl)
+        self.weights = J.space.l2_in_time().lumped_weights  # (N+1, n_ctrl)
 
     def inner(self, a: ControlPoint, b: ControlPoint) -> float:
         return float(np.sum(a.xi * self.weights * b.xi) + a.tau * b.tau)
@@ -551,7 +551,7 @@ def _coordinates(J: ReducedFunctional, xi_bounds) -> ControlSpace:
     """L-BFGS-B's coordinates: J's control space, or its L2-in-time version when xi has bounds."""
     if tuple(xi_bounds) == (None, None) or not J.space.regular_in_time:
         return J.space
-    return ControlSpace(J.transform.ds(), J.model.control.mass, J.model.control.lumped_mass)
+    return J.space.l2_in_time()
 
 
 def newton_cg(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gtol: float = 1e-6,
