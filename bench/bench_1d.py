@@ -11,10 +11,10 @@ Writes ``bench/results/bench_1d.json`` (`bench/results.py`).
 import time
 
 import numpy as np
-from results import command_line, table, write_results
 
 import hyperoc as ho
 from hyperoc.workflows import build_reduced
+from results import command_line, table, write_results
 
 
 def best_of(fn, repeat=5):

@@ -48,6 +48,7 @@ import sys
 import time
 
 import numpy as np
+
 from results import Table, command_line, markdown_table, table, write_results
 
 CK_1D = (None, 10, 55, 300, 3000, "s10", "s20")  # k = 1: see the notes (per-segment overhead)

@@ -22,10 +22,10 @@ import argparse
 
 import jax.numpy as jnp
 import numpy as np
-from results import Table, command_line, write_results
 
 from hyperoc.benchmarks import ventricle_problem
 from hyperoc.linsolve import SparseSolver
+from results import Table, command_line, write_results
 
 
 def step_blocks(model, follower):

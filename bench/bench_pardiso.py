@@ -39,7 +39,6 @@ def rss_gb() -> float:
 
 def child(level: int, method: str) -> dict:
     from bench_ordering import measure, step_blocks
-
     from hyperoc.benchmarks import ventricle_problem
 
     model, follower = ventricle_problem(6.0, kappa=math.inf, volumetric="taylor-hood", isochoric=True,

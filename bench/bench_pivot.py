@@ -30,11 +30,10 @@ import math
 import time
 
 from bench_ordering import measure, step_blocks
-from results import Table, command_line, write_results
-
 from hyperoc.benchmarks import VENTRICLE, node_position, ventricle_problem
 from hyperoc.linsolve import SparseSolver
 from hyperoc.statics import solve_static
+from results import Table, command_line, write_results
 
 THRESHOLDS = (0.1, 0.0)  # threshold partial pivoting; diagonal pivots (the default)
 FORMULATIONS = {"pointwise": {"kappa": 1000.0},

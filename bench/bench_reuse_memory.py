@@ -31,6 +31,7 @@ import sys
 import time
 
 import numpy as np
+
 from results import Table, command_line, write_results
 
 

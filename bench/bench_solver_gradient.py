@@ -21,6 +21,7 @@ import math
 import time
 
 import numpy as np
+
 from bench_checkpoint import LV_STEPS, build_lv
 from results import Table, command_line, write_results
 

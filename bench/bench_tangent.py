@@ -33,13 +33,13 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
-from results import Table, command_line, write_results
 
 import hyperoc as ho
 from hyperoc.fibres import rule_based_fibres
 from hyperoc.geometry import thick_shell, ventricle
 from hyperoc.linsolve import SparseSolver
 from hyperoc.materials import det
+from results import Table, command_line, write_results
 
 
 class HessianTangentModel(ho.StateModel):

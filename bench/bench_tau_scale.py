@@ -19,12 +19,11 @@ import argparse
 import time
 from pathlib import Path
 
-from results import Table, command_line, write_results
-
 import hyperoc  # noqa: F401  (before JAX: hyperoc._jax sets JAX's flags)
 from hyperoc.config import load_config
 from hyperoc.optimize import _tau_range, lbfgsb, tau_scaling
 from hyperoc.workflows import build_reduced
+from results import Table, command_line, write_results
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "ventricle-3d.toml"
 

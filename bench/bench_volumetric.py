@@ -20,11 +20,11 @@ import time
 
 import jax
 import jax.numpy as jnp
-from results import Table, command_line, write_results
 
 import hyperoc  # noqa: F401  (before JAX: hyperoc._jax sets JAX's flags)
 from hyperoc.benchmarks import ventricle_problem
 from hyperoc.model import VOLUMETRIC as MODES  # the baseline, "pointwise", first
+from results import Table, command_line, write_results
 
 
 def kernels(model):

@@ -35,13 +35,13 @@ import argparse
 import time
 
 import numpy as np
-from results import command_line, table, write_results
 
 from hyperoc.errors import SolverError
 from hyperoc.optimize import barzilai_borwein, lbfgsb
 from hyperoc.paper import _with, paper_config
 from hyperoc.reduced import ControlPoint
 from hyperoc.workflows import build_reduced
+from results import command_line, table, write_results
 
 TAU0 = 7.5
 COLUMNS = ["beta", "h", "dt", "J", "p(tau)", "max |xi|", "min det F", "at t", "tau", "iterations",
