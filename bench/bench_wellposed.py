@@ -19,14 +19,16 @@ Tables:
     python bench/bench_wellposed.py                        # full study (~30 min on one core)
     python bench/bench_wellposed.py --quick                # dt in {0.04, 0.02}, h in {0.02}, one beta
     python bench/bench_wellposed.py --variant 10,10        # alpha = beta = 10: local maximizers, two methods
-    python bench/bench_wellposed.py --variant 10,10 --grid # the same, L-BFGS-B on the 3 x 3 (h, dt) grid
+    python bench/bench_wellposed.py --variant 10,10 --grid # Newton-CG and L-BFGS-B on the 3 x 3 (h, dt) grid
+    python bench/bench_wellposed.py --variant 10,10 --noise # the round-off of J where L-BFGS-B stops
 
 With ``--variant ALPHA,BETA`` it runs instead L-BFGS-B and Algorithm 1 from tau0 = 7.5 and 6.3 on
 (h, dt) = (0.02, 0.04) and (0.01, 0.02) with those weights (a control cost that competes with the
 pressure, so the optimum stays in the elastic range), into ``bench_wellposed_variant.json``. With
-``--grid`` as well: L-BFGS-B from tau0 = 7.5 on h in {0.02, 0.01, 0.005} x dt in {0.04, 0.02, 0.01}
-(iteration counts against their median; successive differences of tau* and J* along each refinement,
-their observed order and the Richardson estimate), into ``bench_wellposed_grid.json``.
+``--grid`` as well: each of ``--methods`` (default Newton-CG, the main job's method, and L-BFGS-B) from
+tau0 = 7.5 on h in {0.02, 0.01, 0.005} x dt in {0.04, 0.02, 0.01} (iteration counts against their median;
+successive differences of tau* and J* along each refinement, their observed order and the Richardson
+estimate), into ``bench_wellposed_grid.json``.
 """
 
 from __future__ import annotations
@@ -37,8 +39,8 @@ import time
 import numpy as np
 
 from hyperoc.errors import SolverError
-from hyperoc.optimize import barzilai_borwein, lbfgsb
-from hyperoc.paper import _with, paper_config
+from hyperoc.optimize import barzilai_borwein, lbfgsb, newton_cg
+from hyperoc.paper import paper_config
 from hyperoc.reduced import ControlPoint
 from hyperoc.workflows import build_reduced
 from results import command_line, table, write_results
@@ -50,7 +52,7 @@ COLUMNS = ["beta", "h", "dt", "J", "p(tau)", "max |xi|", "min det F", "at t", "t
 
 def end_point(beta: float, h: float, dt: float, max_iter: int) -> list:
     """One Algorithm 1 run from (0, TAU0); the row of table 1."""
-    cfg = _with(paper_config(), objective__beta=beta, mesh__n=int(round(1 / h)), dynamics__dt=dt)
+    cfg = paper_config(objective__beta=beta, mesh__n=int(round(1 / h)), dynamics__dt=dt)
     J = build_reduced(cfg, TAU0)
     started = time.perf_counter()
     res = barzilai_borwein(J, J.zero(TAU0), gtol=1e-6, max_iter=max_iter)
@@ -64,16 +66,17 @@ def end_point(beta: float, h: float, dt: float, max_iter: int) -> list:
     return row
 
 
+METHOD_NAMES = {"newton": "Newton-CG", "lbfgsb": "L-BFGS-B", "bb": "Algorithm 1"}
 VARIANT_COLUMNS = ["method", "tau0", "h", "dt", "J", "tau", "iterations", "converged", "final rel. gradient",
                    "min det F", "max |xi|", "state solves"]
 
 
 def variant_run(alpha: float, beta: float, method: str, tau0: float, h: float, dt: float, max_iter: int) -> list:
     """One run of the variant with weights (alpha, beta); the row of the variant table."""
-    cfg = _with(paper_config(), objective__alpha=alpha, objective__beta=beta, mesh__n=int(round(1 / h)),
+    cfg = paper_config(objective__alpha=alpha, objective__beta=beta, mesh__n=int(round(1 / h)),
                 dynamics__dt=dt)
     J = build_reduced(cfg, tau0)
-    run = {"lbfgsb": lbfgsb, "bb": barzilai_borwein}[method]
+    run = {"lbfgsb": lbfgsb, "bb": barzilai_borwein, "newton": newton_cg}[method]
     res = run(J, J.zero(tau0), gtol=1e-6, max_iter=max_iter)
     sol = J.state(res.point)
     g = res.history["grad_norm"]
@@ -91,6 +94,35 @@ def variant_study(alpha: float, beta: float, max_iter: int) -> None:
         VARIANT_COLUMNS, rows, "converged: relative gradient (H^1 metric) <= 1e-6 within the iterations allowed")])
 
 
+def noise_study(alpha: float, beta: float, h: float = 0.01, dt: float = 0.02, spread: float = 1e-9, k: int = 8) -> None:
+    """Why L-BFGS-B stops short of 1e-6: the round-off of J at its end point m (h, dt), against the increase
+    a gradient step can still make. Along d = G/|G| (G the gradient in the control space's metric) the
+    noise is the standard deviation of ``J(m + j e d) - J(m) - j e |G|``, j = -k..k, e = ``spread``
+    (the quadratic part e^2 k^2 |H| / 2 is below 1e-16); the curvature |H| is a central difference
+    with step 1e-3. A step along d gains at most |G|^2 / (2 |H|), which is below the noise once
+    |G| < sqrt(2 |H| noise): the floor of any line search that compares values of J."""
+    cfg = paper_config(objective__alpha=alpha, objective__beta=beta, mesh__n=int(round(1 / h)), dynamics__dt=dt)
+    J = build_reduced(cfg, TAU0)
+    res = lbfgsb(J, J.zero(TAU0), gtol=1e-6, max_iter=150)
+    value, G = J.value_and_gradient(res.point)  # G: the gradient in the control space's metric
+    gnorm = J.norm(G)
+    d = G * (1.0 / gnorm)
+    wiggle = [J(res.point + d * (j * spread)) - value - j * spread * gnorm for j in range(-k, k + 1)]
+    noise = float(np.std(wiggle))
+    e = 1e-3
+    curvature = abs(J(res.point + d * e) + J(res.point + d * (-e)) - 2 * value) / e**2
+    g0 = res.history["grad_norm"][0]
+    floor = float(np.sqrt(2 * curvature * noise))
+    row = [h, dt, value, noise, noise / abs(value), curvature, gnorm / g0, floor / g0, res.message]
+    print("  ".join(_fmt(v) for v in row), flush=True)
+    write_results("bench_wellposed_noise", command_line(), [table(
+        f"Round-off of J at the end point of L-BFGS-B (alpha = {alpha:g}, beta = {beta:g})",
+        ["h", "dt", "J", "noise of J", "relative noise", "curvature |H|", "final rel. gradient",
+         "floor sqrt(2 |H| noise) / |G0|", "stop"], [row],
+        "a line search comparing values of J cannot make progress once the relative gradient is below the floor; "
+        "Newton-CG steps, whose length comes from the curvature, continue past it")])
+
+
 def refinement_rows(label: str, rows: list, key: int) -> list:
     """Successive differences of column ``key`` over three rows refined by 2, the observed order and
     the Richardson estimate ``v3 + (v3 - v2) / (2^q - 1)``."""
@@ -101,12 +133,16 @@ def refinement_rows(label: str, rows: list, key: int) -> list:
     return [label, *v, d1, d2, q, richardson]
 
 
-def grid_study(alpha: float, beta: float, max_iter: int) -> None:
+def grid_study(alpha: float, beta: float, max_iter: int, methods: list) -> None:
+    """Each of ``methods`` from tau0 = 7.5 on the (h, dt) grid; the refinement table from the first."""
     hs, dts = (0.02, 0.01, 0.005), (0.04, 0.02, 0.01)
-    rows = {(h, dt): variant_run(alpha, beta, "lbfgsb", 7.5, h, dt, max_iter) for h in hs for dt in dts}
-    its = np.array([r[6] for r in rows.values()])
-    median = float(np.median(its))
-    spread = [[h, dt, rows[h, dt][6], rows[h, dt][6] / median - 1] for h in hs for dt in dts]
+    runs = {method: {(h, dt): variant_run(alpha, beta, method, 7.5, h, dt, max_iter) for h in hs for dt in dts}
+            for method in methods}
+    spread = []
+    for method, by_grid in runs.items():
+        median = float(np.median([r[6] for r in by_grid.values()]))
+        spread += [[method, h, dt, by_grid[h, dt][6], by_grid[h, dt][6] / median - 1] for h in hs for dt in dts]
+    rows = runs[methods[0]]
     diagonal = [rows[h, dt] for h, dt in zip(hs, dts)]
     fixed_h = [rows[0.01, dt] for dt in dts]
     fixed_dt = [rows[h, 0.02] for h in hs]
@@ -116,10 +152,12 @@ def grid_study(alpha: float, beta: float, max_iter: int) -> None:
     for r in conv:
         print("  ".join(_fmt(v) for v in r))
     write_results("bench_wellposed_grid", command_line(), [
-        table(f"alpha = {alpha:g}, beta = {beta:g}: L-BFGS-B from tau0 = 7.5 on the (h, dt) grid", VARIANT_COLUMNS,
-              list(rows.values())),
-        table("Iterations against their median", ["h", "dt", "iterations", "relative to the median"], spread),
-        table("Convergence of the optimum under refinement", ["sequence", "coarse", "middle", "fine", "difference 1",
+        table(f"alpha = {alpha:g}, beta = {beta:g}: {', '.join(METHOD_NAMES[m] for m in methods)} from tau0 = 7.5 "
+              "on the (h, dt) grid", VARIANT_COLUMNS, [r for by_grid in runs.values() for r in by_grid.values()]),
+        table("Iterations against their median (per method)", ["method", "h", "dt", "iterations",
+              "relative to the median"], spread),
+        table(f"Convergence of the optimum under refinement ({METHOD_NAMES[methods[0]]})",
+              ["sequence", "coarse", "middle", "fine", "difference 1",
               "difference 2", "observed order", "Richardson estimate"], conv,
               "the paper reports tau ~ 7.9 for alpha = 2e-3, beta = 0 (no maximizer: see the well-posedness page)"),
     ])
@@ -127,7 +165,7 @@ def grid_study(alpha: float, beta: float, max_iter: int) -> None:
 
 def nodal_load_response(h: float, dt: float = 0.04) -> list:
     """p(tau) for a unit load at the node x = 1 and at x = 1 - h, held on [6.5, 7.5]; tau = 7.5."""
-    J = build_reduced(_with(paper_config(), mesh__n=int(round(1 / h)), dynamics__dt=dt), TAU0)
+    J = build_reduced(paper_config(mesh__n=int(round(1 / h)), dynamics__dt=dt), TAU0)
     x = J.model.control.coordinates(J.model.space).ravel()
     on = (J.transform.grid(TAU0).t > 6.5)[:, None]
     row = [h]
@@ -155,10 +193,18 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--variant", help="ALPHA,BETA: the variant study instead")
     ap.add_argument("--grid", action="store_true", help="with --variant: the 3 x 3 (h, dt) grid")
+    ap.add_argument("--noise", action="store_true", help="with --variant: the round-off of J at L-BFGS-B's end point")
+    ap.add_argument("--methods", default="newton,lbfgsb",
+                    help="with --grid: comma-separated methods (newton, lbfgsb, bb); the first gives the "
+                         "refinement table")
     args = ap.parse_args()
     if args.variant:
         alpha, beta = (float(v) for v in args.variant.split(","))
-        return (grid_study if args.grid else variant_study)(alpha, beta, args.max_iter)
+        if args.noise:
+            return noise_study(alpha, beta)
+        if args.grid:
+            return grid_study(alpha, beta, args.max_iter, args.methods.split(","))
+        return variant_study(alpha, beta, args.max_iter)
     dts = [0.04, 0.02] if args.quick else [float(v) for v in args.dts.split(",")]
     hs = [0.02] if args.quick else [float(v) for v in args.hs.split(",")]
     betas = [0.0] + [float(v) for v in args.betas.split(",")]

@@ -78,7 +78,8 @@ def _parser() -> argparse.ArgumentParser:
     r = sub.add_parser("reproduce", help="reproduce a paper experiment")
     r.add_argument("experiment", choices=["paper-1d"])
     r.add_argument("--out", required=True, metavar="DIR", help=OUT_HELP)
-    r.add_argument("--quick", action="store_true", help="skip the resolution and well-posedness studies")
+    r.add_argument("--quick", action="store_true",
+                   help="the headline only (skip the diagnostic runs of the problem as stated)")
     r.add_argument("--workers", type=int, default=None,
                    help="processes running the independent studies in parallel (default: min(2, CPUs))")
     for q in (s, o, r):

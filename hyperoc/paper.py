@@ -1,27 +1,28 @@
-"""``hyperoc reproduce paper-1d``: the paper's 1D experiment, and what it takes to interpret it.
+"""``hyperoc reproduce paper-1d``: the paper's 1D experiment, posed so that it has an answer.
 
-Runs, all from ``(xi, tau) = (0, T/2)`` on the setup of Table ``tab-param``:
+All runs start from ``(xi, tau) = (0, T/2)`` on the setup of the paper's table of parameters
+(``hyperoc/data/paper-1d.toml``):
 
-1. ``algorithm1/`` (also copied to the top level): the paper's Algorithm 1 as stated (Armijo, then
-   Barzilai-Borwein, unconstrained control);
-2. ``ray.json``: J along ``s * xi*`` for the control Algorithm 1 ends with (is there an interior
-   maximum, or does J grow until the body inverts?);
-3. ``bounded/``: the well-posed variant with a pointwise bound ``|xi| <= xi_max`` (the paper's
-   Remark ``rk-box`` in pointwise form), by the spectral projected gradient method (Algorithm 1's
-   BB steps, projected, with a nonmonotone Armijo test over the last ``SPG_WINDOW`` values);
-4. ``resolution.json`` (skipped with ``quick``): the bounded variant again with dt halved and with
-   h halved.
+1. the top level (the headline): the paper's problem with the control cost
+   ``alpha/2 ||xi||^2 + beta/2 ||d xi/dt||^2``, ``alpha = beta = 10`` (`WELL_POSED`), solved by
+   Newton-CG to a relative gradient of ``gtol`` (1e-6) in the H^1-in-time metric: a local maximizer.
+   With the paper's weight ``alpha = 2e-3`` (with or without beta) the problem has no maximizer
+   (docs/wellposedness.md); with weights at which the cost competes with the pressure it has one;
+2. ``as_stated/``: the paper's Algorithm 1 (Armijo, then Barzilai-Borwein) on the problem as stated,
+   and ``ray.json``: J along ``s * xi`` for the control it ends with (is there an interior maximum, or
+   does J grow until the body inverts?);
+3. ``bounded/``: the problem as stated with a pointwise bound ``|xi| <= XI_MAX`` (the paper's Remark
+   ``rk-box`` in pointwise form), by the spectral projected gradient method (Algorithm 1's BB steps,
+   projected, with a nonmonotone Armijo test over the last ``SPG_WINDOW`` values).
 
-Runs 1-3 share one compiled problem; the resolution study (4) runs in a second worker process
-when two CPUs are available. The runs of (4) write summary.json and results.npz only.
-
-The top-level ``summary.json`` gathers every run next to the paper's reported values.
+Runs 2-3 (skipped with ``quick``) share one compiled problem and run in a second worker process
+when two CPUs are available. The top-level ``summary.json`` holds the headline run, the paper's
+reported values and the diagnostic runs 2-3 with their status.
 """
 
 from __future__ import annotations
 
 import os
-import shutil
 import time
 from importlib import resources
 from pathlib import Path
@@ -30,86 +31,94 @@ import numpy as np
 
 from .config import Config, parse_config
 from .errors import InputError, SolverError
-from .io import write_json, write_npz
+from .io import read_json, write_json
 from .reduced import ControlPoint
 from .threads import ONE_THREAD_POOL, bind_threads
 from .workflows import optimize_single, write_optimization_outputs
 
-__all__ = ["paper_config", "reproduce_paper_1d", "PAPER_REPORT"]
+__all__ = ["paper_config", "wellposed_config", "reproduce_paper_1d", "PAPER_REPORT", "WELL_POSED"]
 
 PAPER_REPORT = {
     "tau": 7.9,
     "tau0": 7.5,
     "control_off_from_t": 7.48,
     "pressure_maxima_near_t": [6.3, 7.9],
+    "alpha": 2e-3,
+    "beta": 0.0,
     "source": "Court, section 'Results' (Figures figControl, fig-pressure)",
 }
 
-XI_MAX = 0.05  # bound of the well-posed variant (same order as the control the paper's figures suggest)
+# The headline's changes to the paper's setup: a control cost that competes with the pressure, H^1 in
+# time (sqrt(beta / alpha) = 1 time unit), and the second-order method that reaches the KKT tolerance
+# past the round-off of J (docs/wellposedness.md).
+WELL_POSED = {"objective__alpha": 10.0, "objective__beta": 10.0, "optimize__method": "newton"}
+XI_MAX = 0.05  # bound of the bounded variant (same order as the control the paper's figures suggest)
 # The bounded variant's nonmonotone window (Birgin-Martinez-Raydan's SPG default): Algorithm 1's
 # unguarded BB steps let J fall to a tenth of its best value there.
 SPG_WINDOW = 10
+RUN_NAMES = {"wellposed": "well-posed (alpha = beta = 10), Newton-CG", "as_stated": "as stated, Algorithm 1",
+             "bounded": f"as stated with |xi| <= {XI_MAX}, SPG"}
 
 
-def paper_config() -> Config:
-    """The shipped configuration of Table tab-param (``hyperoc/data/paper-1d.toml``)."""
+def paper_config(**changes) -> Config:
+    """The shipped configuration of Table tab-param (``hyperoc/data/paper-1d.toml``) with ``changes``
+    (``section__key=value``, e.g. ``mesh__n=50``), validated as a whole (a changed method gets its own
+    options' defaults)."""
     import tomllib
 
-    text = resources.files("hyperoc").joinpath("data/paper-1d.toml").read_text()
-    return parse_config(tomllib.loads(text))
-
-
-def bounded_config() -> Config:
-    """The paper configuration of the bounded variant: ``|xi| <= XI_MAX``, SPG (`_bounded`)."""
-    return _bounded(paper_config())
-
-
-def _bounded(cfg: Config) -> Config:
-    """``cfg`` with the bounds ``|xi| <= XI_MAX`` and the nonmonotone window ``SPG_WINDOW``."""
-    return _with(cfg, optimize__xi_bounds=[-XI_MAX, XI_MAX], optimize__nonmonotone=SPG_WINDOW)
-
-
-def _with(cfg: Config, **changes) -> Config:
-    sections = {k: dict(v) for k, v in cfg.sections.items()}
+    data = tomllib.loads(resources.files("hyperoc").joinpath("data/paper-1d.toml").read_text())
     for dotted, value in changes.items():
         section, key = dotted.split("__")
-        sections[section][key] = value
-    return Config(sections, cfg.base)
+        data.setdefault(section, {})[key] = value
+    return parse_config(data)
 
 
-def _run(cfg: Config, tau0: float, out: Path, *, progress: bool, label: str, J=None,
-         figures: bool = True) -> dict:
-    """One optimization and its outputs; ``J`` reuses a compiled reduced functional of the same
-    problem size; ``figures=False`` writes only summary.json and results.npz (resolution runs)."""
+def wellposed_config(**changes) -> Config:
+    """The headline's configuration: the paper's with `WELL_POSED` (``alpha = beta = 10``, Newton-CG)."""
+    return paper_config(**{**WELL_POSED, **changes})
+
+
+def bounded_config(**changes) -> Config:
+    """The bounded variant of the paper's configuration: ``|xi| <= XI_MAX`` by SPG (window ``SPG_WINDOW``)."""
+    return paper_config(**{"optimize__xi_bounds": [-XI_MAX, XI_MAX], "optimize__nonmonotone": SPG_WINDOW, **changes})
+
+
+def _run(cfg: Config, key: str, out: Path, *, progress: bool, J=None) -> tuple[dict, object, object]:
+    """One optimization from ``(0, tau0)`` written to ``out`` (figures titled with the run's name);
+    ``J`` reuses a compiled reduced functional of the same problem. Returns the run's row, J and the result."""
     started = time.perf_counter()
     if J is not None:
         J.counts.update(state=0, adjoint=0)  # evaluations are reported per run
-    J, res = optimize_single(cfg, tau0, checkpoint=out / "checkpoint", progress=progress, J=J)
+    J, res = optimize_single(cfg, float(cfg["optimize"]["tau0"]), checkpoint=out / "checkpoint", progress=progress,
+                             J=J)
     sol = J.state(res.point)
-    if figures:
-        summary = write_optimization_outputs(out, cfg, J, res, extra={"label": label})
-    else:
-        summary = {**res.summary(), "label": label}
-        write_npz(out / "results.npz", t=sol.t, p=sol.pressure, xi=J.model.control.nodal(res.point.xi),
-                  xi_nodes=J.model.control.coordinates(J.model.space))
-        write_json(out / "summary.json", summary)
+    marks = [(t, "paper's pressure maxima") for t in PAPER_REPORT["pressure_maxima_near_t"]]
+    summary = write_optimization_outputs(out, cfg, J, res, extra={"label": RUN_NAMES[key]},
+                                         title=f"paper-1d, {RUN_NAMES[key]}", pressure_marks=marks)
+    g = summary["grad_norm_history"]
+    maxima_t, maxima_p = _local_maxima(sol.t, sol.pressure)
     return {
-        "label": label,
-        "folder": out.name,
+        "label": RUN_NAMES[key],
+        "folder": "." if key == "wellposed" else key,
         "dt": float(cfg["dynamics"]["dt"]),
         "h": 1.0 / cfg["mesh"]["n"],
+        "alpha": float(cfg["objective"]["alpha"]),
+        "beta": float(cfg["objective"].get("beta", 0.0)),
+        "method": cfg["optimize"]["method"],
         "xi_bounds": cfg["optimize"].get("xi_bounds"),
-        "nonmonotone": int(cfg["optimize"]["nonmonotone"]),
+        "nonmonotone": int(cfg["optimize"].get("nonmonotone", 0)),
         "tau": summary["tau"],
         "objective": summary["objective"],
         "iterations": summary["iterations"],
         "converged": summary["converged"],
         "message": res.message,
-        "grad_norm_first_last": [summary["grad_norm_history"][0], summary["grad_norm_history"][-1]],
+        "relative_gradient": g[-1] / g[0] if g and g[0] > 0 else None,
         "min_det_F": float(sol.min_det_F.min()),
         "max_abs_xi": float(np.max(np.abs(res.point.xi))),
+        "pressure_at_tau": float(sol.pressure[J.transform.tau_index]),
         "control_off_from_t": _control_off_time(sol.t, res.point.xi),
-        "pressure_local_maxima_t": _local_maxima(sol.t, sol.pressure),
+        "pressure_local_maxima_t": maxima_t,
+        "pressure_local_maxima_p": maxima_p,
         "warnings": sol.warnings,
         "wall_time_s": time.perf_counter() - started,
     }, J, res
@@ -124,11 +133,11 @@ def _control_off_time(t: np.ndarray, xi: np.ndarray, rel: float = 1e-3) -> float
     return float(t[min(on[-1] + 1, t.size - 1)])
 
 
-def _local_maxima(t: np.ndarray, p: np.ndarray, keep: int = 4) -> list:
-    """Times of the largest local maxima of p (at most ``keep``), in increasing time."""
+def _local_maxima(t: np.ndarray, p: np.ndarray, keep: int = 4) -> tuple[list, list]:
+    """Times and values of the largest local maxima of p (at most ``keep``), in increasing time."""
     idx = np.flatnonzero((p[1:-1] > p[:-2]) & (p[1:-1] >= p[2:])) + 1
-    idx = idx[np.argsort(p[idx])[::-1][:keep]]
-    return [float(t[k]) for k in sorted(idx)]
+    idx = np.sort(idx[np.argsort(p[idx])[::-1][:keep]])
+    return [float(t[k]) for k in idx], [float(p[k]) for k in idx]
 
 
 def ray_study(J, point: ControlPoint, scales=(0.25, 0.5, 0.75, 1.0, 1.1, 1.25, 1.5, 2.0)) -> list:
@@ -144,39 +153,28 @@ def ray_study(J, point: ControlPoint, scales=(0.25, 0.5, 0.75, 1.0, 1.1, 1.25, 1
     return rows
 
 
-def _paper_job(overrides: dict, out: Path, progress: bool) -> dict:
-    """Algorithm 1 as stated, the ray study at its end point, then the bounded variant |xi| <= XI_MAX
-    (SPG) with the same compiled reduced functional."""
-    cfg = _with(paper_config(), **overrides)
-    tau0 = float(cfg["optimize"]["tau0"])
-    row, J, res = _run(cfg, tau0, out / "algorithm1", progress=progress, label="Algorithm 1 (paper)")
+def _headline_job(overrides: dict, out: Path, progress: bool) -> dict:
+    """The well-posed problem solved by Newton-CG, written to the top level of ``out``."""
+    row, _, _ = _run(wellposed_config(**overrides), "wellposed", out, progress=progress)
+    return row
+
+
+def _diagnostics_job(overrides: dict, out: Path, progress: bool) -> dict:
+    """The problem as stated: Algorithm 1, the ray study at its end point, then the bounded variant
+    |xi| <= XI_MAX (SPG) with the same compiled reduced functional."""
+    as_stated, J, res = _run(paper_config(**overrides), "as_stated", out / "as_stated", progress=progress)
     ray = ray_study(J, res.point)
     write_json(out / "ray.json", ray)
-    bounded, _, _ = _run(_bounded(cfg), tau0, out / "bounded", progress=progress, J=J,
-                         label=f"bounded |xi| <= {XI_MAX}")
-    return {"algorithm1": row, "ray": ray, "bounded": bounded}
+    bounded, _, _ = _run(bounded_config(**overrides), "bounded", out / "bounded", progress=progress, J=J)
+    return {"as_stated": as_stated, "bounded": bounded, "ray": ray}
 
 
-def _resolution_job(runs: list, progress: bool) -> list:
-    """Rows of the bounded variant on refined grids, ``runs = [(label, overrides, out), ...]``
-    (summary.json and results.npz per run; no figures)."""
-    rows = []
-    for label, overrides, out in runs:
-        cfg = _with(paper_config(), **overrides)
-        row, _, _ = _run(_bounded(cfg), float(cfg["optimize"]["tau0"]), out, progress=progress,
-                         label=label, figures=False)
-        rows.append(row)
-    return rows
-
-
-def _jobs(cfg: Config, out: Path, quick: bool, overrides: dict) -> dict:
-    """The studies as two independent jobs ``key -> (function, kwargs)`` of similar length: the
-    paper's grid (Algorithm 1, ray, bounded: one compilation) and the resolution study."""
-    jobs = {"paper": (_paper_job, dict(overrides=overrides, out=out))}
+def _jobs(out: Path, quick: bool, overrides: dict) -> dict:
+    """The studies as independent jobs ``key -> (function, kwargs)``: the headline and, unless
+    ``quick``, the diagnostics of the problem as stated (one compiled problem of its own)."""
+    jobs = {"headline": (_headline_job, dict(overrides=overrides, out=out))}
     if not quick:
-        runs = [("bounded, dt/2", {**overrides, "dynamics__dt": cfg["dynamics"]["dt"] / 2}, out / "bounded_dt2"),
-                ("bounded, h/2", {**overrides, "mesh__n": 2 * cfg["mesh"]["n"]}, out / "bounded_h2")]
-        jobs["resolution"] = (_resolution_job, dict(runs=runs))
+        jobs["diagnostics"] = (_diagnostics_job, dict(overrides=overrides, out=out))
     return jobs
 
 
@@ -241,47 +239,49 @@ def reproduce_paper_1d(out: Path, *, quick: bool = False, progress: bool = True,
     """Run the studies listed in the module docstring; returns the top-level summary.
 
     ``workers`` processes run the independent studies in parallel (default: ``min(2, cpu count)``;
-    1 runs everything in this process). ``overrides`` changes the shipped configuration, as
-    ``{"section__key": value}`` (e.g. a coarser grid for a smoke test); the paper's setup is the default.
+    1 runs everything in this process). ``overrides`` changes the shipped configuration of every run,
+    as ``{"section__key": value}`` (e.g. a coarser grid for a smoke test); the paper's setup is the default.
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     overrides = dict(overrides or {})
-    cfg = _with(paper_config(), **overrides)
     workers = min(2, os.cpu_count() or 1) if workers is None else int(workers)
     if workers < 1:
         raise InputError(f"workers must be >= 1, got {workers}")
     started = time.perf_counter()
-    results = _run_jobs(_jobs(cfg, out, quick, overrides), workers, progress)
-    _copy_top_level(out / "algorithm1", out)
-    runs = {"algorithm1": results["paper"]["algorithm1"], "bounded": results["paper"]["bounded"]}
-    resolution = results.get("resolution", [])
-    if resolution:
-        write_json(out / "resolution.json", resolution)
-    summary = {"paper": PAPER_REPORT, "runs": runs, "ray": results["paper"]["ray"], "resolution": resolution,
-               "config": cfg.sections, "workers": workers, "wall_time_s": time.perf_counter() - started,
-               "tau": runs["algorithm1"]["tau"], "objective": runs["algorithm1"]["objective"]}
+    results = _run_jobs(_jobs(out, quick, overrides), workers, progress)
+    headline = results["headline"]
+    diagnostics = results.get("diagnostics", {})
+    run_summary = read_json(out / "summary.json")  # the headline run's own summary (histories, files)
+    summary = {**run_summary, **{k: headline[k] for k in ("label", "alpha", "beta", "method", "relative_gradient",
+                                                           "pressure_at_tau", "control_off_from_t",
+                                                           "pressure_local_maxima_t", "pressure_local_maxima_p",
+                                                           "min_det_F", "max_abs_xi")},
+               "paper": PAPER_REPORT, "diagnostics": {k: diagnostics[k] for k in ("as_stated", "bounded")
+                                                     if k in diagnostics},
+               "ray": diagnostics.get("ray", []), "config": wellposed_config(**overrides).sections,
+               "workers": workers, "wall_time_s": time.perf_counter() - started}
     write_json(out / "summary.json", summary)
     _print_report(out, summary)
     return summary
 
 
-def _copy_top_level(src: Path, dst: Path) -> None:
-    for name in ("pressure.png", "control.png", "displacement.png", "velocity.png", "control_snapshots.png",
-                 "history.png", "results.npz"):
-        if (src / name).exists():
-            shutil.copyfile(src / name, dst / name)
-
-
 def _print_report(out: Path, summary: dict) -> None:
+    """The headline first (one line), then the paper's values and the diagnostics."""
+    print(f"{summary['label']}: tau* = {summary['tau']:.4f}, J* = {summary['objective']:.6g}, "
+          f"converged = {summary['converged']} (relative gradient {summary['relative_gradient']:.2g} after "
+          f"{summary['iterations']} iterations), pressure maxima at t = "
+          f"{[round(x, 2) for x in summary['pressure_local_maxima_t']]}, control off from t = "
+          f"{_rounded(summary['control_off_from_t'])}")
     p = summary["paper"]
-    print(f"paper: tau ~ {p['tau']} (from tau0 = {p['tau0']}), control off from t ~ {p['control_off_from_t']}, "
-          f"pressure maxima near t = {p['pressure_maxima_near_t']}")
-    for key, r in summary["runs"].items():
-        print(f"{r['label']}: tau = {r['tau']:.4f}, J = {r['objective']:.5g}, iterations = {r['iterations']}, "
-              f"converged = {r['converged']}, min det F = {r['min_det_F']:.3g}, "
-              f"control off from t = {r['control_off_from_t']}, "
-              f"pressure maxima at t = {[round(x, 2) for x in r['pressure_local_maxima_t']]}")
-    for r in summary["resolution"]:
-        print(f"{r['label']}: tau = {r['tau']:.4f}, J = {r['objective']:.5g}, converged = {r['converged']}")
+    print(f"paper (alpha = {p['alpha']:g}, beta = 0): tau ~ {p['tau']}, control off from t ~ "
+          f"{p['control_off_from_t']}, pressure maxima near t = {p['pressure_maxima_near_t']}")
+    for r in summary["diagnostics"].values():
+        print(f"  diagnostic, {r['label']} ({r['folder']}/): tau = {r['tau']:.4f}, J = {r['objective']:.5g}, "
+              f"iterations = {r['iterations']}, converged = {r['converged']} ({r['message']}), "
+              f"min det F = {r['min_det_F']:.3g}")
     print(f"-> {out / 'summary.json'} ({summary['wall_time_s']:.0f} s)")
+
+
+def _rounded(x):
+    return None if x is None else round(x, 2)
