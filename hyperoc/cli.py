@@ -137,8 +137,9 @@ def _optimize(args) -> None:
         print(f"resuming: {state['evaluations']} evaluations cached, {done} iterations done", file=sys.stderr)
     else:
         _record_config(cfg, out)  # --resume continues this very problem
+    # a resumed run reads the copy out/config.toml: its folder names it in the figures
     summary = optimize(cfg, out, progress=not args.no_progress, scheduler=args.scheduler, workers=args.workers,
-                       model=model, iterations_done=done)
+                       model=model, iterations_done=done, title=out.resolve().name if args.resume else None)
     print(f"tau = {summary.get('tau', float('nan')):.6g}  J = {summary.get('objective', float('nan')):.6g}  "
           f"converged = {summary.get('converged')}  -> {out / 'summary.json'}")
     _print_stop(summary, out)

@@ -31,10 +31,13 @@ __all__ = ["Config", "load_config", "parse_config", "apply_overrides", "referenc
 
 @dataclass(frozen=True)
 class Config:
-    """Validated configuration (sections as dicts with defaults filled in) and its folder."""
+    """Validated configuration (sections as dicts with defaults filled in), its folder, and its
+    name (the config file's name without suffix, when read from a file: it names the run in the
+    figures' titles)."""
 
     sections: dict
     base: Path
+    name: str | None = None
 
     def __getitem__(self, name: str) -> dict:
         return self.sections[name]
@@ -322,9 +325,9 @@ def read_control_file(path: Path) -> np.ndarray:
     return xi
 
 
-def parse_config(data: dict, base: Path = Path(".")) -> Config:
+def parse_config(data: dict, base: Path = Path("."), name: str | None = None) -> Config:
     """Validate a config dict (as read from TOML) into a `Config` (`hyperoc.schema.validate_sections`)."""
-    return Config(validate_sections(data), Path(base))
+    return Config(validate_sections(data), Path(base), name)
 
 
 def load_config(path, overrides=()) -> Config:
@@ -341,7 +344,7 @@ def load_config(path, overrides=()) -> Config:
         raise InputError(f"config {path}: invalid TOML: {str(exc).splitlines()[0][:120]}") from None
     except OSError as exc:
         raise InputError(f"config {path} cannot be read: {exc.strerror}") from None
-    return parse_config(apply_overrides(data, overrides), path.parent)
+    return parse_config(apply_overrides(data, overrides), path.parent, path.stem)
 
 
 def apply_overrides(data: dict, overrides) -> dict:

@@ -16,7 +16,7 @@ from .dynamics import StateSolution
 from .fibres import FibreFrames
 from .io import write_json, write_npz, write_time_series
 from .materials import det
-from .plotting import plot_control_spacetime, plot_history, plot_pressure, plot_snapshots
+from .plotting import Units, plot_control_spacetime, plot_history, plot_pressure, plot_snapshots
 from .quadrature import simplex_rule
 from .spaces import VectorSpace, reference_shape
 
@@ -24,6 +24,8 @@ __all__ = ["write_state_outputs", "cavity_volume", "cell_det_F", "PAPER_SNAPSHOT
 
 # Times of the paper's Figures figDisp / figVelo / figControl.
 PAPER_SNAPSHOT_TIMES = (0.02, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 4.5, 5.0, 5.5, 6.0, 6.5, 7.0, 7.46, 7.48)
+
+DEFAULT_TITLE = "hyperoc run"  # names the run in the figures' titles when no title is given
 
 _CELL_TYPES = {(1, 1): "line", (1, 2): "line3", (2, 1): "triangle", (2, 2): "triangle6", (3, 1): "tetra",
                (3, 2): "tetra10"}
@@ -109,7 +111,8 @@ def _cell_series(sol: StateSolution, levels: np.ndarray, frames: FibreFrames | N
 
 def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = None, eps: float | None = None,
                         snapshot_times=None, series_every: int | None = None, extra_summary: dict | None = None,
-                        history: dict | None = None, frames: FibreFrames | None = None) -> dict:
+                        history: dict | None = None, frames: FibreFrames | None = None, title: str | None = None,
+                        units: Units | None = None, pressure_marks=None) -> dict:
     """Write results.npz, summary.json, pressure.png, the ParaView series and figures.
 
     results.npz holds ``t, p, p_steps, volume, nodes, displacement, velocity`` (all levels), the
@@ -120,8 +123,12 @@ def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = No
     last coordinate, the long axis of a ventricle); 1D adds snapshot figures. The series ``paraview/state``
     has the point fields ``displacement``, ``velocity``, ``control`` (the control's space-time field, zero
     outside omega) and the cell fields of `_cell_series` (``frames``: the fibre frames, for output only).
-    Returns the summary.
+
+    Every figure is titled ``"{title}: {figure}"`` (``title``: the run's name, default
+    `DEFAULT_TITLE`) and its axes carry ``units`` (`hyperoc.plotting.Units`, default dimensionless);
+    ``pressure_marks``: ``[(t, label), ...]`` marked on the pressure panel. Returns the summary.
     """
+    title, units = title or DEFAULT_TITLE, units or Units()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     model = sol.model
@@ -141,7 +148,8 @@ def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = No
         cavity_summary = {"cavity_volume_0": float(cavity[0]),
                           "cavity_volume_change_max": float(np.max(np.abs(cavity / cavity[0] - 1.0)))}
     write_npz(out / "results.npz", **arrays)
-    plot_pressure(out / "pressure.png", sol.t, sol.pressure, tau=tau, eps=eps, volume=sol.volume, cavity=cavity)
+    plot_pressure(out / "pressure.png", sol.t, sol.pressure, tau=tau, eps=eps, volume=sol.volume, cavity=cavity,
+                  title=f"{title}: pressure", units=units, marks=pressure_marks)
     cells, cell_type = _vtk_cells(sol)
     levels = _series_levels(sol.t.size, series_every)
     point_data = {"displacement": u[levels], "velocity": v[levels]}
@@ -153,15 +161,15 @@ def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = No
                                point_data, cell_data=_cell_series(sol, levels, frames))
     files["time_series"] = str(Path(series).relative_to(out))
     if model.dim == 1:
-        files.update(_write_1d_figures(out, sol, u, v, xi_nodal, snapshot_times or PAPER_SNAPSHOT_TIMES))
+        files.update(_write_1d_figures(out, sol, u, v, xi_nodal, snapshot_times or PAPER_SNAPSHOT_TIMES, title, units))
     elif xi_nodal is not None and xi_nodal.shape[-1] == 1:
         z = model.control.coordinates(model.space)[:, -1]
         centers, means = _slice_means(z, xi_nodal[..., 0])
         plot_control_spacetime(out / "control.png", sol.t, centers, means, xlabel=f"{'yz'[model.dim - 2]} (slice mean)",
-                               tau=tau)
+                               tau=tau, title=f"{title}: control xi", units=units)
         files["control_plot"] = "control.png"
     if history:
-        plot_history(out / "history.png", history)
+        plot_history(out / "history.png", history, title=f"{title}: optimizer history")
         files["history_plot"] = "history.png"
     summary = {**sol.summary(), "newton_iterations_mean": float(np.mean(sol.newton_iterations)), **cavity_summary,
                "files": files, **(extra_summary or {})}
@@ -180,17 +188,23 @@ def _slice_means(z: np.ndarray, values: np.ndarray, n_slices: int = 20) -> tuple
     return (0.5 * (edges[:-1] + edges[1:]))[used], sums[:, used] / count[used]
 
 
-def _write_1d_figures(out: Path, sol: StateSolution, u, v, xi_nodal, times) -> dict:
+def _write_1d_figures(out: Path, sol: StateSolution, u, v, xi_nodal, times, title: str, units: Units) -> dict:
+    """The 1D figures: displacement, velocity and control snapshots at ``times`` and the control's
+    space-time map, titled ``"{title}: ..."``, with ``units``."""
     x = sol.model.space.nodes[:, 0]
     order = np.argsort(x)
     times = [t for t in times if sol.t[0] <= t <= sol.t[-1]]
-    plot_snapshots(out / "displacement.png", x[order], sol.t, u[:, order, 0], times, ylabel="u(x, t)")
-    plot_snapshots(out / "velocity.png", x[order], sol.t, v[:, order, 0], times, ylabel="u_t(x, t)")
+    plot_snapshots(out / "displacement.png", x[order], sol.t, u[:, order, 0], times, ylabel="u(x, t)",
+                   title=f"{title}: displacement u", units=units, field_unit=units.length)
+    plot_snapshots(out / "velocity.png", x[order], sol.t, v[:, order, 0], times, ylabel="u_t(x, t)",
+                   title=f"{title}: velocity u_t", units=units, field_unit=units.velocity)
     files = {"displacement_plot": "displacement.png", "velocity_plot": "velocity.png"}
     if xi_nodal is not None:
         xc = sol.model.control.coordinates(sol.model.space)[:, 0]
         o = np.argsort(xc)
-        plot_control_spacetime(out / "control.png", sol.t, xc[o], xi_nodal[:, o, 0])
-        plot_snapshots(out / "control_snapshots.png", xc[o], sol.t, xi_nodal[:, o, 0], times, ylabel="xi(x, t)")
+        plot_control_spacetime(out / "control.png", sol.t, xc[o], xi_nodal[:, o, 0], title=f"{title}: control xi",
+                               units=units)
+        plot_snapshots(out / "control_snapshots.png", xc[o], sol.t, xi_nodal[:, o, 0], times, ylabel="xi(x, t)",
+                       title=f"{title}: control xi", units=units, field_unit=units.control)
         files.update(control_plot="control.png", control_snapshots_plot="control_snapshots.png")
     return files

@@ -351,12 +351,25 @@ class Optimize(Section):
         return self
 
 
+class OutputUnits(Section):
+    """``[output] units``: the units printed on the figures' axes (the computation has none of its
+    own); ``"-"`` is dimensionless."""
+
+    time: str = Field("-", description="time, e.g. \"ms\"")
+    length: str = Field("-", description="length, e.g. \"mm\" (volumes in length^3)")
+    pressure: str = Field("-", description="pressure, e.g. \"kPa\"")
+    control: str = Field("-", description="control xi, e.g. \"kPa/mm\" for a body force, \"kPa\" for an active stress")
+
+
 class Output(Section):
     """What the run writes besides ``summary.json`` and ``results.npz``."""
 
     snapshot_times: Optional[Annotated[list[NonNegative], Field(min_length=1)]] = Field(
         None, description="1D figures: times of the displacement snapshots, in [0, T]")
     series_every: Optional[Count] = Field(None, description="time series: every k-th level")
+    units: OutputUnits = Field(
+        OutputUnits(), description="figure axes: units of time, length, pressure and control (a table, see "
+                                   "[output.units]; each \"-\", dimensionless, unless given)")
 
 
 class ConfigSchema(BaseModel):
@@ -482,6 +495,7 @@ def reference_markdown() -> str:
     for name, model in SECTIONS.items():
         parts += _section_table(name, model)
     parts += _section_table("control.region", Region)
+    parts += _section_table("output.units", OutputUnits)
     return "\n".join(parts)
 
 

@@ -16,11 +16,13 @@ from .dynamics import TimeStepper, detect_regimes
 from .errors import InputError
 from .io import read_json, write_json, write_npz
 from .optimize import EvaluationCache, OptimizationResult, barzilai_borwein, lbfgsb, newton_cg
+from .plotting import Units
 from .reduced import ControlPoint, ReducedFunctional
-from .report import write_state_outputs
+from .report import DEFAULT_TITLE, write_state_outputs
 from .verification import random_directions, taylor_test
 
-__all__ = ["check_run", "simulate", "build_reduced", "optimize_single", "optimize", "check_gradient", "resume_state"]
+__all__ = ["check_run", "simulate", "build_reduced", "optimize_single", "optimize", "check_gradient", "resume_state",
+           "run_title", "figure_units"]
 
 ITERATIONS_FILE = "iterations.json"  # in a run's checkpoint folder: the last iteration completed
 BEST_FILE = "best.npz"  # an iterate with a higher J than the final one (`OptimizationResult.best`)
@@ -52,10 +54,22 @@ def check_run(cfg: Config, command: str, mesh=None):
     return model
 
 
-def simulate(cfg: Config, out, *, progress: bool = False, monitor=None, model=None) -> dict:
+def run_title(cfg: Config) -> str:
+    """The run's name in its figures' titles: the config file's name (`Config.name`), else
+    `hyperoc.report.DEFAULT_TITLE`."""
+    return cfg.name or DEFAULT_TITLE
+
+
+def figure_units(cfg: Config) -> Units:
+    """The figures' axis units, from ``[output] units`` (dimensionless where not given)."""
+    return Units(**(cfg["output"].get("units") or {}))
+
+
+def simulate(cfg: Config, out, *, progress: bool = False, monitor=None, model=None, title: str | None = None) -> dict:
     """Forward solve with the prescribed control of ``[control]``; writes the standard outputs.
     ``monitor``: called with each step's `hyperoc.dynamics.StepRecord` (`TimeStepper.run`);
-    ``model``: the config's model if already built (`check_run`)."""
+    ``model``: the config's model if already built (`check_run`); ``title``: the run's name in the
+    figures (default `run_title`)."""
     model = model or cfg.model()
     grid = cfg.grid()
     xi = cfg.prescribed_control(model, grid.t)
@@ -63,7 +77,8 @@ def simulate(cfg: Config, out, *, progress: bool = False, monitor=None, model=No
     sol = stepper.run(grid, xi, progress=progress, monitor=monitor)
     o = cfg["output"]
     return write_state_outputs(Path(out), sol, snapshot_times=o.get("snapshot_times"),
-                               series_every=o.get("series_every"), frames=cfg.fibres(model.mesh))
+                               series_every=o.get("series_every"), frames=cfg.fibres(model.mesh),
+                               title=title or run_title(cfg), units=figure_units(cfg))
 
 
 def build_reduced(cfg: Config, tau0: float, model=None) -> ReducedFunctional:
@@ -153,7 +168,11 @@ def _progress_bar(enabled: bool, total: int, desc: str, initial: int = 0):
 
 
 def write_optimization_outputs(out: Path, cfg: Config, J: ReducedFunctional, res: OptimizationResult,
-                               extra=None) -> dict:
+                               extra=None, title: str | None = None, pressure_marks=None) -> dict:
+    """The outputs of an optimization (`hyperoc.report.write_state_outputs` at its final iterate, the
+    optimizer's history, ``best.npz`` when an earlier iterate was better); ``extra``: more summary
+    entries; ``title``: the run's name in the figures (default `run_title`); ``pressure_marks``:
+    ``[(t, label), ...]`` marked on the pressure panel. Returns the summary."""
     sol = J.state(res.point)
     sol.warnings = detect_regimes(sol)
     parts = J.objective.parts(J.trajectory(sol))
@@ -167,7 +186,8 @@ def write_optimization_outputs(out: Path, cfg: Config, J: ReducedFunctional, res
     o = cfg["output"]
     return write_state_outputs(out, sol, tau=res.point.tau, eps=J.transform.eps or None, history=hist,
                                snapshot_times=o.get("snapshot_times"), series_every=o.get("series_every"),
-                               frames=cfg.fibres(J.model.mesh),
+                               frames=cfg.fibres(J.model.mesh), title=title or run_title(cfg),
+                               units=figure_units(cfg), pressure_marks=pressure_marks,
                                extra_summary={"optimization": summary, "tau": summary["tau"],
                                               "objective": summary["objective"], "iterations": summary["iterations"],
                                               "converged": summary["converged"],
@@ -181,15 +201,16 @@ def _start_dir(out: Path, k: int, tau0: float) -> Path:
     return out / f"start_{k:02d}_tau{tau0:g}"
 
 
-def _run_start(cfg_sections: dict, base: str, tau0: float, folder: str) -> dict:
-    """One start of a multi-start run (executed on a Dask worker or in-process)."""
+def _run_start(cfg_sections: dict, base: str, tau0: float, folder: str, title: str | None = None) -> dict:
+    """One start of a multi-start run (executed on a Dask worker or in-process); ``title``: its
+    name in the figures."""
     from .config import Config as _Config
 
     cfg = _Config(cfg_sections, Path(base))
     folder = Path(folder)
     try:
         J, res = optimize_single(cfg, tau0, checkpoint=folder / "checkpoint")
-        summary = write_optimization_outputs(folder, cfg, J, res)
+        summary = write_optimization_outputs(folder, cfg, J, res, title=title)
         return {"tau0": tau0, "status": "ok", "tau": summary["tau"], "objective": summary["objective"],
                 "converged": summary["converged"], "iterations": summary["iterations"], "folder": folder.name}
     except Exception as exc:  # a failed start is reported, not fatal
@@ -197,15 +218,17 @@ def _run_start(cfg_sections: dict, base: str, tau0: float, folder: str) -> dict:
 
 
 def optimize(cfg: Config, out, *, progress: bool = False, scheduler: str | None = None, workers: int = 2,
-             model=None, iterations_done: int = 0) -> dict:
+             model=None, iterations_done: int = 0, title: str | None = None) -> dict:
     """Optimize from every tau start of ``[optimize]``; several starts run in parallel on Dask.
 
     Each start writes into its own folder; a start whose ``summary.json`` exists is not recomputed
     (resume). The best start's outputs are also written at the top level of ``out``. ``model``: the
     config's model if already built (`check_run`), used by a single start (each start of several
     builds its own, on its worker); ``iterations_done``: a resumed single start's completed
-    iterations (`resume_state`), where its progress bar starts.
+    iterations (`resume_state`), where its progress bar starts; ``title``: the run's name in the
+    figures (default `run_title`; each start of several adds its tau0).
     """
+    title = title or run_title(cfg)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     starts = cfg.tau_starts()
@@ -213,8 +236,8 @@ def optimize(cfg: Config, out, *, progress: bool = False, scheduler: str | None 
     if len(starts) == 1:
         J, res = optimize_single(cfg, starts[0], checkpoint=out / "checkpoint", progress=progress,
                                  J=build_reduced(cfg, starts[0], model), iterations_done=iterations_done)
-        return write_optimization_outputs(out, cfg, J, res)
-    results = _multistart(cfg, out, starts, scheduler, workers)
+        return write_optimization_outputs(out, cfg, J, res, title=title)
+    results = _multistart(cfg, out, starts, scheduler, workers, title)
     ok = [r for r in results if r["status"] == "ok"]
     summary = {"starts": results, "wall_time_s": time.perf_counter() - start_time}
     if ok:
@@ -225,7 +248,7 @@ def optimize(cfg: Config, out, *, progress: bool = False, scheduler: str | None 
     return summary
 
 
-def _multistart(cfg: Config, out: Path, starts, scheduler, workers) -> list:
+def _multistart(cfg: Config, out: Path, starts, scheduler, workers, title: str) -> list:
     todo, results = [], {}
     for k, tau0 in enumerate(starts):
         folder = _start_dir(out, k, tau0)
@@ -243,8 +266,9 @@ def _multistart(cfg: Config, out: Path, starts, scheduler, workers) -> list:
         cluster = None if scheduler else LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                                       dashboard_address=None)
         with Client(scheduler or cluster) as client:
-            futures = [client.submit(_run_start, cfg.sections, str(cfg.base), tau0, str(folder), pure=False)
-                       for _, tau0, folder in todo]
+            futures = [client.submit(_run_start, cfg.sections, str(cfg.base), tau0, str(folder),
+                                     f"{title} (start {k}, tau0 = {tau0:g})", pure=False)
+                       for k, tau0, folder in todo]
             for (k, _, _), fut in zip(todo, futures):
                 results[k] = fut.result()
         if cluster is not None:

@@ -39,6 +39,29 @@ def test_simulate_writes_outputs(tmp_path):
     assert (out / summary["files"]["time_series"]).exists()
 
 
+def test_simulate_figures_name_the_run_and_carry_units(tmp_path, monkeypatch):
+    """Every figure of a run is titled with the config file's name and its axes carry [output] units."""
+    import hyperoc.plotting
+
+    figures = []
+    monkeypatch.setattr(hyperoc.plotting, "_save", lambda fig, path: figures.append((Path(path).name, fig)) or path)
+    units = '[output]\nunits = { time = "ms", length = "mm", pressure = "kPa", control = "kPa/mm" }\n'
+    cfg = _write(tmp_path, SMALL_1D + units, "bar-run.toml")
+    assert main(["simulate", str(cfg), "--out", str(tmp_path / "out"), "--no-progress", "--set", "dynamics.dt=0.1"]) == 0
+    figures = dict(figures)
+    assert set(figures) == {"pressure.png", "displacement.png", "velocity.png", "control.png", "control_snapshots.png"}
+    titles = {name: (fig._suptitle or fig.axes[0].title).get_text() for name, fig in figures.items()}
+    assert titles == {"pressure.png": "bar-run: pressure", "displacement.png": "bar-run: displacement u",
+                      "velocity.png": "bar-run: velocity u_t", "control.png": "bar-run: control xi",
+                      "control_snapshots.png": "bar-run: control xi"}
+    assert (figures["pressure.png"].axes[0].get_ylabel(), figures["pressure.png"].axes[-1].get_xlabel()) == (
+        "pressure p [kPa]", "time t [ms]")
+    assert figures["velocity.png"].axes[0].get_ylabel() == "u_t(x, t) [mm/ms]"
+    assert figures["displacement.png"].axes[0].get_title().endswith(" ms")
+    assert figures["control.png"].axes[1].get_ylabel() == "control xi [kPa/mm]"
+    assert figures["control_snapshots.png"].axes[0].get_ylabel() == "xi(x, t) [kPa/mm]"
+
+
 def test_check_gradient_json(tmp_path, capsys):
     cfg = _write(tmp_path, SMALL_1D)
     assert main(["check-gradient", str(cfg), "--json"]) == 0

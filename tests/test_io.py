@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 
 import hyperoc.io as hio
+import hyperoc.plotting
 from hyperoc.errors import InputError
 from hyperoc.mesh import interval, rectangle
-from hyperoc.plotting import plot_control_spacetime, plot_history, plot_pressure, plot_snapshots
+from hyperoc.plotting import Units, plot_control_spacetime, plot_history, plot_pressure, plot_snapshots
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -309,6 +310,71 @@ def test_plot_pressure(tmp_path):
     with pytest.raises(ValueError, match="p must have shape"):
         plot_pressure(tmp_path / "bad.png", t, np.zeros(3))
     assert _hidden(tmp_path) == []
+
+
+MM_MS = Units(time="ms", length="mm", pressure="kPa", control="kPa/mm")
+
+
+def _figures(monkeypatch) -> list:
+    """The Figures the plotting functions save, in order (nothing is written)."""
+    saved = []
+    monkeypatch.setattr(hyperoc.plotting, "_save", lambda fig, path: saved.append(fig) or Path(path))
+    return saved
+
+
+def test_plot_pressure_with_marks_and_units(tmp_path):
+    t = np.linspace(0, 8, 81)
+    marks = [(2.0, "filling ends"), (7.46, "snapshot"), (7.48, "snapshot")]
+    path = plot_pressure(tmp_path / "p.png", t, np.sin(t), tau=5.0, eps=0.5, volume=1 + 1e-6 * t,
+                         cavity=50 + np.sin(t), title="run: pressure", units=MM_MS, marks=marks)
+    assert _png_size(path) == (960, 1440) and _hidden(tmp_path) == []
+
+
+def test_plot_pressure_labels(monkeypatch):
+    figures = _figures(monkeypatch)
+    t = np.linspace(0, 8, 81)
+    marks = [(2.0, "filling ends"), (7.46, "snapshot"), (7.48, "snapshot")]
+    plot_pressure("p.png", t, np.sin(t), tau=5.0, volume=1 + 1e-6 * t, cavity=50 + np.sin(t), title="run: pressure",
+                  units=MM_MS, marks=marks)
+    plot_pressure("q.png", t, np.sin(t), cavity=np.ones_like(t))
+    fig, plain = figures
+    assert fig._suptitle.get_text() == "run: pressure"
+    assert [ax.get_ylabel() for ax in fig.axes] == ["pressure p [kPa]", "V(t)/V(0) - 1 [-]", "cavity volume [mm^3]"]
+    assert fig.axes[-1].get_xlabel() == "time t [ms]"
+    assert [len([ln for ln in ax.lines if ln.get_gid() == "mark"]) for ax in fig.axes] == [3, 0, 0]
+    legend = [text.get_text() for text in fig.axes[0].get_legend().get_texts()]
+    assert legend == ["p(t)", r"$\tau$", "filling ends", "snapshot"]
+    assert plain._suptitle is None and plain.axes[-1].get_xlabel() == "time t [-]"
+    assert [ax.get_ylabel() for ax in plain.axes] == ["pressure p [-]", "cavity volume [-]"]
+
+
+def test_plot_labels_carry_units(monkeypatch):
+    figures = _figures(monkeypatch)
+    t, x = np.linspace(0, 1, 11), np.linspace(0, 1, 30)
+    xi = np.outer(np.sin(np.pi * t), x - 0.5)
+    plot_control_spacetime("c.png", t, x, xi, title="run: control xi", units=MM_MS)
+    plot_snapshots("s.png", x, t, xi, [0.5, 1.0], ylabel="u(x, t)", title="run: displacement u", units=MM_MS,
+                   field_unit="mm")
+    plot_snapshots("s0.png", x, t, xi, [0.5], ylabel="u")
+    plot_history("h.png", {"objective": [3.0, 2.0], "tau": [0.5, 0.4]}, title="run: optimizer history")
+    control, snapshots, plain, history = figures
+    ax, bar = control.axes
+    assert (ax.get_title(), ax.get_xlabel(), ax.get_ylabel()) == ("run: control xi", "x [mm]", "time t [ms]")
+    assert bar.get_ylabel() == "control xi [kPa/mm]"
+    assert ax.collections[0].norm.vmin == -ax.collections[0].norm.vmax  # centred on 0
+    assert snapshots._suptitle.get_text() == "run: displacement u"
+    assert [a.get_title() for a in snapshots.axes] == ["t = 0.5 ms", "t = 1 ms"]
+    assert (snapshots.axes[0].get_ylabel(), snapshots.axes[0].get_xlabel()) == ("u(x, t) [mm]", "x [mm]")
+    assert (plain.axes[0].get_title(), plain.axes[0].get_ylabel(), plain.axes[0].get_xlabel()) == (
+        "t = 0.5", "u", "x [-]")
+    assert history._suptitle.get_text() == "run: optimizer history"
+
+
+def test_units_derived():
+    assert (MM_MS.velocity, MM_MS.volume) == ("mm/ms", "mm^3")
+    assert (Units().velocity, Units().volume) == ("-", "-")
+    assert Units(time="s").velocity == "1/s" and Units(length="m").velocity == "m"
+    assert hyperoc.plotting.axis_label("x", "mm") == "x [mm]"
 
 
 def test_plot_control_spacetime(tmp_path):

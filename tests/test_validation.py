@@ -64,6 +64,9 @@ BAD_SETTINGS = [
     ("output.snapshot_times=0.5", "snapshot_times must be a list"),
     ("output.snapshot_times=[100.0]", "snapshot_times must lie in [0, T = 2]"),
     ("output.series_every=0", "series_every must be >= 1"),
+    ('output.units.speed="mm/ms"', "[output] units unknown key 'speed' (keys: time, length, pressure, control)"),
+    ("output.units.time=1", "[output] units time must be a string, got 1"),
+    ('output.units="mm"', "[output] units must be a table"),
     ("objektive.alpha=1", "unknown section [objektive]"),
     ("mesh.m=3", "unknown key 'm'"),
     ("dt=0.1", "expected SECTION.KEY=VALUE"),
@@ -226,6 +229,21 @@ def test_configuration_reference_is_the_schemas():
         assert f"## [{name}]" in text
         for key, field in model.model_fields.items():
             assert f"| `{field.alias or key}` |" in text
+
+
+def test_output_units_table(tmp_path, capsys):
+    """``[output] units`` takes the four units (each "-" unless given); an unknown key is one line."""
+    from hyperoc.config import load_config
+
+    units = '\n[output]\nunits = {time = "ms", length = "mm", pressure = "kPa", control = "kPa/mm"}\n'
+    cfg = load_config(_write(tmp_path / "c.toml", SMALL_1D + units))
+    assert cfg["output"]["units"] == {"time": "ms", "length": "mm", "pressure": "kPa", "control": "kPa/mm"}
+    assert load_config(_write(tmp_path / "again.toml", cfg.to_toml()))["output"] == cfg["output"]
+    partial = load_config(_write(tmp_path / "p.toml", SMALL_1D + '[output]\nunits = {length = "mm"}\n'))
+    assert partial["output"]["units"] == {"time": "-", "length": "mm", "pressure": "-", "control": "-"}
+    assert load_config(_write(tmp_path / "d.toml", SMALL_1D))["output"]["units"]["time"] == "-"
+    bad, out = _write(tmp_path / "bad.toml", SMALL_1D + units.replace("control", "force")), tmp_path / "out"
+    _assert_refused(main(["simulate", str(bad), "--out", str(out)]), capsys, out, "units unknown key 'force'")
 
 
 def test_keys_of_other_kinds_at_their_defaults_are_dropped(tmp_path):
