@@ -20,10 +20,11 @@ from .plotting import Units, plot_control_spacetime, plot_history, plot_pressure
 from .quadrature import simplex_rule
 from .spaces import VectorSpace, reference_shape
 
-__all__ = ["write_state_outputs", "cavity_volume", "cell_det_F", "PAPER_SNAPSHOT_TIMES"]
+__all__ = ["write_state_outputs", "cavity_volume", "cell_det_F", "PAPER_STATE_TIMES", "PAPER_CONTROL_TIMES"]
 
-# Times of the paper's Figures figDisp / figVelo / figControl.
-PAPER_SNAPSHOT_TIMES = (0.02, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 4.5, 5.0, 5.5, 6.0, 6.5, 7.0, 7.46, 7.48)
+# Times of the paper's Figures figDisp and figVelo (the state), and figControl (the control).
+PAPER_STATE_TIMES = (0.02, 1.0, 2.5, 3.0, 4.0, 5.0, 6.0, 6.3, 7.0, 8.0, 9.0, 10.0, 12.0, 13.0, 14.0, 15.0)
+PAPER_CONTROL_TIMES = (0.02, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 4.5, 5.0, 5.5, 6.0, 6.5, 7.0, 7.46, 7.48)
 
 DEFAULT_TITLE = "hyperoc run"  # names the run in the figures' titles when no title is given
 
@@ -161,7 +162,7 @@ def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = No
                                point_data, cell_data=_cell_series(sol, levels, frames))
     files["time_series"] = str(Path(series).relative_to(out))
     if model.dim == 1:
-        files.update(_write_1d_figures(out, sol, u, v, xi_nodal, snapshot_times or PAPER_SNAPSHOT_TIMES, title, units))
+        files.update(_write_1d_figures(out, sol, u, v, xi_nodal, snapshot_times, title, units, tau))
     elif xi_nodal is not None and xi_nodal.shape[-1] == 1:
         z = model.control.coordinates(model.space)[:, -1]
         centers, means = _slice_means(z, xi_nodal[..., 0])
@@ -188,23 +189,27 @@ def _slice_means(z: np.ndarray, values: np.ndarray, n_slices: int = 20) -> tuple
     return (0.5 * (edges[:-1] + edges[1:]))[used], sums[:, used] / count[used]
 
 
-def _write_1d_figures(out: Path, sol: StateSolution, u, v, xi_nodal, times, title: str, units: Units) -> dict:
-    """The 1D figures: displacement, velocity and control snapshots at ``times`` and the control's
-    space-time map, titled ``"{title}: ..."``, with ``units``."""
+def _write_1d_figures(out: Path, sol: StateSolution, u, v, xi_nodal, times, title: str, units: Units,
+                      tau: float | None = None) -> dict:
+    """The 1D figures: displacement, velocity and control snapshots at ``times`` (default: the paper's,
+    `PAPER_STATE_TIMES` and `PAPER_CONTROL_TIMES`) and the control's space-time map, titled
+    ``"{title}: ..."``, with ``units``."""
     x = sol.model.space.nodes[:, 0]
     order = np.argsort(x)
-    times = [t for t in times if sol.t[0] <= t <= sol.t[-1]]
-    plot_snapshots(out / "displacement.png", x[order], sol.t, u[:, order, 0], times, ylabel="u(x, t)",
+    state_times = [t for t in times or PAPER_STATE_TIMES if sol.t[0] <= t <= sol.t[-1]]
+    control_times = [t for t in times or PAPER_CONTROL_TIMES if sol.t[0] <= t <= sol.t[-1]]
+    plot_snapshots(out / "displacement.png", x[order], sol.t, u[:, order, 0], state_times, ylabel="u(x, t)",
                    title=f"{title}: displacement u", units=units, field_unit=units.length)
-    plot_snapshots(out / "velocity.png", x[order], sol.t, v[:, order, 0], times, ylabel="u_t(x, t)",
+    plot_snapshots(out / "velocity.png", x[order], sol.t, v[:, order, 0], state_times, ylabel="u_t(x, t)",
                    title=f"{title}: velocity u_t", units=units, field_unit=units.velocity)
     files = {"displacement_plot": "displacement.png", "velocity_plot": "velocity.png"}
     if xi_nodal is not None:
         xc = sol.model.control.coordinates(sol.model.space)[:, 0]
         o = np.argsort(xc)
-        plot_control_spacetime(out / "control.png", sol.t, xc[o], xi_nodal[:, o, 0], title=f"{title}: control xi",
-                               units=units)
-        plot_snapshots(out / "control_snapshots.png", xc[o], sol.t, xi_nodal[:, o, 0], times, ylabel="xi(x, t)",
+        plot_control_spacetime(out / "control.png", sol.t, xc[o], xi_nodal[:, o, 0], tau=tau,
+                               title=f"{title}: control xi", units=units)
+        plot_snapshots(out / "control_snapshots.png", xc[o], sol.t, xi_nodal[:, o, 0], control_times,
+                       ylabel="xi(x, t)",
                        title=f"{title}: control xi", units=units, field_unit=units.control)
         files.update(control_plot="control.png", control_snapshots_plot="control_snapshots.png")
     return files
