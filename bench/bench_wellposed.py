@@ -5,7 +5,7 @@ Setup: the paper's Table tab-param (SVK mu = lambda = 0.05, kappa = 2e-4, alpha 
 omega = [0.75, 1], phi1 = p(tau), P1), start (xi, tau) = (0, 7.5), Algorithm 1 (``method = "bb"``) to a
 relative gradient norm of 1e-6 or ``--max-iter`` iterations.
 
-Tables:
+Tables (into ``bench_wellposed_sweep.json``):
 1. ``beta = 0`` and each ``--betas`` value: the end point for dt in ``--dts`` at h = 0.01 and for h in
    ``--hs`` at dt = 0.02 (J, p(tau), max |xi|, min det F over [0, T] and its time, iterations, final
    relative gradient, trial points where the state solver failed, the stop reason). A problem with a
@@ -21,6 +21,7 @@ Tables:
     python bench/bench_wellposed.py --variant 10,10        # alpha = beta = 10: local maximizers, two methods
     python bench/bench_wellposed.py --variant 10,10 --grid # Newton-CG and L-BFGS-B on the 3 x 3 (h, dt) grid
     python bench/bench_wellposed.py --variant 10,10 --noise # the round-off of J where L-BFGS-B stops
+    python bench/bench_wellposed.py --variant 10,10 --beta-sweep 0,0.1,1,10,100  # Newton-CG, alpha = 10
 
 With ``--variant ALPHA,BETA`` it runs instead L-BFGS-B and Algorithm 1 from tau0 = 7.5 and 6.3 on
 (h, dt) = (0.02, 0.04) and (0.01, 0.02) with those weights (a control cost that competes with the
@@ -92,6 +93,16 @@ def variant_study(alpha: float, beta: float, max_iter: int) -> None:
     write_results("bench_wellposed_variant", command_line(), [table(
         f"The paper's setup with alpha = {alpha:g}, beta = {beta:g}: end points of L-BFGS-B and Algorithm 1",
         VARIANT_COLUMNS, rows, "converged: relative gradient (H^1 metric) <= 1e-6 within the iterations allowed")])
+
+
+def beta_sweep(alpha: float, betas: list, max_iter: int) -> None:
+    """Newton-CG from (0, 7.5) with the weight ``alpha`` and each beta, on (h, dt) = (0.02, 0.04) and
+    (0.01, 0.02): for which beta does the end point converge, and stay put under refinement?"""
+    rows = [[beta, *variant_run(alpha, beta, "newton", TAU0, h, dt, max_iter)[2:]]
+            for beta in betas for h, dt in ((0.02, 0.04), (0.01, 0.02))]
+    write_results("bench_wellposed_beta", command_line(), [table(
+        f"alpha = {alpha:g}: Newton-CG from tau0 = 7.5 for a range of beta", ["beta", *VARIANT_COLUMNS[2:]], rows,
+        "converged: relative gradient <= 1e-6 within the iterations allowed")])
 
 
 def noise_study(alpha: float, beta: float, h: float = 0.01, dt: float = 0.02, spread: float = 1e-9, k: int = 8) -> None:
@@ -193,6 +204,7 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--variant", help="ALPHA,BETA: the variant study instead")
     ap.add_argument("--grid", action="store_true", help="with --variant: the 3 x 3 (h, dt) grid")
+    ap.add_argument("--beta-sweep", help="with --variant: comma-separated betas, Newton-CG at the variant's alpha")
     ap.add_argument("--noise", action="store_true", help="with --variant: the round-off of J at L-BFGS-B's end point")
     ap.add_argument("--methods", default="newton,lbfgsb",
                     help="with --grid: comma-separated methods (newton, lbfgsb, bb); the first gives the "
@@ -202,6 +214,8 @@ def main() -> None:
         alpha, beta = (float(v) for v in args.variant.split(","))
         if args.noise:
             return noise_study(alpha, beta)
+        if args.beta_sweep:
+            return beta_sweep(alpha, [float(b) for b in args.beta_sweep.split(",")], args.max_iter)
         if args.grid:
             return grid_study(alpha, beta, args.max_iter, args.methods.split(","))
         return variant_study(alpha, beta, args.max_iter)
@@ -216,7 +230,7 @@ def main() -> None:
     load_rows = [nodal_load_response(h) for h in hs + ([0.01] if 0.01 not in hs else [])]
     for r in load_rows:
         print("unit nodal load: h", _fmt(r[0]), "p(tau) at x=1:", _fmt(r[1]), "at x=1-h:", _fmt(r[2]))
-    write_results("bench_wellposed", command_line(), [
+    write_results("bench_wellposed_sweep", command_line(), [
         table("End point of Algorithm 1 on the paper's setup (start xi = 0, tau = 7.5)", COLUMNS, rows,
               "min det F over all levels of the end point's state, 'at t' its time; 'failed trials': trial points "
               "where the state solver failed (an element inverted)"),
