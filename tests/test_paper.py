@@ -11,7 +11,9 @@ import numpy as np
 import pytest
 
 from hyperoc.cli import main
-from hyperoc.paper import PAPER_REPORT, SPG_WINDOW, WELL_POSED, XI_MAX, reproduce_paper_1d
+from hyperoc.optimize import lbfgsb
+from hyperoc.paper import PAPER_REPORT, SPG_WINDOW, WELL_POSED, XI_MAX, reproduce_paper_1d, wellposed_config
+from hyperoc.workflows import build_reduced
 
 SMALL = {"mesh__n": 20, "dynamics__dt": 0.1, "optimize__max_iter": 3}
 HEADLINE_KEYS = ("tau", "objective", "iterations", "converged", "grad_norm_history", "objective_history",
@@ -67,9 +69,10 @@ def test_parallel_and_serial_headlines_agree(parallel, tmp_path):
 
 def test_headline_converges_to_the_kkt_tolerance(tmp_path):
     """The fast tier's run of the job: ``quick`` (the headline only), one process, h = 0.05, dt = 0.1.
-    The headline must end at a KKT point of the well-posed problem: relative gradient <= gtol."""
-    summary = reproduce_paper_1d(tmp_path, quick=True, progress=False, workers=1,
-                                 overrides={"mesh__n": 20, "dynamics__dt": 0.1})
+    The headline (Newton-CG) must end at a KKT point of the well-posed problem, relative gradient <= gtol,
+    and L-BFGS-B from the same start at the same maximizer."""
+    coarse = {"mesh__n": 20, "dynamics__dt": 0.1}
+    summary = reproduce_paper_1d(tmp_path, quick=True, progress=False, workers=1, overrides=coarse)
     for name in ("summary.json", "results.npz", *FIGURES):
         assert (tmp_path / name).is_file(), name
     on_disk = json.loads((tmp_path / "summary.json").read_text())
@@ -84,6 +87,14 @@ def test_headline_converges_to_the_kkt_tolerance(tmp_path):
     T = summary["config"]["dynamics"]["T"]
     assert 0 < on_disk["tau"] < T and on_disk["objective"] > 0
     assert on_disk["min_det_F"] > 0.5  # the maximizer keeps every element well inside the elastic range
+
+    J = build_reduced(wellposed_config(**coarse), PAPER_REPORT["tau0"])
+    res = lbfgsb(J, J.zero(PAPER_REPORT["tau0"]), gtol=1e-6, max_iter=100)
+    assert res.converged
+    # Two points with relative gradients <= 1e-6 (|G| <= 2e-7 here) on a ridge whose curvature along tau
+    # is ~1e-3 (the well-posedness page): |d tau| <~ |G| / 1e-3 = 2e-4, |d J| <~ |G|^2 / 2e-3 = 2e-11.
+    assert abs(res.point.tau - on_disk["tau"]) <= 2e-4
+    assert abs(res.objective - on_disk["objective"]) <= 1e-10
 
 
 def test_bad_worker_count_is_an_input_error(tmp_path, capsys):
