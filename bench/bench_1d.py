@@ -13,7 +13,7 @@ import time
 import numpy as np
 
 import hyperoc as ho
-from hyperoc.workflows import build_reduced
+from hyperoc.app.workflows import build_reduced
 from results import command_line, table, write_results
 
 

@@ -15,7 +15,7 @@ Writes ``bench/results/bench_2d3d_<case>.json`` (`bench/results.py`; not with ``
 Variants: ``lu_colamd`` (baseline), ``minres_amg`` (previous MINRES: smoothed-aggregation AMG of
 |K| set up at every call), ``lu_mmd`` (``lu`` with the minimum-degree ordering instead of
 nested dissection), and the current ``SparseSolver`` methods ``lu``, ``lu_reuse``,
-``minres`` (see hyperoc/linsolve.py). All variants of one invocation run the same steps; the
+``minres`` (see hyperoc/solvers/linsolve.py). All variants of one invocation run the same steps; the
 first step of each is run once before timing (JIT compilation), then the solver is reset.
 """
 
@@ -29,8 +29,8 @@ import numpy as np
 import scipy.sparse.linalg as spla
 
 import hyperoc as ho
-from hyperoc.geometry import annulus, thick_shell
-from hyperoc.linsolve import SparseSolver
+from hyperoc.fem.geometry import annulus, thick_shell
+from hyperoc.solvers.linsolve import SparseSolver
 
 
 class BaselineLU(SparseSolver):

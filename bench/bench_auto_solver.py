@@ -23,7 +23,7 @@ import json, sys, time
 t0 = time.perf_counter()
 import numpy as np
 import hyperoc as ho
-from hyperoc.geometry import annulus
+from hyperoc.fem.geometry import annulus
 n_theta, degree, solver, steps = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3], int(sys.argv[4])
 mesh = annulus(0.5, 1.0, structured=True, n_radial=max(2, n_theta // 8), n_theta=n_theta)
 region = ho.Region("sector", r_range=(0.5, 1.0), theta_range=(-0.8, 0.8))

@@ -12,7 +12,7 @@ level states held between the forward and the adjoint sweep, from their shapes:
 ``2 (s' + len(kept) + 2) n 8`` with s snapshots (s' <= s stored by the forward pass; the backward
 pass never holds more than s, plus the current state and y0 of the level above), and the forward
 step evaluations of a gradient: N, 2 N (each segment recomputed once), ``t(N, s) + 1``
-(`hyperoc.revolve.minimal_advances`; `tests/test_revolve.py` counts them).
+(`hyperoc.control.revolve.minimal_advances`; `tests/test_revolve.py` counts them).
 Ratios are against the store-everything run of the same case, in this same script. On a shared
 machine the load drifts between processes, so the time ratios are also measured in one process
 alternating the variants (same compiled code, ``J.checkpoint_every`` / ``J.checkpoint_snapshots``
@@ -22,7 +22,7 @@ Cases:
   1d  the paper's 1D experiment (SVK, P1, h = 0.01, kappa 2e-4, body force on [0.75, 1], phi1 =
       p(tau), alpha 2e-3) on a long grid T = 15, dt = 0.005 (3000 steps), tridiagonal solver
       (one compiled lax.scan per segment length); ``--n1d 1000`` repeats it with h = 0.001.
-  lv  idealized left ventricle (Land et al. 2015 geometry, ``hyperoc.geometry.ventricle(h)``),
+  lv  idealized left ventricle (Land et al. 2015 geometry, ``hyperoc.fem.geometry.ventricle(h)``),
       Guccione (C = 2 kPa, bf 8, bt 2, bfs 4, volumetric kappa 100 kPa), rule-based fibres
       (+60 / -60 deg), active stress along the fibres on the whole wall, phi1 = pressure rise
       (p(tau + eps) - p(tau)) / eps with eps = 1 ms, alpha 5e-4; P1, T = 8 ms, dt = 0.5 ms (16
@@ -74,8 +74,8 @@ def build_1d(n: int):
 
 def build_lv(h: float):
     import hyperoc as ho
-    from hyperoc.fibres import rule_based_fibres
-    from hyperoc.geometry import ventricle
+    from hyperoc.fem.geometry import ventricle
+    from hyperoc.mechanics.fibres import rule_based_fibres
 
     mesh = ventricle(h)
     frames = rule_based_fibres(mesh, helix_endo=60.0, helix_epi=-60.0)
@@ -102,7 +102,7 @@ def parse_variant(text: str):
 
 def step_evaluations(k, N: int) -> int:
     """Forward step evaluations of one gradient (the forward pass included): N, 2 N, ``t(N, s) + 1``."""
-    from hyperoc.revolve import minimal_advances
+    from hyperoc.control.revolve import minimal_advances
 
     kw = checkpointing(k)
     if kw["checkpoint_snapshots"]:

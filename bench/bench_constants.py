@@ -6,7 +6,7 @@ of meshes.
 
 Each (level, mode) runs in a fresh subprocess with the variable set, since JAX reads it on import
 (and XLA's memory is not returned between compilations). A child builds the model, compiles the
-jitted Newton solve of one load step (`hyperoc.statics`, the one `solve_static` runs) and times
+jitted Newton solve of one load step (`hyperoc.dynamics.statics`, the one `solve_static` runs) and times
 that compilation, then evaluates the internal force and the element tangents at a fixed smooth
 displacement (first call = trace + compile + run; then the fastest of five more calls: run only).
 Printed per level and mode: compile seconds, first and later evaluation seconds, peak RSS of the
@@ -40,10 +40,10 @@ def child(h0: float, level: int) -> dict:
     import jax.numpy as jnp
     import numpy as np
 
-    from hyperoc.benchmarks import ventricle_problem
-    from hyperoc.dynamics import Scheme
-    from hyperoc.linsolve import make_solver
-    from hyperoc.statics import _compiled_solve
+    from hyperoc.cardiac.land import ventricle_problem
+    from hyperoc.dynamics.statics import _compiled_solve
+    from hyperoc.dynamics.stepper import Scheme
+    from hyperoc.solvers.linsolve import make_solver
 
     model, follower = ventricle_problem(h0, kappa=1000.0, refinements=level)
     lin = make_solver(model, "auto")

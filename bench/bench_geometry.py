@@ -1,5 +1,5 @@
-"""Building the nested curved ventricle (`hyperoc.geometry.ventricle(h0, refinements=k)`): wall time
-and peak memory, with the harmonic extension of the curved edge nodes (`hyperoc.assembly.solve_dirichlet`)
+"""Building the nested curved ventricle (`hyperoc.fem.geometry.ventricle(h0, refinements=k)`): wall time
+and peak memory, with the harmonic extension of the curved edge nodes (`hyperoc.fem.assembly.solve_dirichlet`)
 solved by AMG-preconditioned CG above `DIRECT_LIMIT` free dofs (the default) or by a sparse LU at every
 size (the baseline, ``DIRECT_LIMIT`` raised). Each build runs in its own subprocess, so the peak RSS
 (`resource.getrusage` of the child) is that build's alone; the ratio column is AMG / LU of the same level.
@@ -22,8 +22,8 @@ from results import Table, command_line, write_results
 CHILD = """
 import json, resource, sys, time
 import numpy as np
-import hyperoc.assembly as assembly
-from hyperoc.geometry import ventricle
+import hyperoc.fem.assembly as assembly
+from hyperoc.fem.geometry import ventricle
 h0, level, direct = float(sys.argv[1]), int(sys.argv[2]), sys.argv[3] == "lu"
 if direct:
     assembly.DIRECT_LIMIT = sys.maxsize

@@ -1,4 +1,4 @@
-"""Land et al. (2015) problems 1 to 3 under mesh refinement and penalty variation (hyperoc.benchmarks).
+"""Land et al. (2015) problems 1 to 3 under mesh refinement and penalty variation (hyperoc.cardiac.land).
 
 Problem 1: beam 10 x 1 x 1 mm, ``10 n x n x n`` cubes of six P2 tetrahedra; reported: z of the deformed
 point (10, 0.5, 1). Problem 2: idealized LV (Gmsh, target edge h mm), P2, isoparametric on the exact
@@ -7,15 +7,15 @@ rigid in-plane motions pinned); reported: z of the deformed endocardial and epic
 deformed cavity volume. Problem 3: the same ventricle, Guccione as in problem 1 with the analytic
 fibres of the benchmark (helix +90 to -90 degrees), endocardial pressure 15 kPa and active fibre tension
 60 kPa ramped together; the same values reported. ``--lv-refinements 0,1,2``: each size is the coarsest mesh of a nested
-sequence of uniform refinements (`hyperoc.mesh.refine`, h halved per level, new boundary vertices on
+sequence of uniform refinements (`hyperoc.fem.mesh.refine`, h halved per level, new boundary vertices on
 the exact ellipsoids), the setting in which the observed order and the Richardson limit mean
 something (computed with h = h0 / 2^k; the "h" column stays the largest edge); Gmsh meshes of
 decreasing size are unrelated to each other. Both:
 Guccione with the volumetric penalty ``kappa`` (kPa), no global volume constraint, follower pressure, full
 Newton steps with load stepping (halving on failure).
 ``--volumetric cell-mean``: the penalty on each cell's mean J (mixed P2-P0 formulation, condensed;
-`hyperoc.model.StateModel`), which does not lock as kappa grows. ``--isochoric``: Guccione's Q on
-the isochoric strain (`hyperoc.materials.Guccione`), which problem 2 needs with ``cell-mean``.
+`hyperoc.mechanics.model.StateModel`), which does not lock as kappa grows. ``--isochoric``: Guccione's Q on
+the isochoric strain (`hyperoc.mechanics.materials.Guccione`), which problem 2 needs with ``cell-mean``.
 
 For each kappa the values converge as h -> 0 to the compressible solution with that bulk modulus; as
 kappa -> infinity that solution tends to the incompressible benchmark at O(1/kappa). The script prints
@@ -55,10 +55,10 @@ import os
 import sys
 from pathlib import Path
 
-from hyperoc.benchmarks import FORMULATIONS, PUBLISHED, beam_deflection, load_state, save_state, ventricle_apex
+from hyperoc.cardiac.land import FORMULATIONS, PUBLISHED, beam_deflection, load_state, save_state, ventricle_apex
 from hyperoc.errors import SolverError
-from hyperoc.linsolve import SparseSolver
-from hyperoc.newton import NewtonLog
+from hyperoc.solvers.linsolve import SparseSolver
+from hyperoc.solvers.newton import NewtonLog
 
 #: Problem 2 values: apex z (mm) and deformed cavity volume (mm^3; missing in rows that lack it).
 LV_KEYS = ["z_endo", "z_epi", "V_cavity"]
@@ -136,7 +136,7 @@ def _table_dict(title: str, rows: list[dict], level_key: str, value_keys: list[s
 
 def _published(problem: int, rows: list[dict], value_keys: list[str]) -> str:
     """The distance of the finest level and of the Richardson limit to the published value
-    (`hyperoc.benchmarks.PUBLISHED`), for the benchmark as posed only (base clamped, tension not
+    (`hyperoc.cardiac.land.PUBLISHED`), for the benchmark as posed only (base clamped, tension not
     tapered; a finite kappa adds its own O(1/kappa) distance); "" otherwise."""
     params = rows[-1]["params"]
     if params.get("base", "clamped") != "clamped" or params.get("taper"):
@@ -149,7 +149,7 @@ def _published(problem: int, rows: list[dict], value_keys: list[str]) -> str:
             _, lim = _richardson(rows, key)
             cell += f", limit {lim - ref:+.4f}" if math.isfinite(lim) else ", no limit"
         cells.append(cell)
-    return ("\n\nPublished (S. Pezzuto's FEniCS submission to Land et al. 2015; `hyperoc.benchmarks.PUBLISHED`), "
+    return ("\n\nPublished (S. Pezzuto's FEniCS submission to Land et al. 2015; `hyperoc.cardiac.land.PUBLISHED`), "
             f"distance to it: {'; '.join(cells)}" + ("" if params["kappa"] == math.inf else
                                                       f" (kappa = {params['kappa']:g} kPa, not incompressible)"))
 
@@ -180,7 +180,7 @@ def _extrapolate(by_kappa: dict, key: str) -> str:
 
 
 def _formulation(params: dict) -> str:
-    """How the penalty enters (`hyperoc.model.StateModel` ``volumetric``) and whether Q uses the
+    """How the penalty enters (`hyperoc.mechanics.model.StateModel` ``volumetric``) and whether Q uses the
     isochoric strain, and the Newton predictor; rows without those options: pointwise, full strain,
     previous equilibrium."""
     mixed = {"cell-mean": ", cell-mean J (P2-P0)", "taylor-hood": ", Taylor-Hood (P2-P1)"}.get(
@@ -255,30 +255,32 @@ def main():
     ap.add_argument("--base", default="clamped", choices=["clamped", "sliding"], help="problems 2, 3 base condition")
     ap.add_argument("--volumetric", default="pointwise", choices=FORMULATIONS,
                     help="the penalty at every quadrature point, on each cell's mean J (mixed P2-P0, "
-                         "hyperoc.model.StateModel), or a continuous P1 pressure (Taylor-Hood, "
-                         "hyperoc.mixed.TaylorHoodModel; there kappa may be inf: incompressible)")
+                         "hyperoc.mechanics.model.StateModel), or a continuous P1 pressure (Taylor-Hood, "
+                         "hyperoc.mechanics.mixed.TaylorHoodModel; there kappa may be inf: incompressible)")
     ap.add_argument("--isochoric", action="store_true",
-                    help="Guccione's Q on the isochoric strain (J^(-2/3) C - I) / 2 (hyperoc.materials.Guccione)")
+                    help="Guccione's Q on the isochoric strain (J^(-2/3) C - I) / 2 "
+                         "(hyperoc.mechanics.materials.Guccione)")
     ap.add_argument("--solver", default="auto", choices=["auto", *SparseSolver.methods],
-                    help="problems 2, 3 linear solver (hyperoc.linsolve; auto = sparse LU at these sizes)")
+                    help="problems 2, 3 linear solver (hyperoc.solvers.linsolve; auto = sparse LU at these sizes)")
     ap.add_argument("--predictor", default="previous", choices=["previous", "secant"],
-                    help="Newton start at each load increment (hyperoc.statics.solve_static)")
+                    help="Newton start at each load increment (hyperoc.dynamics.statics.solve_static)")
     ap.add_argument("--taper", type=float, default=0.0, metavar="MM",
                     help="problem 3 variant: the active tension tapered to zero on the long axis within this "
-                         "radius (hyperoc.active.axis_taper; default 0: the benchmark)")
+                         "radius (hyperoc.mechanics.active.axis_taper; default 0: the benchmark)")
     ap.add_argument("--nested-start", action="store_true",
                     help="with --lv-refinements: each level after the first starts at the full load from the "
-                         "previous level's prolonged solution (nested iteration, hyperoc.statics.solve_static's "
-                         "guess), stepping the load only if Newton fails from there")
+                         "previous level's prolonged solution (nested iteration, "
+                         "hyperoc.dynamics.statics.solve_static's guess), stepping the load only if Newton fails "
+                         "from there")
     ap.add_argument("--save-states", default=None, metavar="DIR",
                     help="write each ventricle level's solution to "
                          "DIR/p<problem>-h<h0>-kappa<kappa>-<base>-L<level>.npz "
-                         "(hyperoc.benchmarks.save_state)")
+                         "(hyperoc.cardiac.land.save_state)")
     ap.add_argument("--coarse-state", default=None, metavar="NPZ",
                     help="a --save-states file of the level below the first of --lv-refinements: that level starts "
                          "from it (with --nested-start), so a fine level can run in a process of its own")
     ap.add_argument("--newton-log", action="store_true",
-                    help="print every Newton iteration to stderr as it ends (hyperoc.newton.NewtonLog)")
+                    help="print every Newton iteration to stderr as it ends (hyperoc.solvers.newton.NewtonLog)")
     ap.add_argument("--json", default=None, help="write all results here")
     ap.add_argument("--results", default="bench_land", metavar="NAME",
                     help="results file bench/results/NAME.json for the docs (bench/results.py); '' for none")

@@ -1,6 +1,6 @@
 """Iterations of Algorithm 1 (Barzilai-Borwein) and L-BFGS-B to reach ||G|| <= 1e-6 ||G0|| under h and dt refinement.
 
-Well-posed 1D case with an interior, nondegenerate optimum in (xi, tau), `hyperoc.problems.vibrating_bar`:
+Well-posed 1D case with an interior, nondegenerate optimum in (xi, tau), `hyperoc.control.problems.vibrating_bar`:
 neo-Hookean (mu = lambda = 0.05), kappa = 1e-2, body-force control on omega = [0.25, 0.5], initial
 velocity v0(x) = 0.05 sin(pi x) (compatible with the volume constraint: v0(1) = 0),
 ControlCost(alpha = 10), phi1 = p(tau), T = 4, start (xi = 0, tau = T/2).
@@ -18,7 +18,7 @@ until elements invert: neither setting measures the optimizers.
 Writes ``bench/results/bench_mesh_independence.json`` (`bench/results.py`).
 
 Methods: ``bb`` (Algorithm 1, the paper's joint BB step, BB1 length), ``bb-abbmin`` (joint step,
-ABBmin length: `hyperoc.optimize.BBStepRule`), ``bb-blockwise`` (separate BB1 steps for xi and
+ABBmin length: `hyperoc.control.optimize.BBStepRule`), ``bb-blockwise`` (separate BB1 steps for xi and
 tau), ``lbfgsb``.
 
 Prints, per (h, dt): iterations, converged flag, final tau and J, state/adjoint solve counts,
@@ -37,7 +37,7 @@ import time
 import numpy as np
 
 import hyperoc as ho
-from hyperoc.problems import vibrating_bar
+from hyperoc.control.problems import vibrating_bar
 
 T, TAU0, ALPHA = 4.0, 2.0, 10.0
 HS = (0.02, 0.01, 0.005)

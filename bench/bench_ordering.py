@@ -1,10 +1,10 @@
-"""Fill-reducing ordering of the sparse LU (`hyperoc.linsolve.SparseSolver`, ``ordering=``): METIS
+"""Fill-reducing ordering of the sparse LU (`hyperoc.solvers.linsolve.SparseSolver`, ``ordering=``): METIS
 nested dissection (``"nd"``, the default) against SuperLU's minimum degree on ``K + K^T``
 (``"mmd"``), on the step matrix of Land problem 2 (idealized LV, Guccione with
 kappa = 1000 kPa, curved P2, clamped base) on a nested sequence of meshes.
 
 The matrix is the tangent at rest plus the follower-pressure stiffness at the full 10 kPa, the matrix
-of the first Newton iteration of `hyperoc.benchmarks.ventricle_apex`. For each level and ordering the script
+of the first Newton iteration of `hyperoc.cardiac.land.ventricle_apex`. For each level and ordering the script
 prints the ordering time, the first factorization (``lu``: a fresh one at every call, as in Newton),
 a second factorization with the kept ordering, the entries SuperLU stores for L and U (``SuperLU.nnz``,
 supernodal) and the backward error of the solve; then the ratio nd / mmd of the factorization time and
@@ -23,8 +23,8 @@ import argparse
 import jax.numpy as jnp
 import numpy as np
 
-from hyperoc.benchmarks import ventricle_problem
-from hyperoc.linsolve import SparseSolver
+from hyperoc.cardiac.land import ventricle_problem
+from hyperoc.solvers.linsolve import SparseSolver
 from results import Table, command_line, write_results
 
 

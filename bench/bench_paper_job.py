@@ -31,7 +31,7 @@ COLUMNS = ["run", "tau", "J", "iterations", "converged", "relative gradient", "m
 
 def run_job(quick: bool, cache: Path, out: Path) -> tuple[dict, float]:
     """``(summary, wall time in s)`` of one run of the job in a fresh process, compilation cache ``cache``."""
-    cmd = ([sys.executable, "-m", "hyperoc.cli", "reproduce", "paper-1d", "--out", str(out)]
+    cmd = ([sys.executable, "-m", "hyperoc.app.cli", "reproduce", "paper-1d", "--out", str(out)]
            + (["--quick"] if quick else []))
     started = time.perf_counter()
     subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,

@@ -1,6 +1,6 @@
 """One factorization of the Taylor-Hood saddle point with SuperLU (`SparseSolver` ``"lu"``: L and U, METIS
 nested dissection, diagonal pivots) and with MKL PARDISO (``"pardiso"``: symmetric indefinite L D L^T of
-one triangle, `hyperoc.pardiso`), per nested level of the idealized LV (h0 = 6 mm, Land problem 2,
+one triangle, `hyperoc.solvers.pardiso`), per nested level of the idealized LV (h0 = 6 mm, Land problem 2,
 P2-P1 at kappa = inf, isochoric Guccione, clamped base): the first Newton matrix (`bench_ordering.step_blocks`).
 
 Each (level, method) runs in a fresh subprocess, so its peak resident set (``ru_maxrss``) is its own:
@@ -39,7 +39,7 @@ def rss_gb() -> float:
 
 def child(level: int, method: str) -> dict:
     from bench_ordering import measure, step_blocks
-    from hyperoc.benchmarks import ventricle_problem
+    from hyperoc.cardiac.land import ventricle_problem
 
     model, follower = ventricle_problem(6.0, kappa=math.inf, volumetric="taylor-hood", isochoric=True,
                                         refinements=level)

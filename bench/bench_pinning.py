@@ -1,6 +1,6 @@
 """One Algorithm 1 run of the paper's 1D problem, with its outputs, on all CPUs vs bound to one CPU.
 
-Why `hyperoc reproduce paper-1d` binds each of its processes to one CPU (`hyperoc.paper._pin_to_cpu`):
+Why `hyperoc reproduce paper-1d` binds each of its processes to one CPU (`hyperoc.app.paper._pin_to_cpu`):
 if one process takes the same wall time on one CPU as on all of them, its extra threads only spin,
 and two such processes side by side slow each other down.
 
@@ -33,8 +33,8 @@ def child(pinned: bool) -> None:
 
     if pinned:
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})  # before any thread exists
-    from hyperoc.paper import paper_config
-    from hyperoc.workflows import optimize_single, write_optimization_outputs
+    from hyperoc.app.paper import paper_config
+    from hyperoc.app.workflows import optimize_single, write_optimization_outputs
 
     start = time.perf_counter()
     cfg = paper_config()

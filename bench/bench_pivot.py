@@ -1,4 +1,4 @@
-"""Pivot threshold of the sparse LU (`hyperoc.linsolve.SparseSolver`, ``pivot_thresh=``): SuperLU keeps
+"""Pivot threshold of the sparse LU (`hyperoc.solvers.linsolve.SparseSolver`, ``pivot_thresh=``): SuperLU keeps
 the diagonal pivot while ``|K_jj| >= pivot_thresh * max_i |K_ij|``, else swaps a row in, which breaks
 the nested-dissection structure and adds fill. Compared: 0.1 (threshold partial pivoting) and 0
 (the default: the diagonal unless exactly zero, threshold pivoting only as the fallback when
@@ -7,12 +7,12 @@ tangent at rest plus the follower stiffness at 10 kPa; idealized LV, curved P2, 
 meshes of h0 = 6) in two formulations:
 
 - ``pointwise``: P2 displacement, Guccione with the penalty kappa = 1000 kPa (positive definite at rest);
-- ``taylor-hood``: P2-P1 (`hyperoc.mixed.TaylorHoodModel`), isochoric Guccione at kappa = inf, whose
+- ``taylor-hood``: P2-P1 (`hyperoc.mechanics.mixed.TaylorHoodModel`), isochoric Guccione at kappa = inf, whose
   pressure block is zero: a saddle point.
 
 For each it prints the factorization times, the stored L + U entries, the off-diagonal pivots and the
 backward error, then the ratios 0 / 0.1 measured in the same process. ``--solves LEVELS``: also the
-whole Taylor-Hood solve (20 increments to 10 kPa, `hyperoc.statics.solve_static`) with each threshold:
+whole Taylor-Hood solve (20 increments to 10 kPa, `hyperoc.dynamics.statics.solve_static`) with each threshold:
 Newton iterations, summed factorization seconds, and the fill and off-diagonal pivots of the last
 factorization (the loaded state, where K_uu is indefinite too).
 
@@ -30,9 +30,9 @@ import math
 import time
 
 from bench_ordering import measure, step_blocks
-from hyperoc.benchmarks import VENTRICLE, node_position, ventricle_problem
-from hyperoc.linsolve import SparseSolver
-from hyperoc.statics import solve_static
+from hyperoc.cardiac.land import VENTRICLE, node_position, ventricle_problem
+from hyperoc.dynamics.statics import solve_static
+from hyperoc.solvers.linsolve import SparseSolver
 from results import Table, command_line, write_results
 
 THRESHOLDS = (0.1, 0.0)  # threshold partial pivoting; diagonal pivots (the default)

@@ -41,9 +41,9 @@ def rss_gb() -> float:
 
 
 def child(method: str, level: int, steps: int) -> dict:
-    from hyperoc.benchmarks import VENTRICLE, node_position, ventricle_problem
-    from hyperoc.linsolve import SparseSolver
-    from hyperoc.statics import solve_static
+    from hyperoc.cardiac.land import VENTRICLE, node_position, ventricle_problem
+    from hyperoc.dynamics.statics import solve_static
+    from hyperoc.solvers.linsolve import SparseSolver
 
     model, load = ventricle_problem(6.0, kappa=math.inf, volumetric="taylor-hood", isochoric=True, refinements=level)
     lin = SparseSolver(model, method)

@@ -30,7 +30,7 @@ METHODS = ("lu", "lu_reuse", "pardiso", "pardiso_reuse", "pardiso_single", "pard
 
 def main():
     import hyperoc as ho
-    from hyperoc.pardiso import available
+    from hyperoc.solvers.pardiso import available
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--h", type=float, default=3.0, help="ventricle mesh size (mm)")

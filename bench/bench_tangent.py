@@ -35,10 +35,10 @@ import jax.numpy as jnp
 import numpy as np
 
 import hyperoc as ho
-from hyperoc.fibres import rule_based_fibres
-from hyperoc.geometry import thick_shell, ventricle
-from hyperoc.linsolve import SparseSolver
-from hyperoc.materials import det
+from hyperoc.fem.geometry import thick_shell, ventricle
+from hyperoc.mechanics.fibres import rule_based_fibres
+from hyperoc.mechanics.materials import det
+from hyperoc.solvers.linsolve import SparseSolver
 from results import Table, command_line, write_results
 
 
@@ -64,7 +64,7 @@ class HessianTangentModel(ho.StateModel):
 
 def new_pointwise(model, u):
     """The pointwise part of the new route alone: Voigt Hessian and gradient of W at every point."""
-    from hyperoc.model import _VOIGT
+    from hyperoc.mechanics.model import _VOIGT
 
     I, J = _VOIGT[model.dim][:2]
     F = model.deformation_gradient(u)

@@ -1,4 +1,4 @@
-"""L-BFGS-B iterations against the scaling of tau (`hyperoc.optimize.tau_scaling`) on an example.
+"""L-BFGS-B iterations against the scaling of tau (`hyperoc.control.optimize.tau_scaling`) on an example.
 
 L-BFGS-B works on the scaled variables ``(sqrt(w) xi, c tau)``; xi's scaling follows the L2 geometry,
 tau's factor c is a choice (tau and xi have unrelated units). For each c the script optimizes the
@@ -20,9 +20,9 @@ import time
 from pathlib import Path
 
 import hyperoc  # noqa: F401  (before JAX: hyperoc._jax sets JAX's flags)
-from hyperoc.config import load_config
-from hyperoc.optimize import _tau_range, lbfgsb, tau_scaling
-from hyperoc.workflows import build_reduced
+from hyperoc.app.config import load_config
+from hyperoc.app.workflows import build_reduced
+from hyperoc.control.optimize import _tau_range, lbfgsb, tau_scaling
 from results import Table, command_line, write_results
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "ventricle-3d.toml"

@@ -22,8 +22,8 @@ import jax
 import jax.numpy as jnp
 
 import hyperoc  # noqa: F401  (before JAX: hyperoc._jax sets JAX's flags)
-from hyperoc.benchmarks import ventricle_problem
-from hyperoc.model import VOLUMETRIC as MODES  # the baseline, "pointwise", first
+from hyperoc.cardiac.land import ventricle_problem
+from hyperoc.mechanics.model import VOLUMETRIC as MODES  # the baseline, "pointwise", first
 from results import Table, command_line, write_results
 
 

@@ -39,11 +39,11 @@ import time
 
 import numpy as np
 
+from hyperoc.app.paper import paper_config
+from hyperoc.app.workflows import build_reduced
+from hyperoc.control.optimize import barzilai_borwein, lbfgsb, newton_cg
+from hyperoc.control.reduced import ControlPoint
 from hyperoc.errors import SolverError
-from hyperoc.optimize import barzilai_borwein, lbfgsb, newton_cg
-from hyperoc.paper import paper_config
-from hyperoc.reduced import ControlPoint
-from hyperoc.workflows import build_reduced
 from results import command_line, table, write_results
 
 TAU0 = 7.5

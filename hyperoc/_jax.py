@@ -3,7 +3,7 @@
 hyperoc needs double precision (Newton to near machine precision, Taylor tests of gradients), so
 importing a module that builds JAX kernels turns on ``jax_enable_x64``; in a process pinned to one
 CPU it also starts the CPU backend with a thread pool of at least two threads
-(`hyperoc.threads.start_backend`: with one, host solves can deadlock).
+(`hyperoc.solvers.threads.start_backend`: with one, host solves can deadlock).
 
 When it is imported before JAX (``import hyperoc`` first, the CLI, the bench scripts, the tests),
 it also sets ``JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS=1`` unless the environment already chooses: the
@@ -28,7 +28,7 @@ if "jax" not in sys.modules:
 
 import jax  # noqa: E402  (after the environment variable, which JAX reads on import)
 
-from .threads import start_backend  # noqa: E402
+from .solvers.threads import start_backend  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 start_backend()

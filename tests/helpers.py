@@ -27,8 +27,8 @@ from hyperoc import (
     box,
     interval,
 )
-from hyperoc.objectives import Terminal
-from hyperoc.verification import random_directions
+from hyperoc.control.objectives import Terminal
+from hyperoc.control.verification import random_directions
 
 
 @cache

@@ -1,5 +1,5 @@
-"""Active fibre tension (hyperoc.active), the analytic benchmark fibres (hyperoc.fibres.prolate_fibres)
-and Land et al. (2015) problem 3 (hyperoc.benchmarks.contraction_problem).
+"""Active fibre tension (hyperoc.mechanics.active), the analytic benchmark fibres
+(hyperoc.mechanics.fibres.prolate_fibres) and Land et al. (2015) problem 3 (hyperoc.cardiac.land.contraction_problem).
 
 - Fibres: for points built from prolate coordinates (t, u, v) the field recovers t (bisection, to a few
   ulps amplified by 1 / |d/dt (rho^2 / rs^2 + z^2 / rl^2)| <= 10 in this wall) and equals
@@ -28,16 +28,16 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hyperoc.active import FibreTension, axis_taper
-from hyperoc.benchmarks import CONTRACTION, contraction_problem, ventricle_apex
-from hyperoc.dynamics import Scheme
+from hyperoc.cardiac.land import CONTRACTION, contraction_problem, ventricle_apex
+from hyperoc.dynamics.statics import solve_static
+from hyperoc.dynamics.stepper import Scheme
 from hyperoc.errors import InputError
-from hyperoc.fibres import prolate_fibres
-from hyperoc.materials import NeoHookean, SaintVenantKirchhoff
-from hyperoc.mesh import box
-from hyperoc.mixed import TaylorHoodModel
-from hyperoc.model import StateModel
-from hyperoc.statics import solve_static
+from hyperoc.fem.mesh import box
+from hyperoc.mechanics.active import FibreTension, axis_taper
+from hyperoc.mechanics.fibres import prolate_fibres
+from hyperoc.mechanics.materials import NeoHookean, SaintVenantKirchhoff
+from hyperoc.mechanics.mixed import TaylorHoodModel
+from hyperoc.mechanics.model import StateModel
 
 EPS = np.finfo(float).eps
 

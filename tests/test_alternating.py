@@ -36,12 +36,12 @@ import numpy as np
 import pytest
 import scipy.sparse.linalg as spla
 
-from hyperoc.controls import BodyForce, Region
-from hyperoc.dynamics import Scheme, TimeStepper
-from hyperoc.materials import SaintVenantKirchhoff
-from hyperoc.mesh import interval
-from hyperoc.model import StateModel
-from hyperoc.timegrid import uniform_grid
+from hyperoc.dynamics.stepper import Scheme, TimeStepper
+from hyperoc.dynamics.timegrid import uniform_grid
+from hyperoc.fem.mesh import interval
+from hyperoc.mechanics.controls import BodyForce, Region
+from hyperoc.mechanics.materials import SaintVenantKirchhoff
+from hyperoc.mechanics.model import StateModel
 
 # Every test shares a 300-step run of the paper's bar at h = 0.01: the slow tier.
 pytestmark = pytest.mark.slow

@@ -29,12 +29,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hyperoc.controls import BodyForce, Region
-from hyperoc.dynamics import Scheme, TimeStepper
-from hyperoc.materials import SaintVenantKirchhoff
-from hyperoc.mesh import interval
-from hyperoc.model import StateModel
-from hyperoc.timegrid import uniform_grid
+from hyperoc.dynamics.stepper import Scheme, TimeStepper
+from hyperoc.dynamics.timegrid import uniform_grid
+from hyperoc.fem.mesh import interval
+from hyperoc.mechanics.controls import BodyForce, Region
+from hyperoc.mechanics.materials import SaintVenantKirchhoff
+from hyperoc.mechanics.model import StateModel
 
 MU = LAM = 0.05
 KAPPA = 1e-2

@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 
 from hyperoc.errors import InputError
-from hyperoc.materials import (
+from hyperoc.mechanics.materials import (
     Guccione,
     HolzapfelOgden,
     finite_difference_check,

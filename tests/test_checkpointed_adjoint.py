@@ -21,8 +21,8 @@ import pytest
 
 from helpers import bar, checkpointing_problem, control_point
 from hyperoc import Objective, PressureAt, ReducedFunctional, TimeTransform
+from hyperoc.control.objectives import Running
 from hyperoc.errors import InputError
-from hyperoc.objectives import Running
 
 RTOL = 5e-13
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from helpers import small_1d_toml
-from hyperoc.cli import main
+from hyperoc.app.cli import main
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
@@ -22,7 +22,7 @@ def _write(tmp_path, text, name="c.toml"):
 
 
 def test_simulate_writes_outputs(tmp_path):
-    from hyperoc.config import load_config
+    from hyperoc.app.config import load_config
 
     cfg = _write(tmp_path, SMALL_1D)
     assert main(["simulate", str(cfg), "--out", str(tmp_path / "out"), "--no-progress", "--set", "dynamics.dt=0.1"]) == 0
@@ -41,10 +41,10 @@ def test_simulate_writes_outputs(tmp_path):
 
 def test_simulate_figures_name_the_run_and_carry_units(tmp_path, monkeypatch):
     """Every figure of a run is titled with the config file's name and its axes carry [output] units."""
-    import hyperoc.plotting
+    import hyperoc.app.plotting
 
     figures = []
-    monkeypatch.setattr(hyperoc.plotting, "_save", lambda fig, path: figures.append((Path(path).name, fig)) or path)
+    monkeypatch.setattr(hyperoc.app.plotting, "_save", lambda fig, path: figures.append((Path(path).name, fig)) or path)
     units = '[output]\nunits = { time = "ms", length = "mm", pressure = "kPa", control = "kPa/mm" }\n'
     cfg = _write(tmp_path, SMALL_1D + units, "bar-run.toml")
     assert main(["simulate", str(cfg), "--out", str(tmp_path / "out"), "--no-progress", "--set", "dynamics.dt=0.1"]) == 0
@@ -170,7 +170,7 @@ def test_log_steps_prints_each_step_and_the_failing_one(tmp_path, capsys):
 
 @pytest.mark.parametrize("name", ["simulate-1d.toml", "annulus-2d.toml"])
 def test_examples_parse(name):
-    from hyperoc.config import load_config
+    from hyperoc.app.config import load_config
 
     cfg = load_config(EXAMPLES / name)
     model = cfg.model()
@@ -181,8 +181,8 @@ def test_config_sliding_gamma_d_and_checkpointing(tmp_path):
     """``[mesh] fixed_components`` fixes only those components on gamma_d (here u_y on the box's
     face y = 0, with the three in-plane rigid motions pinned); ``[optimize] checkpoint_every``
     reaches the reduced functional."""
-    from hyperoc.config import load_config
-    from hyperoc.workflows import build_reduced
+    from hyperoc.app.config import load_config
+    from hyperoc.app.workflows import build_reduced
 
     text = SMALL_1D.replace('kind = "interval"\nn = 20', 'kind = "box"\nnx = 2\ndirichlet = "bottom"\nfixed_components = [1]')
     text = text.replace("lower = [0.75], upper = [1.0]", "lower = [0.0, 0.0, 0.5], upper = [1.0, 1.0, 1.0]")
@@ -200,7 +200,7 @@ def test_config_sliding_gamma_d_and_checkpointing(tmp_path):
 def test_config_mesh_refinements(tmp_path, mesh, cells):
     """``[mesh] refinements = k`` refines the mesh built k times (2^(d k) cells); curved generators
     refine onto their exact surfaces (the annulus keeps its boundary vertices on the circles)."""
-    from hyperoc.config import load_config
+    from hyperoc.app.config import load_config
 
     base = load_config(_write(tmp_path, SMALL_1D.replace('kind = "interval"\nn = 20', mesh))).mesh()
     fine = load_config(_write(tmp_path, SMALL_1D.replace('kind = "interval"\nn = 20', mesh + "\nrefinements = 2"),
@@ -214,7 +214,7 @@ def test_config_mesh_refinements(tmp_path, mesh, cells):
 
 def test_config_cell_mean_volumetric(tmp_path):
     """``[material] volumetric = "cell-mean"`` reaches the model; its energy is the cell-mean one."""
-    from hyperoc.config import load_config
+    from hyperoc.app.config import load_config
 
     text = SMALL_1D.replace('law = "svk"', 'law = "neo-hookean"\nvolumetric = "cell-mean"')
     model = load_config(_write(tmp_path, text.replace("n = 20", "n = 20\ndegree = 2"))).model()
@@ -234,7 +234,7 @@ def test_set_overrides_config_entries_and_optimize_records_what_ran(tmp_path, ca
     and L-BFGS-B or Newton-CG with at most 3 Hessian products per iteration); the output folder's
     config.toml is the configuration that ran, so reloading it gives the same sections, and
     ``--resume`` refuses new overrides."""
-    from hyperoc.config import load_config
+    from hyperoc.app.config import load_config
 
     cfg, out = _write(tmp_path, SMALL_1D), tmp_path / "o"
     sets = ["optimize.xi_bounds=[-0.01, 0.01]", "optimize.max_iter=2"] + (["optimize.max_cg=3"] if method == "newton" else [])
@@ -270,7 +270,7 @@ def test_bad_override_exit_2(tmp_path, capsys, override, message):
 
 @pytest.mark.parametrize("name", ["paper-1d.toml", "simulate-1d.toml", "annulus-2d.toml", "ventricle-3d.toml"])
 def test_config_to_toml_reloads_to_the_same_config_from_another_folder(tmp_path, name):
-    from hyperoc.config import load_config
+    from hyperoc.app.config import load_config
 
     cfg = load_config(EXAMPLES / name)
     again = load_config(_write(tmp_path, cfg.to_toml()))
@@ -278,7 +278,7 @@ def test_config_to_toml_reloads_to_the_same_config_from_another_folder(tmp_path,
 
 
 def test_config_to_toml_makes_file_paths_absolute(tmp_path):
-    from hyperoc.config import load_config
+    from hyperoc.app.config import load_config
 
     (tmp_path / "run").mkdir()
     text = SMALL_1D.replace('value = "0.05 * sin(pi * t)"', 'file = "xi.npz"')

@@ -9,8 +9,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _simulate(tmp_path, name, **env):
-    cmd = [sys.executable, "-m", "hyperoc.cli", "simulate", "examples/simulate-1d.toml", "--out", str(tmp_path / name),
-           "--no-progress", "--set", "dynamics.T=0.2"]
+    cmd = [sys.executable, "-m", "hyperoc.app.cli", "simulate", "examples/simulate-1d.toml", "--out",
+           str(tmp_path / name), "--no-progress", "--set", "dynamics.T=0.2"]
     inherited = {k: v for k, v in os.environ.items() if not k.startswith("JAX_COMPILATION_CACHE")}
     subprocess.run(cmd, cwd=ROOT, check=True, capture_output=True, env={**inherited, **env})
 

@@ -23,9 +23,9 @@ PROGRAM = """
     import hashlib, json
     {first}
     import jax, jax.numpy as jnp, numpy as np
-    from hyperoc.materials import NeoHookean
-    from hyperoc.mesh import box
-    from hyperoc.model import StateModel
+    from hyperoc.mechanics.materials import NeoHookean
+    from hyperoc.fem.mesh import box
+    from hyperoc.mechanics.model import StateModel
 
     model = StateModel(box(2), NeoHookean(1.0, 2.0), degree=2)
     u = jnp.asarray(model.interpolate(lambda x: 0.05 * x * x[:, ::-1]))

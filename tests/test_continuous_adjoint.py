@@ -13,7 +13,7 @@ import pytest
 
 from helpers import bar
 from hyperoc import ControlPoint, Objective, PressureAt, PressureRise, ReducedFunctional, TimeTransform
-from hyperoc.continuous_adjoint import continuous_gradient
+from hyperoc.control.continuous_adjoint import continuous_gradient
 
 
 def _deviation(dt, at_tau, eps, cells):

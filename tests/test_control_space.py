@@ -4,13 +4,13 @@
 import numpy as np
 import pytest
 
-from hyperoc.control_space import ControlSpace, s_time_scale
+from hyperoc.control.control_space import ControlSpace, s_time_scale
+from hyperoc.control.objectives import ControlRateCost, objective_from_config
+from hyperoc.control.optimize import barzilai_borwein, lbfgsb
+from hyperoc.control.problems import vibrating_bar
+from hyperoc.control.reduced import ControlPoint
+from hyperoc.control.verification import random_directions, taylor_test
 from hyperoc.errors import InputError
-from hyperoc.objectives import ControlRateCost, objective_from_config
-from hyperoc.optimize import barzilai_borwein, lbfgsb
-from hyperoc.problems import vibrating_bar
-from hyperoc.reduced import ControlPoint
-from hyperoc.verification import random_directions, taylor_test
 
 
 @pytest.fixture(scope="module")
@@ -105,7 +105,7 @@ def test_objective_config_builds_the_rate_cost():
 
 def test_continuous_gradient_refuses_the_rate_cost():
     J = vibrating_bar(0.1, 0.1, beta=1.0)
-    from hyperoc.reduced import ReducedFunctional
+    from hyperoc.control.reduced import ReducedFunctional
 
     with pytest.raises(InputError, match="continuous"):
         ReducedFunctional(J.model, J.transform, J.objective, gradient="continuous")

@@ -15,7 +15,7 @@ from hyperoc import (
     interval,
     rectangle,
 )
-from hyperoc.config import parse_config
+from hyperoc.app.config import parse_config
 
 
 def test_active_stress_1d_is_the_boundary_difference():

@@ -28,13 +28,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hyperoc.controls import ActiveStress, BodyForce, Region
-from hyperoc.dynamics import Scheme, TimeStepper
-from hyperoc.geometry import annulus
-from hyperoc.materials import SaintVenantKirchhoff
-from hyperoc.mesh import interval
-from hyperoc.model import StateModel
-from hyperoc.timegrid import TimeGrid
+from hyperoc.dynamics.stepper import Scheme, TimeStepper
+from hyperoc.dynamics.timegrid import TimeGrid
+from hyperoc.fem.geometry import annulus
+from hyperoc.fem.mesh import interval
+from hyperoc.mechanics.controls import ActiveStress, BodyForce, Region
+from hyperoc.mechanics.materials import SaintVenantKirchhoff
+from hyperoc.mechanics.model import StateModel
 
 # Convergence studies over three halvings of dt on fine meshes: the slow tier.
 pytestmark = pytest.mark.slow

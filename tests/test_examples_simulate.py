@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from hyperoc.cli import main
+from hyperoc.app.cli import main
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 SLOW = {"annulus-2d.toml", "shell-3d.toml", "ventricle-3d.toml"}  # Gmsh meshes, 2D/3D kernels to compile

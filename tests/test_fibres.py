@@ -12,8 +12,8 @@ import pytest
 
 import hyperoc as ho
 from hyperoc.errors import InputError
-from hyperoc.fibres import prolate_fibres, rule_based_fibres, transmural_coordinate, write_fibres
-from hyperoc.materials import Guccione, HolzapfelOgden
+from hyperoc.mechanics.fibres import prolate_fibres, rule_based_fibres, transmural_coordinate, write_fibres
+from hyperoc.mechanics.materials import Guccione, HolzapfelOgden
 
 Z = np.array([0.0, 0.0, 1.0])
 
@@ -35,7 +35,7 @@ def walls(ventricle, shell):
 
 
 def p1_stiffness(mesh):
-    """Dense P1 Laplacian from the vertex coordinates alone (independent of hyperoc.spaces):
+    """Dense P1 Laplacian from the vertex coordinates alone (independent of hyperoc.fem.spaces):
     ``grad lambda_a`` = rows 1..3 of column a of ``inv([1, x_b])``, ``K_ab = |T| grad lambda_a . grad lambda_b``."""
     X = mesh.points[mesh.cells]
     M = np.concatenate([np.ones(X.shape[:2] + (1,)), X], axis=2)  # (nc, 4, 4), row b = [1, x_b]

@@ -1,4 +1,4 @@
-"""Follower pressure (hyperoc.follower) and its use in the quasi-static solver.
+"""Follower pressure (hyperoc.mechanics.follower) and its use in the quasi-static solver.
 
 - Tangent: the assembled load stiffness K_p = -df/du (per-facet jacfwd scattered into the cell
   blocks) against finite differences: the Taylor remainder |f(u + eps v) - f(u) + eps K_p v| is
@@ -19,12 +19,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from hyperoc.dynamics.statics import solve_static
 from hyperoc.errors import InputError, SolverError
-from hyperoc.follower import FollowerPressure
-from hyperoc.materials import NeoHookean
-from hyperoc.mesh import box, rectangle
-from hyperoc.model import StateModel
-from hyperoc.statics import solve_static
+from hyperoc.fem.mesh import box, rectangle
+from hyperoc.mechanics.follower import FollowerPressure
+from hyperoc.mechanics.materials import NeoHookean
+from hyperoc.mechanics.model import StateModel
 
 
 def closed_model(mesh, degree):

@@ -6,9 +6,9 @@ import meshio
 import numpy as np
 import pytest
 
-from hyperoc import geometry
 from hyperoc.errors import InputError
-from hyperoc.mesh import box, interval, rectangle
+from hyperoc.fem import geometry
+from hyperoc.fem.mesh import box, interval, rectangle
 
 
 def facet_set(facets):

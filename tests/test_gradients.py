@@ -24,8 +24,8 @@ from hyperoc import (
     box,
     taylor_test,
 )
-from hyperoc.geometry import annulus
-from hyperoc.verification import random_directions
+from hyperoc.control.verification import random_directions
+from hyperoc.fem.geometry import annulus
 
 
 def _point(J, tau, amplitude, seed=3):

@@ -10,11 +10,11 @@ import meshio
 import numpy as np
 import pytest
 
+import hyperoc.app.plotting
 import hyperoc.io as hio
-import hyperoc.plotting
+from hyperoc.app.plotting import Units, plot_control_spacetime, plot_history, plot_pressure, plot_snapshots
 from hyperoc.errors import InputError
-from hyperoc.mesh import interval, rectangle
-from hyperoc.plotting import Units, plot_control_spacetime, plot_history, plot_pressure, plot_snapshots
+from hyperoc.fem.mesh import interval, rectangle
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -318,7 +318,7 @@ MM_MS = Units(time="ms", length="mm", pressure="kPa", control="kPa/mm")
 def _figures(monkeypatch) -> list:
     """The Figures the plotting functions save, in order (nothing is written)."""
     saved = []
-    monkeypatch.setattr(hyperoc.plotting, "_save", lambda fig, path: saved.append(fig) or Path(path))
+    monkeypatch.setattr(hyperoc.app.plotting, "_save", lambda fig, path: saved.append(fig) or Path(path))
     return saved
 
 
@@ -374,7 +374,7 @@ def test_units_derived():
     assert (MM_MS.velocity, MM_MS.volume) == ("mm/ms", "mm^3")
     assert (Units().velocity, Units().volume) == ("-", "-")
     assert Units(time="s").velocity == "1/s" and Units(length="m").velocity == "m"
-    assert hyperoc.plotting.axis_label("x", "mm") == "x [mm]"
+    assert hyperoc.app.plotting.axis_label("x", "mm") == "x [mm]"
 
 
 def test_plot_control_spacetime(tmp_path):

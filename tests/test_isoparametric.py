@@ -1,4 +1,4 @@
-"""Isoparametric (curved) P2 cells on the curved geometries of hyperoc.geometry.
+"""Isoparametric (curved) P2 cells on the curved geometries of hyperoc.fem.geometry.
 
 - Volumes. A P2 map through nodes on a smooth boundary approximates it to O(h^3) pointwise, and the
   area or volume between the two to O(h^4) (the leading O(h^3) error of quadratic interpolation is
@@ -31,13 +31,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hyperoc import geometry
-from hyperoc.follower import FollowerPressure
-from hyperoc.materials import NeoHookean
-from hyperoc.mesh import box
-from hyperoc.model import StateModel
-from hyperoc.report import cavity_volume
-from hyperoc.spaces import VectorSpace
+from hyperoc.fem import geometry
+from hyperoc.fem.mesh import box
+from hyperoc.fem.spaces import VectorSpace
+from hyperoc.fem.volumes import cavity_volume
+from hyperoc.mechanics.follower import FollowerPressure
+from hyperoc.mechanics.materials import NeoHookean
+from hyperoc.mechanics.model import StateModel
 from test_follower import assembled_stiffness, assert_conservative, random_u, taylor_remainders
 
 
@@ -111,8 +111,8 @@ def test_curved_ventricle_keeps_the_base_flat_and_puts_edge_nodes_on_the_walls()
 
 def affine_quadrature(mesh, degree, rule):
     """The affine formulas: dN = dN_ref J^-1, wdx = |det J| w, x = x_0 + J xi."""
-    from hyperoc.quadrature import simplex_rule
-    from hyperoc.spaces import reference_shape
+    from hyperoc.fem.quadrature import simplex_rule
+    from hyperoc.fem.spaces import reference_shape
 
     xi, w = simplex_rule(mesh.dim, rule)
     N, dN_ref = reference_shape(mesh.dim, degree, xi)

@@ -15,7 +15,7 @@ SETTINGS = ["--set", "mesh.n=20", "--set", "dynamics.dt=0.1", "--set", "optimize
 
 
 def _optimize(*args):
-    return [sys.executable, "-m", "hyperoc.cli", "optimize", *args]
+    return [sys.executable, "-m", "hyperoc.app.cli", "optimize", *args]
 
 
 @pytest.mark.slow

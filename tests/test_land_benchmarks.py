@@ -1,4 +1,4 @@
-"""Land et al. (2015) problems 1 and 2 (hyperoc.benchmarks): setups and a coarse beam solve.
+"""Land et al. (2015) problems 1 and 2 (hyperoc.cardiac.land): setups and a coarse beam solve.
 
 - Beam setup: the published parameters, fibres along x, clamped face x = 0, and the pressure on the
   face z = 0 pushing up with resultant p |face| = 0.004 kPa x 10 mm^2 at rest.
@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hyperoc.benchmarks import (
+from hyperoc.cardiac.land import (
     BEAM,
     PUBLISHED,
     VENTRICLE,

@@ -25,12 +25,12 @@ import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from hyperoc.controls import BodyForce, Region
-from hyperoc.dynamics import Scheme, TimeStepper
-from hyperoc.materials import SaintVenantKirchhoff
-from hyperoc.mesh import rectangle
-from hyperoc.model import StateModel
-from hyperoc.timegrid import uniform_grid
+from hyperoc.dynamics.stepper import Scheme, TimeStepper
+from hyperoc.dynamics.timegrid import uniform_grid
+from hyperoc.fem.mesh import rectangle
+from hyperoc.mechanics.controls import BodyForce, Region
+from hyperoc.mechanics.materials import SaintVenantKirchhoff
+from hyperoc.mechanics.model import StateModel
 
 MU, LAM, KAPPA = 1.0, 1.5, 0.05
 LOWER, UPPER = (0.5, 0.0), (1.0, 0.5)  # control region omega (cells whose centroid lies inside)

@@ -1,4 +1,4 @@
-"""The sparse bordered solver of `hyperoc.linsolve`: the pressure-bordered Newton system
+"""The sparse bordered solver of `hyperoc.solvers.linsolve`: the pressure-bordered Newton system
 
     [ K    col ] [du]   [r_u]
     [ row   0  ] [dp] = [r_c]
@@ -29,11 +29,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hyperoc.linsolve import DenseSolver, SparseSolver, TridiagonalSolver, nested_dissection
-from hyperoc.materials import Guccione, SaintVenantKirchhoff
-from hyperoc.mesh import Mesh, box
-from hyperoc.mixed import TaylorHoodModel
-from hyperoc.model import StateModel
+from hyperoc.fem.mesh import Mesh, box
+from hyperoc.mechanics.materials import Guccione, SaintVenantKirchhoff
+from hyperoc.mechanics.mixed import TaylorHoodModel
+from hyperoc.mechanics.model import StateModel
+from hyperoc.solvers.linsolve import DenseSolver, SparseSolver, TridiagonalSolver, nested_dissection
 
 
 @pytest.fixture(scope="module")
@@ -175,7 +175,7 @@ def test_factorizations_live_and_die_on_the_solver_thread(model, monkeypatch):
     import threading
     import weakref
 
-    import hyperoc.linsolve as linsolve
+    import hyperoc.solvers.linsolve as linsolve
 
     built, freed = [], []
 
@@ -204,14 +204,14 @@ def test_factorizations_live_and_die_on_the_solver_thread(model, monkeypatch):
 
 
 def test_large_dirichlet_laplace_solve_by_amg_cg_meets_its_residual_and_error_bounds():
-    """`hyperoc.assembly.solve_dirichlet` above `DIRECT_LIMIT` free dofs (P1 box, 23^3 = 12,167
+    """`hyperoc.fem.assembly.solve_dirichlet` above `DIRECT_LIMIT` free dofs (P1 box, 23^3 = 12,167
     interior vertices): AMG-preconditioned CG stops at relative residual 1e-12, so the error to the
     exact discrete solution, here the linear Dirichlet data itself (harmonic and in P1), is at most
     ``cond_2(K_ff) * 1e-12`` relative in the 2-norm (the fallback LU would meet it with room)."""
     import scipy.sparse.linalg as spla
 
-    from hyperoc.assembly import DIRECT_LIMIT, SparsePattern, reduced_numbering, solve_dirichlet
-    from hyperoc.spaces import VectorSpace
+    from hyperoc.fem.assembly import DIRECT_LIMIT, SparsePattern, reduced_numbering, solve_dirichlet
+    from hyperoc.fem.spaces import VectorSpace
 
     mesh = box(24)
     space = VectorSpace(mesh, 1, components=1)

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from hyperoc.errors import InputError
-from hyperoc.materials import (
+from hyperoc.mechanics.materials import (
     Fung,
     NeoHookean,
     Ogden,
@@ -198,8 +198,8 @@ def test_wrong_parameter_type_raises_input_error(cfg):
 
 
 def test_direct_construction_is_validated_by_the_model():
-    from hyperoc.mesh import interval
-    from hyperoc.model import StateModel
+    from hyperoc.fem.mesh import interval
+    from hyperoc.mechanics.model import StateModel
 
     with pytest.raises(InputError):
         SaintVenantKirchhoff(mu=-1.0, lam=1.0).validate()

@@ -1,4 +1,4 @@
-"""Taylor-Hood P2-P1 (`hyperoc.mixed.TaylorHoodModel`): ``L(u, p) = int W_rest + p (J - 1) - p^2/(2 kappa)``.
+"""Taylor-Hood P2-P1 (`hyperoc.mechanics.mixed.TaylorHoodModel`): ``L(u, p) = int W_rest + p (J - 1) - p^2/(2 kappa)``.
 
 What is checked:
 
@@ -24,12 +24,12 @@ import numpy as np
 import pytest
 
 import hyperoc as ho
-from hyperoc.benchmarks import BEAM, PUBLISHED, VENTRICLE, beam_deflection, load_state, save_state, ventricle_apex
+from hyperoc.cardiac.land import BEAM, PUBLISHED, VENTRICLE, beam_deflection, load_state, save_state, ventricle_apex
+from hyperoc.dynamics.statics import solve_static
 from hyperoc.errors import InputError, SolverError
-from hyperoc.linsolve import DenseSolver
-from hyperoc.mesh import box, rectangle, refine
-from hyperoc.mixed import TaylorHoodModel
-from hyperoc.statics import solve_static
+from hyperoc.fem.mesh import box, rectangle, refine
+from hyperoc.mechanics.mixed import TaylorHoodModel
+from hyperoc.solvers.linsolve import DenseSolver
 
 ROUNDOFF = 1e-12  # relative: the same sums in another order
 

@@ -4,9 +4,9 @@ import tomllib
 
 import pytest
 
-from hyperoc.config import parse_config
+from hyperoc.app.config import parse_config
+from hyperoc.app.workflows import optimize
 from hyperoc.io import read_json
-from hyperoc.workflows import optimize
 
 TEXT = """
 [mesh]
@@ -49,7 +49,7 @@ def test_multistart_runs_every_start_and_resumes(tmp_path):
 
 def test_a_failing_start_is_reported_not_fatal(tmp_path):
     """What a Dask worker runs for one start: an error becomes a 'failed' record with its message."""
-    from hyperoc.workflows import _run_start
+    from hyperoc.app.workflows import _run_start
 
     cfg = parse_config(tomllib.loads(TEXT), tmp_path)
     record = _run_start(cfg.sections, str(tmp_path), 5.0, str(tmp_path / "start_bad"))  # tau0 outside (0, T)

@@ -1,4 +1,4 @@
-"""`hyperoc.newton.newton` on two unknowns ``x = (u, p)``, solved densely.
+"""`hyperoc.solvers.newton.newton` on two unknowns ``x = (u, p)``, solved densely.
 
 The residual ``log(u) + c`` is undefined for ``u <= 0``, like the log det F terms of the hyperelastic
 laws for an inverted element; the multiplier p is decoupled (``r_p = p``) or, in the bordered
@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hyperoc.newton import newton
+from hyperoc.solvers.newton import newton
 
 
 class DenseBordered:

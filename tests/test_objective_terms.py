@@ -4,14 +4,14 @@ local injectivity penalty (values and exact gradients)."""
 import numpy as np
 import pytest
 
-from hyperoc.controls import BodyForce, Region
-from hyperoc.materials import SaintVenantKirchhoff
-from hyperoc.mesh import interval
-from hyperoc.model import StateModel
-from hyperoc.objectives import ControlCost, InjectivityPenalty, Objective, PressureMean, objective_from_config
-from hyperoc.reduced import ControlPoint, ReducedFunctional
-from hyperoc.timegrid import TimeTransform
-from hyperoc.verification import random_directions, taylor_test
+from hyperoc.control.objectives import ControlCost, InjectivityPenalty, Objective, PressureMean, objective_from_config
+from hyperoc.control.reduced import ControlPoint, ReducedFunctional
+from hyperoc.control.verification import random_directions, taylor_test
+from hyperoc.dynamics.timegrid import TimeTransform
+from hyperoc.fem.mesh import interval
+from hyperoc.mechanics.controls import BodyForce, Region
+from hyperoc.mechanics.materials import SaintVenantKirchhoff
+from hyperoc.mechanics.model import StateModel
 
 
 def _bar(at_tau, running=()):

@@ -20,10 +20,10 @@ from hyperoc import (
     barzilai_borwein,
     lbfgsb,
 )
+from hyperoc.control.objectives import ControlCost, PressureAt
+from hyperoc.control.optimize import BBStepRule, LumpedMetric, newton_cg, tau_scaling
+from hyperoc.control.problems import vibrating_bar
 from hyperoc.errors import InputError
-from hyperoc.objectives import ControlCost, PressureAt
-from hyperoc.optimize import BBStepRule, LumpedMetric, newton_cg, tau_scaling
-from hyperoc.problems import vibrating_bar
 
 
 def _J(tau=1.0, T=3.0, dt=0.05, n=20, alpha=2e-2, omega=(0.75, 1.0), material=SaintVenantKirchhoff(0.05, 0.05)):
@@ -178,7 +178,7 @@ def test_newton_cg_falls_back_to_the_gradient(monkeypatch):
     stopping (it stopped on the paper's bounded variant after 10 iterations from a restart). Here the
     direction is made a descent direction (-G), so every iteration must take the gradient step and J
     must still rise at each."""
-    import hyperoc.optimize as opt
+    import hyperoc.control.optimize as opt
 
     runs, bounds = {}, (-0.01, 0.01)
     for nonconcave in (False, True):

@@ -5,10 +5,10 @@ import json
 
 import numpy as np
 
-import hyperoc.workflows
+import hyperoc.app.workflows
 from helpers import small_1d_toml
-from hyperoc.cli import main
-from hyperoc.optimize import OptimizationResult
+from hyperoc.app.cli import main
+from hyperoc.control.optimize import OptimizationResult
 
 SMALL_1D = small_1d_toml(n=10, dt=0.1, lower=0.5, value=None, max_iter=3)
 
@@ -29,7 +29,7 @@ def _non_monotone(J, m0, *, callback, max_iter, **options):
 
 
 def test_best_iterate_reported_saved_and_returned(tmp_path, capsys, monkeypatch):
-    monkeypatch.setattr(hyperoc.workflows, "barzilai_borwein", _non_monotone)
+    monkeypatch.setattr(hyperoc.app.workflows, "barzilai_borwein", _non_monotone)
     cfg, out = tmp_path / "c.toml", tmp_path / "out"
     cfg.write_text(SMALL_1D)
     assert main(["optimize", str(cfg), "--out", str(out), "--no-progress"]) == 0
@@ -42,17 +42,17 @@ def test_best_iterate_reported_saved_and_returned(tmp_path, capsys, monkeypatch)
     np.testing.assert_array_equal(saved["xi"], np.full_like(saved["xi"], 2e-3))
     assert saved["objective"] == 3.0 and saved["iteration"] == 2
 
-    from hyperoc.config import load_config
+    from hyperoc.app.config import load_config
 
-    _, res = hyperoc.workflows.optimize_single(load_config(cfg), 1.0)
+    _, res = hyperoc.app.workflows.optimize_single(load_config(cfg), 1.0)
     assert res.best["iteration"] == 2 and res.best["objective"] == 3.0 and res.objective == 2.0
 
 
 def test_no_best_when_the_last_iterate_is_the_best(tmp_path):
     """The paper's 1D problem from rest: two BB iterations raise J every time."""
-    from hyperoc.config import load_config
+    from hyperoc.app.config import load_config
 
     cfg = tmp_path / "c.toml"
     cfg.write_text(SMALL_1D.replace("max_iter = 3", "max_iter = 2"))
-    _, res = hyperoc.workflows.optimize_single(load_config(cfg), 1.0)
+    _, res = hyperoc.app.workflows.optimize_single(load_config(cfg), 1.0)
     assert res.best is None and res.objective == max(res.history["objective"])

@@ -10,10 +10,10 @@ import json
 import numpy as np
 import pytest
 
-from hyperoc.cli import main
-from hyperoc.optimize import lbfgsb
-from hyperoc.paper import PAPER_REPORT, SPG_WINDOW, WELL_POSED, XI_MAX, reproduce_paper_1d, wellposed_config
-from hyperoc.workflows import build_reduced
+from hyperoc.app.cli import main
+from hyperoc.app.paper import PAPER_REPORT, SPG_WINDOW, WELL_POSED, XI_MAX, reproduce_paper_1d, wellposed_config
+from hyperoc.app.workflows import build_reduced
+from hyperoc.control.optimize import lbfgsb
 
 SMALL = {"mesh__n": 20, "dynamics__dt": 0.1, "optimize__max_iter": 3}
 HEADLINE_KEYS = ("tau", "objective", "iterations", "converged", "grad_norm_history", "objective_history",

@@ -1,4 +1,4 @@
-"""MKL PARDISO's symmetric indefinite factorization (hyperoc.pardiso) and the solver methods on it
+"""MKL PARDISO's symmetric indefinite factorization (hyperoc.solvers.pardiso) and the solver methods on it
 (`SparseSolver` ``"pardiso"``, ``"pardiso_reuse"`` and their single-precision factorizations).
 
 - A saddle point ``[[A, B^T], [B, 0]]`` with A (n x n) SPD and B (m x n) of full rank has inertia
@@ -21,8 +21,8 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from hyperoc.linsolve import SparseSolver
-from hyperoc.pardiso import PardisoLDL, available
+from hyperoc.solvers.linsolve import SparseSolver
+from hyperoc.solvers.pardiso import PardisoLDL, available
 from test_linsolve import (
     bordered_rhs,
     check_non_finite_tangent_fails_cleanly,

@@ -1,4 +1,4 @@
-"""Uniform (red) refinement, `hyperoc.mesh.refine`, and the ``refinements`` of the geometry generators.
+"""Uniform (red) refinement, `hyperoc.fem.mesh.refine`, and the ``refinements`` of the geometry generators.
 
 - Straight meshes: refinement keeps the old vertices, adds the edge midpoints, splits every cell into
   2^d children of total volume equal to the parent's (round-off), every named boundary into 2^(d-1)
@@ -22,10 +22,10 @@ import math
 import numpy as np
 import pytest
 
-from hyperoc import geometry
 from hyperoc.errors import InputError
-from hyperoc.mesh import box, interval, rectangle, refine
-from hyperoc.spaces import VectorSpace, prolong
+from hyperoc.fem import geometry
+from hyperoc.fem.mesh import box, interval, rectangle, refine
+from hyperoc.fem.spaces import VectorSpace, prolong
 
 
 def facet_measures(points, facets):
@@ -167,7 +167,7 @@ def test_geometry_rejects_bad_refinements(bad):
         geometry.annulus(0.5, 1.0, 0.4, refinements=bad)
 
 
-# ---- transfer between nested levels (`hyperoc.spaces.prolong`) ---------------------------------
+# ---- transfer between nested levels (`hyperoc.fem.spaces.prolong`) ---------------------------------
 
 
 def _polynomial(degree: int, components: int):

@@ -11,7 +11,7 @@
     steepen waves into fronts at mesh scale, which is reported; kappa = 2e-2 smooths them.
 
 The thresholds used by hand below (the convexity limit, the mesh-scale ratio) are recomputed from
-the solution, independently of `hyperoc.dynamics.detect_regimes`.
+the solution, independently of `hyperoc.dynamics.stepper.detect_regimes`.
 """
 
 import math
@@ -20,14 +20,14 @@ import re
 import numpy as np
 import pytest
 
-from hyperoc import geometry
-from hyperoc.controls import ActiveStress, BodyForce, Region
-from hyperoc.dynamics import Scheme, TimeStepper
+from hyperoc.dynamics.stepper import Scheme, TimeStepper
+from hyperoc.dynamics.timegrid import uniform_grid
 from hyperoc.errors import SolverError
-from hyperoc.materials import SaintVenantKirchhoff
-from hyperoc.mesh import interval
-from hyperoc.model import StateModel
-from hyperoc.timegrid import uniform_grid
+from hyperoc.fem import geometry
+from hyperoc.fem.mesh import interval
+from hyperoc.mechanics.controls import ActiveStress, BodyForce, Region
+from hyperoc.mechanics.materials import SaintVenantKirchhoff
+from hyperoc.mechanics.model import StateModel
 
 # Long runs of the paper's bar at h = 0.01 (up to T = 15) and a 2D blow-up: the slow tier.
 pytestmark = pytest.mark.slow

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from helpers import small_1d_toml
-from hyperoc.cli import main
-from hyperoc.optimize import EvaluationCache
-from hyperoc.reduced import ControlPoint
+from hyperoc.app.cli import main
+from hyperoc.control.optimize import EvaluationCache
+from hyperoc.control.reduced import ControlPoint
 
 SMALL_1D = small_1d_toml(n=10, dt=0.1, lower=0.5, value=None, max_iter=3)
 

@@ -1,4 +1,4 @@
-"""Binomial checkpointing (`hyperoc.revolve`, ``ReducedFunctional(..., checkpoint_snapshots=s)``).
+"""Binomial checkpointing (`hyperoc.control.revolve`, ``ReducedFunctional(..., checkpoint_snapshots=s)``).
 
 (a) The schedule, run on an abstract machine that tracks levels only: every step is reversed exactly
 once, in the order N-1, ..., 0, each from the state at its level and the state of the level above;
@@ -31,11 +31,11 @@ import pytest
 
 from helpers import bar, checkpointing_problem, control_point
 from hyperoc import Objective, PressureAt, ReducedFunctional, TimeTransform
-from hyperoc.cli import main
-from hyperoc.config import parse_config
+from hyperoc.app.cli import main
+from hyperoc.app.config import parse_config
+from hyperoc.app.workflows import build_reduced
+from hyperoc.control.revolve import Advance, Free, Restore, Reverse, Store, minimal_advances, repetitions, schedule
 from hyperoc.errors import InputError
-from hyperoc.revolve import Advance, Free, Restore, Reverse, Store, minimal_advances, repetitions, schedule
-from hyperoc.workflows import build_reduced
 
 RTOL = 1e-12
 

@@ -20,9 +20,9 @@ import pytest
 import scipy.optimize
 
 import hyperoc as ho
+from hyperoc.dynamics.statics import solve_static
 from hyperoc.errors import InputError
-from hyperoc.mesh import box
-from hyperoc.statics import solve_static
+from hyperoc.fem.mesh import box
 
 MU, T = 1.0, 0.1
 
@@ -78,7 +78,7 @@ def test_unpinned_sliding_base_keeps_three_rigid_motions_in_the_kernel():
 
 
 def test_ventricle_sliding_base_is_pinned_on_the_base():
-    from hyperoc.geometry import ventricle
+    from hyperoc.fem.geometry import ventricle
 
     mesh = ventricle(4.0)
     model = ho.StateModel(mesh, ho.Guccione(), dirichlet=None, dirichlet_components={"base": (2,)},
@@ -114,7 +114,7 @@ def test_prolonged_sliding_solution_is_moved_onto_the_refined_meshs_pins():
     fine one, to the Newton tolerance (1e-11 relative, checked to 1e-9), and Newton from it has
     nothing left to do. Merely dropping the coarse values at the new pins would leave the guess off
     by the translation 0.5 (l - 1) everywhere but at the pins."""
-    from hyperoc.mesh import refine
+    from hyperoc.fem.mesh import refine
 
     kw = dict(dirichlet=None, dirichlet_components={"front": (2,)})
     coarse, coarse_sol = compressed_box(**kw)

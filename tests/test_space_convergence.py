@@ -26,10 +26,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hyperoc.materials import NeoHookean, SaintVenantKirchhoff
-from hyperoc.mesh import box, rectangle
-from hyperoc.model import StateModel
-from hyperoc.statics import solve_static
+from hyperoc.dynamics.statics import solve_static
+from hyperoc.fem.mesh import box, rectangle
+from hyperoc.mechanics.materials import NeoHookean, SaintVenantKirchhoff
+from hyperoc.mechanics.model import StateModel
 
 # Mesh sequences chosen to reach the asymptotic range: the slow tier.
 pytestmark = pytest.mark.slow

@@ -16,14 +16,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hyperoc.controls import BodyForce, Region
+from hyperoc.dynamics.statics import solve_static
 from hyperoc.errors import InputError
-from hyperoc.linsolve import SparseSolver
-from hyperoc.materials import NeoHookean, Ogden, SaintVenantKirchhoff
-from hyperoc.mesh import rectangle, refine
-from hyperoc.model import StateModel
-from hyperoc.newton import NewtonLog
-from hyperoc.statics import solve_static
+from hyperoc.fem.mesh import rectangle, refine
+from hyperoc.mechanics.controls import BodyForce, Region
+from hyperoc.mechanics.materials import NeoHookean, Ogden, SaintVenantKirchhoff
+from hyperoc.mechanics.model import StateModel
+from hyperoc.solvers.linsolve import SparseSolver
+from hyperoc.solvers.newton import NewtonLog
 
 
 @pytest.mark.parametrize("mesh_fn,degree,material", [

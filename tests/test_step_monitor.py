@@ -1,4 +1,4 @@
-"""The time stepper's per-step monitor (`TimeStepper.run(monitor=)`, `hyperoc.dynamics.StepRecord`).
+"""The time stepper's per-step monitor (`TimeStepper.run(monitor=)`, `hyperoc.dynamics.stepper.StepRecord`).
 
 A monitor sees each step as it ends, with the values the solution keeps afterwards (Newton
 iterations, min det F, the step multiplier, the volume drift), and a failing step before the solve
@@ -14,14 +14,14 @@ import math
 import numpy as np
 import pytest
 
-from hyperoc import geometry
-from hyperoc.controls import ActiveStress, BodyForce, Region
-from hyperoc.dynamics import Scheme, TimeStepper
+from hyperoc.dynamics.stepper import Scheme, TimeStepper
+from hyperoc.dynamics.timegrid import uniform_grid
 from hyperoc.errors import SolverError
-from hyperoc.materials import SaintVenantKirchhoff
-from hyperoc.mesh import interval
-from hyperoc.model import StateModel
-from hyperoc.timegrid import uniform_grid
+from hyperoc.fem import geometry
+from hyperoc.fem.mesh import interval
+from hyperoc.mechanics.controls import ActiveStress, BodyForce, Region
+from hyperoc.mechanics.materials import SaintVenantKirchhoff
+from hyperoc.mechanics.model import StateModel
 from test_regimes import constant_control
 
 EPS = np.finfo(float).eps

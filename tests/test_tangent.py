@@ -24,8 +24,8 @@ import numpy as np
 import pytest
 
 import hyperoc as ho
-from hyperoc.materials import det
-from hyperoc.mesh import box, interval, rectangle
+from hyperoc.fem.mesh import box, interval, rectangle
+from hyperoc.mechanics.materials import det
 
 TOL = 1e-13
 

@@ -2,7 +2,7 @@
 
 XLA sizes its CPU thread pool (threads named ``tf_XLAEigen``) by the CPUs the process may use when the
 backend starts; with one, the host sparse solve inside `jax.pure_callback` deadlocked on the Land
-ventricle (hyperoc.threads). Each test runs a fresh interpreter bound to one CPU before it starts.
+ventricle (hyperoc.solvers.threads). Each test runs a fresh interpreter bound to one CPU before it starts.
 """
 
 import os
@@ -12,7 +12,7 @@ import textwrap
 
 import pytest
 
-from hyperoc.threads import ONE_THREAD_POOL
+from hyperoc.solvers.threads import ONE_THREAD_POOL
 
 pytestmark = pytest.mark.skipif(not hasattr(os, "sched_setaffinity") or len(os.sched_getaffinity(0)) < 2,
                                 reason="needs Linux CPU affinity and two CPUs")
@@ -48,7 +48,7 @@ def test_import_starts_a_multithreaded_pool_and_keeps_the_pinning():
 
 @pytest.mark.slow
 def test_one_thread_pool_on_request():
-    """``HYPEROC_ONE_THREAD_POOL=1`` (set by `hyperoc.paper` for its 1D workers) keeps the one-thread pool."""
+    """``HYPEROC_ONE_THREAD_POOL=1`` (set by `hyperoc.app.paper` for its 1D workers) keeps the one-thread pool."""
     out = run_pinned(POOL_SIZE, timeout=120, env={ONE_THREAD_POOL: "1"})
     assert int(out.split()[0]) == 1
 
@@ -57,7 +57,7 @@ def test_one_thread_pool_on_request():
 def test_pinned_host_solve_of_the_ventricle_completes():
     """The case that hung (no CPU use, forever) before the backend was started on every CPU."""
     out = run_pinned("""
-        from hyperoc.benchmarks import ventricle_apex
+        from hyperoc.cardiac.land import ventricle_apex
         r = ventricle_apex(9.0, kappa=1000.0, steps=5)
         print(r.dofs, r.values["z_endo"])
     """, timeout=600)

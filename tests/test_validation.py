@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from helpers import small_1d_toml
-from hyperoc.cli import main
+from hyperoc.app.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -197,7 +197,7 @@ def test_bad_paths_and_options_exit_2(tmp_path, capsys, args, fragment):
 def test_bad_input_in_a_real_process(tmp_path):
     """The console entry point: one line, exit 2, nothing written, and no JAX import needed for it."""
     cfg = _write(tmp_path / "c.toml", SMALL_1D.replace("kappa = 2e-3", "kappa = nan"))
-    code = ("import sys; from hyperoc.cli import main; rc = main(sys.argv[1:]); "
+    code = ("import sys; from hyperoc.app.cli import main; rc = main(sys.argv[1:]); "
             "assert 'jax' not in sys.modules; sys.exit(rc)")
     proc = subprocess.run([sys.executable, "-c", code, "simulate", str(cfg), "--out", str(tmp_path / "o")],
                           capture_output=True, text=True)
@@ -208,9 +208,9 @@ def test_bad_input_in_a_real_process(tmp_path):
 
 def test_force_runs_past_the_memory_estimate(tmp_path, capsys, monkeypatch):
     """``--force`` skips the resource guard: with 'no memory available' the run still completes."""
-    import hyperoc.preflight
+    import hyperoc.app.preflight
 
-    monkeypatch.setattr(hyperoc.preflight, "available_memory", lambda: 1)
+    monkeypatch.setattr(hyperoc.app.preflight, "available_memory", lambda: 1)
     cfg, out = _write(tmp_path / "c.toml", SMALL_1D), tmp_path / "out"
     _assert_refused(main(["simulate", str(cfg), "--out", str(out), "--no-progress"]), capsys, out, "--force")
     assert main(["simulate", str(cfg), "--out", str(out), "--no-progress", "--force", "--set", "dynamics.dt=0.1"]) == 0
@@ -218,10 +218,10 @@ def test_force_runs_past_the_memory_estimate(tmp_path, capsys, monkeypatch):
 
 
 def test_configuration_reference_is_the_schemas():
-    """docs/configuration.md is what ``python -m hyperoc.config --reference`` prints, and it lists
+    """docs/configuration.md is what ``python -m hyperoc.app.config --reference`` prints, and it lists
     every key of every section."""
-    from hyperoc.config import reference_markdown
-    from hyperoc.schema import SECTIONS
+    from hyperoc.app.config import reference_markdown
+    from hyperoc.app.schema import SECTIONS
 
     text = reference_markdown()
     assert (ROOT / "docs" / "configuration.md").read_text() == text
@@ -233,7 +233,7 @@ def test_configuration_reference_is_the_schemas():
 
 def test_output_units_table(tmp_path, capsys):
     """``[output] units`` takes the four units (each "-" unless given); an unknown key is one line."""
-    from hyperoc.config import load_config
+    from hyperoc.app.config import load_config
 
     units = '\n[output]\nunits = {time = "ms", length = "mm", pressure = "kPa", control = "kPa/mm"}\n'
     cfg = load_config(_write(tmp_path / "c.toml", SMALL_1D + units))
@@ -249,7 +249,7 @@ def test_output_units_table(tmp_path, capsys):
 def test_keys_of_other_kinds_at_their_defaults_are_dropped(tmp_path):
     """A config.toml written with every default (as before keys were tied to kinds) still loads,
     and the sections keep only the keys that apply."""
-    from hyperoc.config import load_config
+    from hyperoc.app.config import load_config
 
     text = SMALL_1D.replace("n = 20", "n = 20\nr_inner = 0.5\nstructured = false").replace(
         "alpha = 2e-3", "alpha = 2e-3\neps = 0.0").replace(
@@ -262,7 +262,7 @@ def test_keys_of_other_kinds_at_their_defaults_are_dropped(tmp_path):
 
 def test_material_errors_need_no_jax():
     """A bad material parameter is reported by the checks that run before JAX is imported."""
-    code = ("import sys; from hyperoc.cli import main; "
+    code = ("import sys; from hyperoc.app.cli import main; "
             "rc = main(['simulate', 'examples/simulate-1d.toml', '--out', sys.argv[1], '--set', 'material.mu=-1']); "
             "print(rc, 'jax' in sys.modules)")
     import subprocess

@@ -15,11 +15,12 @@ import meshio
 import numpy as np
 import pytest
 
-from hyperoc import InputError, Region, geometry
-from hyperoc.cli import main
-from hyperoc.config import parse_config
-from hyperoc.fibres import FibreFrames
-from hyperoc.workflows import build_reduced, check_gradient, optimize_single, write_optimization_outputs
+from hyperoc import InputError, Region
+from hyperoc.app.cli import main
+from hyperoc.app.config import parse_config
+from hyperoc.app.workflows import build_reduced, check_gradient, optimize_single, write_optimization_outputs
+from hyperoc.fem import geometry
+from hyperoc.mechanics.fibres import FibreFrames
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "ventricle-3d.toml"
 

@@ -17,13 +17,13 @@ import math
 import numpy as np
 import pytest
 
-from hyperoc import geometry
-from hyperoc.controls import ActiveStress, BodyForce, Region
-from hyperoc.dynamics import solve_state
-from hyperoc.materials import SaintVenantKirchhoff
-from hyperoc.mesh import box, interval
-from hyperoc.model import StateModel
-from hyperoc.timegrid import uniform_grid
+from hyperoc.dynamics.stepper import solve_state
+from hyperoc.dynamics.timegrid import uniform_grid
+from hyperoc.fem import geometry
+from hyperoc.fem.mesh import box, interval
+from hyperoc.mechanics.controls import ActiveStress, BodyForce, Region
+from hyperoc.mechanics.materials import SaintVenantKirchhoff
+from hyperoc.mechanics.model import StateModel
 
 
 def independent_volumes(model, displacements):

@@ -25,9 +25,9 @@ import numpy as np
 import pytest
 
 import hyperoc as ho
-from hyperoc.benchmarks import BEAM, VENTRICLE, beam_deflection, ventricle_apex
+from hyperoc.cardiac.land import BEAM, VENTRICLE, beam_deflection, ventricle_apex
 from hyperoc.errors import InputError, SolverError
-from hyperoc.mesh import box, rectangle
+from hyperoc.fem.mesh import box, rectangle
 
 TOL = 1e-13  # rounding only: the same quadrature sums, taken per cell first
 

@@ -1,0 +1,242 @@
+"""Command line: ``hyperoc simulate | optimize | check-gradient | reproduce``.
+
+Exit status: 0 success; 1 solver failure (the message names the time step and the cause);
+2 bad input (config, mesh or control file, output folder, parameter, a problem too large for the
+memory), with one line on stderr, no traceback and nothing written.
+
+Every input is checked before anything is written or solved, in order of cost: the configuration
+against its schema, the output folder, the files it names, the problem's size, the mesh and the
+prescribed control on the actual space-time grid (`hyperoc.app.preflight`, no JAX imported: these
+errors come at once), then the model, with the material law's own checks
+(`hyperoc.app.workflows.check_run`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from .. import __version__
+from ..errors import InputError, SolverError
+
+__all__ = ["main"]
+
+CONFIG_HELP = "TOML configuration file (sections [mesh], [material], [dynamics], ...; see examples/)"
+OUT_HELP = "output folder (created if missing)"
+FORCE_HELP = "run even if the estimated memory exceeds what is available"
+
+EPILOG = """\
+exit status:
+  0  success
+  1  solver failure (the message names the time step and the cause)
+  2  bad input: config, mesh or control file, output folder, option, or a problem too large
+     for the memory (one line on stderr; nothing is written)
+
+config sections (all optional; reference: docs/configuration.md, or python -m hyperoc.app.config --reference):
+  [mesh] [material] [fibres] [dynamics] [control] [objective] [optimize] [output]
+
+example:
+  hyperoc simulate examples/simulate-1d.toml --out run --set dynamics.T=3
+  hyperoc optimize examples/paper-1d.toml --out opt        (and, if interrupted: hyperoc optimize --resume opt)
+"""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse's usage errors as `InputError` (one line, exit 2) instead of usage text and SystemExit."""
+
+    def error(self, message):
+        raise InputError(message)
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="hyperoc", description="Optimal control of hyperelastic bodies under a volume constraint",
+                                epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    s = sub.add_parser("simulate", help="forward solve with a prescribed control", epilog=EPILOG,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    s.add_argument("config", help=CONFIG_HELP)
+    s.add_argument("--out", required=True, metavar="DIR", help=OUT_HELP)
+    s.add_argument("--log-steps", action="store_true",
+                   help="one line per time step on stderr (Newton iterations, min det F, volume drift, pressure) "
+                        "instead of the progress bar, for output going to a file")
+    o = sub.add_parser("optimize", help="optimize the control and the time tau", epilog=EPILOG,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    o.add_argument("config", nargs="?", help=CONFIG_HELP)
+    o.add_argument("--out", metavar="DIR", help=OUT_HELP)
+    o.add_argument("--resume", metavar="DIR", help="continue an interrupted run in DIR (its config.toml is reused)")
+    o.add_argument("--method", choices=["bb", "lbfgsb", "newton"], help="override [optimize] method")
+    o.add_argument("--scheduler", metavar="ADDRESS", help="Dask scheduler for multi-start (default: local processes)")
+    o.add_argument("--workers", type=int, default=2)
+    g = sub.add_parser("check-gradient", help="Taylor tests of the exact gradient", epilog=EPILOG,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    g.add_argument("config", help=CONFIG_HELP)
+    g.add_argument("--json", action="store_true", help="print the results as JSON")
+    g.add_argument("--seed", type=int, default=0)
+    r = sub.add_parser("reproduce", help="reproduce a paper experiment")
+    r.add_argument("experiment", choices=["paper-1d"])
+    r.add_argument("--out", required=True, metavar="DIR", help=OUT_HELP)
+    r.add_argument("--quick", action="store_true",
+                   help="the headline only (skip the diagnostic runs of the problem as stated)")
+    r.add_argument("--workers", type=int, default=None,
+                   help="processes running the independent studies in parallel (default: min(2, CPUs))")
+    for q in (s, o, r):
+        q.add_argument("--no-progress", action="store_true", help="no progress bar")
+    for q in (s, o, g):
+        q.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", dest="overrides",
+                       help="override a config entry, e.g. --set optimize.xi_bounds=[-0.05,0.05] (repeatable; "
+                            "VALUE is read as TOML, else as a string)")
+    for q in (s, o, g):
+        q.add_argument("--force", action="store_true", help=FORCE_HELP)
+    return p
+
+
+def _checked_config(config, overrides, out, command: str, force: bool):
+    """The validated `Config`: the schema, the output folder, the files the config names, the
+    problem's size, the mesh and the prescribed control (`hyperoc.app.preflight.check_inputs`), then
+    the model (`hyperoc.app.workflows.check_run`). Returns ``(cfg, model)``; nothing has been written."""
+    from .config import load_config
+    from .preflight import check_inputs, check_output_dir
+
+    cfg = load_config(config, overrides)
+    if out is not None:
+        check_output_dir(out)
+    mesh = check_inputs(cfg, command, force)
+    _start_compiler()  # before anything compiles: JAX fixes its cache at the first compilation
+    from .workflows import check_run  # the solvers and JAX: only for input that passed the checks above
+
+    return cfg, check_run(cfg, command, mesh)
+
+
+def _optimize(args) -> None:
+    overrides = args.overrides + ([f"optimize.method={args.method}"] if args.method else [])
+    if args.resume:
+        out = Path(args.resume)
+        config = out / "config.toml"
+        if not config.is_file():
+            raise InputError(f"--resume: {out} has no config.toml (is it an optimize output folder?)")
+        if overrides or args.config or args.out:
+            raise InputError(f"--resume continues the run configured in {config}; CONFIG, --out, --set and --method "
+                             "apply to a new run")
+    else:
+        if not (args.config and args.out):
+            raise InputError("optimize needs CONFIG and --out DIR (or --resume DIR)")
+        out, config = Path(args.out), Path(args.config)
+    cfg, model = _checked_config(config, overrides, out, "optimize", args.force)
+    from .workflows import optimize, resume_state
+
+    done = 0
+    if args.resume:
+        state = resume_state(cfg, out)
+        for path, reason in state["dropped"]:
+            print(f"hyperoc: warning: damaged evaluation cache entry {path} ({reason}): dropped, it will be recomputed",
+                  file=sys.stderr)
+        done = state["iterations"]
+        print(f"resuming: {state['evaluations']} evaluations cached, {done} iterations done", file=sys.stderr)
+    else:
+        _record_config(cfg, out)  # --resume continues this very problem
+    # a resumed run reads the copy out/config.toml: its folder names it in the figures
+    summary = optimize(cfg, out, progress=not args.no_progress, scheduler=args.scheduler, workers=args.workers,
+                       model=model, iterations_done=done, title=out.resolve().name if args.resume else None)
+    print(f"tau = {summary.get('tau', float('nan')):.6g}  J = {summary.get('objective', float('nan')):.6g}  "
+          f"converged = {summary.get('converged')}  -> {out / 'summary.json'}")
+    _print_stop(summary, out)
+
+
+def _print_stop(summary: dict, out: Path) -> None:
+    """The optimizer's stop reason, a best iterate it did not end at, and the physics warnings."""
+    opt = summary.get("optimization", {})
+    if opt.get("message"):
+        print(f"stopped: {opt['message']}")
+    best = opt.get("best")
+    if best:
+        print(f"best iterate: J = {best['objective']:.6g} at iteration {best['iteration']} (tau = {best['tau']:.6g}), "
+              f"above the final J = {opt['objective']:.6g}: {out / best['file']}")
+    for w in summary.get("warnings", []):
+        print(f"warning: {w}", file=sys.stderr)
+
+
+def _start_compiler() -> None:
+    """After the input is checked: JAX, with its persistent compilation cache (`hyperoc._jax`)."""
+    from .._jax import enable_compilation_cache
+
+    enable_compilation_cache()
+
+
+def _record_config(cfg, out: Path) -> None:
+    """``out/config.toml``: the configuration that runs, overrides and defaults included (written
+    after every check, so that bad input leaves no file behind)."""
+    from ..io import atomic_write_text
+
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out / "config.toml", cfg.to_toml())
+
+
+def _print_step(record) -> None:
+    """``--log-steps``: one `hyperoc.dynamics.stepper.StepRecord` per line, flushed (a log file follows the run)."""
+    print(f"step {record.step} t = {record.t:.6g}: {record.describe()}", file=sys.stderr, flush=True)
+
+
+def _simulate(args) -> None:
+    cfg, model = _checked_config(args.config, args.overrides, args.out, "simulate", args.force)
+    from .workflows import simulate
+
+    _record_config(cfg, Path(args.out))
+    summary = simulate(cfg, args.out, progress=not (args.no_progress or args.log_steps),
+                       monitor=_print_step if args.log_steps else None, model=model)
+    print(f"max p = {summary['pressure_max']:.6g} at t = {summary['t_pressure_max']:.6g}; "
+          f"volume drift {summary['volume_drift']:.2e} -> {Path(args.out) / 'summary.json'}")
+    for w in summary["warnings"]:
+        print(f"warning: {w}", file=sys.stderr)
+
+
+def _check_gradient(args) -> None:
+    cfg, _ = _checked_config(args.config, args.overrides, None, "optimize", args.force)
+    from .workflows import check_gradient
+
+    if not args.json:
+        print("Taylor tests along xi, tau and (xi, tau) (a few state and adjoint solves each):", flush=True)
+    res = check_gradient(cfg, seed=args.seed, report=None if args.json else _print_taylor)
+    if args.json:
+        print(json.dumps(res, indent=2))
+
+
+def _print_taylor(name: str, r: dict) -> None:
+    print(f"{name:6s} rate {r['rate']:.3f} ({'pass' if r['passed'] else 'FAIL'}: expected 2)  "
+          f"remainders {', '.join(f'{x:.2e}' for x in r['remainder'])}", flush=True)
+
+
+def _reproduce(args) -> None:
+    from .preflight import check_output_dir
+
+    out = check_output_dir(args.out)
+    _start_compiler()
+    from .paper import reproduce_paper_1d
+
+    reproduce_paper_1d(out, quick=args.quick, progress=not args.no_progress, workers=args.workers)
+
+
+COMMANDS = {"simulate": _simulate, "optimize": _optimize, "check-gradient": _check_gradient, "reproduce": _reproduce}
+
+
+def main(argv=None) -> int:
+    try:
+        args = _parser().parse_args(argv)
+        COMMANDS[args.command](args)
+    except InputError as exc:
+        print(f"hyperoc: error: {_one_line(exc)}", file=sys.stderr)
+        return 2
+    except SolverError as exc:
+        print(f"hyperoc: solver failure: {_one_line(exc)}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _one_line(exc: Exception) -> str:
+    return " ".join(str(exc).split())
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,320 @@
+"""PNG figures of pressures, controls, snapshots and optimizer histories.
+
+Figures are built with `matplotlib.figure.Figure` on an Agg canvas, never through pyplot: no
+global state, no display needed, safe in worker processes. Each function renders to memory
+and writes the PNG atomically (`hyperoc.io.atomic_write_bytes`), then returns its path.
+
+Every axis is labelled ``name [unit]`` (`axis_label`) with the units of a `Units`; ``-`` marks a
+dimensionless quantity (the default: the model's equations carry no units of their own).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from io import BytesIO
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
+
+from ..io import atomic_write_bytes
+
+__all__ = ["Units", "axis_label", "plot_pressure", "plot_control_spacetime", "plot_snapshots", "plot_history"]
+
+_DPI = 150
+_MARK_COLOR = "C3"  # the vertical markers of `plot_pressure`: dotted, apart from p (C0) and tau (black)
+
+
+@dataclass(frozen=True)
+class Units:
+    """Units of the quantities on the figures' axes, as printed (e.g. ``"ms"``, ``"mm"``, ``"kPa"``);
+    ``"-"`` is dimensionless.
+
+    Attributes
+    ----------
+    time : str
+        Time t.
+    length : str
+        Coordinates and displacements; volumes are in ``length^3``.
+    pressure : str
+        The pressure p (the multiplier of the volume constraint).
+    control : str
+        The control xi (a body force: force per volume; an active stress: a stress).
+    """
+
+    time: str = "-"
+    length: str = "-"
+    pressure: str = "-"
+    control: str = "-"
+
+    @property
+    def velocity(self) -> str:
+        """``length/time``; ``-`` when both are dimensionless."""
+        if self.time == "-":
+            return self.length
+        return f"1/{self.time}" if self.length == "-" else f"{self.length}/{self.time}"
+
+    @property
+    def volume(self) -> str:
+        """``length^3``; ``-`` when length is dimensionless."""
+        return "-" if self.length == "-" else f"{self.length}^3"
+
+
+def axis_label(name: str, unit: str = "-") -> str:
+    """An axis label ``"name [unit]"``, e.g. ``axis_label("x", "mm") == "x [mm]"``."""
+    return f"{name} [{unit}]"
+
+
+def _new_figure(width: float, height: float, layout: str | None = "constrained") -> Figure:
+    fig = Figure(figsize=(width, height), layout=layout)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _save(fig: Figure, path) -> Path:
+    buffer = BytesIO()
+    fig.savefig(buffer, format="png", dpi=_DPI)
+    return atomic_write_bytes(path, buffer.getvalue())
+
+
+def _as_1d(name: str, values, n: int | None = None) -> np.ndarray:
+    array = np.asarray(values, dtype=np.float64)
+    if array.ndim != 1 or (n is not None and len(array) != n):
+        expected = f"({n},)" if n is not None else "1D"
+        raise ValueError(f"{name} must have shape {expected}, got {array.shape}")
+    return array
+
+
+def _as_spacetime(name: str, values, nt: int, nx: int) -> np.ndarray:
+    array = np.asarray(values, dtype=np.float64)
+    if array.shape != (nt, nx):
+        raise ValueError(f"{name} must have shape (nt, nx) = ({nt}, {nx}), got {array.shape}")
+    return array
+
+
+def plot_pressure(path, t, p, *, tau=None, eps=None, volume=None, cavity=None, title=None, units=None,
+                  marks=None) -> Path:
+    """Plot the pressure p(t), with the free time tau marked, and optionally the volume drift and the
+    cavity volume.
+
+    Parameters
+    ----------
+    path : path
+        Output PNG.
+    t : (nt,) array_like
+        Time levels [units.time].
+    p : (nt,) array_like
+        Pressure (Lagrange multiplier of the volume constraint) at each time level [units.pressure].
+    tau : float, optional
+        Free time [units.time]; a dashed vertical line. With ``eps``, the window [tau, tau + eps] is shaded.
+    eps : float, optional
+        Width of the window after tau [units.time].
+    volume : (nt,) array_like, optional
+        Body volume ``int det F``; adds a panel with the relative drift ``volume / volume[0] - 1`` [-].
+    cavity : (nt,) array_like, optional
+        Cavity volume (e.g. of a ventricle, `hyperoc.fem.volumes.cavity_volume`) [units.length^3]; adds a
+        panel with it.
+    title : str, optional
+        Figure title (e.g. the run's name).
+    units : Units, optional
+        Units of the axes (default: all dimensionless).
+    marks : sequence of (float, str), optional
+        ``(time, label)`` pairs: dotted vertical lines on the pressure panel, each distinct label
+        once in the legend.
+
+    Returns
+    -------
+    Path
+    """
+    units = units or Units()
+    t = _as_1d("t", t)
+    p = _as_1d("p", p, len(t))
+    panels = 1 + (volume is not None) + (cavity is not None)
+    fig = _new_figure(6.4, 3.2 * panels)
+    axes = fig.subplots(panels, 1, sharex=True, squeeze=False)[:, 0]
+    axes[0].plot(t, p, color="C0", label="p(t)")
+    axes[0].set_ylabel(axis_label("pressure p", units.pressure))
+    if tau is not None:
+        for ax in axes:
+            ax.axvline(tau, color="k", linestyle="--", linewidth=1.0, label=r"$\tau$")
+            if eps is not None:
+                ax.axvspan(tau, tau + eps, color="0.85", label=r"$[\tau, \tau+\varepsilon]$")
+    _draw_marks(axes[0], marks)
+    axes[0].legend(loc="best")
+    if volume is not None:
+        volume = _as_1d("volume", volume, len(t))
+        axes[1].plot(t, volume / volume[0] - 1.0, color="C1")
+        axes[1].set_ylabel(axis_label("V(t)/V(0) - 1"))
+    if cavity is not None:
+        axes[-1].plot(t, _as_1d("cavity", cavity, len(t)), color="C2")
+        axes[-1].set_ylabel(axis_label("cavity volume", units.volume))
+    axes[-1].set_xlabel(axis_label("time t", units.time))
+    if title:
+        fig.suptitle(title)
+    return _save(fig, path)
+
+
+def _draw_marks(ax, marks) -> None:
+    """Dotted vertical lines (gid ``"mark"``) at the times of ``marks`` = [(t, label), ...]; a
+    label already drawn is not repeated in the legend."""
+    seen = set()
+    for time, label in marks or ():
+        label = str(label) if label else ""
+        shown = label if label and label not in seen else "_nolegend_"
+        seen.add(label)
+        ax.axvline(float(time), color=_MARK_COLOR, linestyle=":", linewidth=1.2, label=shown, gid="mark")
+
+
+def plot_control_spacetime(path, t, x, xi, *, xlabel="x", tau=None, title=None, units=None) -> Path:
+    """Space-time map of a 1D control (or of slice means of a 2D/3D one), x horizontal and t
+    vertical, colors centered at 0.
+
+    Parameters
+    ----------
+    path : path
+        Output PNG.
+    t : (nt,) array_like
+        Time levels [units.time].
+    x : (nx,) array_like
+        Spatial nodes [units.length].
+    xi : (nt, nx) array_like
+        Control values ``xi[n, i] = xi(t_n, x_i)`` [units.control].
+    xlabel : str
+        Name of the space axis (its unit is appended).
+    tau : float, optional
+        Free time [units.time]; a dashed horizontal line.
+    title : str, optional
+        Axes title (e.g. the run's name).
+    units : Units, optional
+        Units of the axes and of the colour bar (default: all dimensionless).
+
+    Returns
+    -------
+    Path
+    """
+    units = units or Units()
+    t, x = _as_1d("t", t), _as_1d("x", x)
+    xi = _as_spacetime("xi", xi, len(t), len(x))
+    bound = float(np.nanmax(np.abs(xi))) if np.isfinite(xi).any() else 0.0
+    bound = bound if bound > 0 else 1.0
+    fig = _new_figure(6.4, 4.8)
+    ax = fig.subplots()
+    mesh = ax.pcolormesh(x, t, xi, shading="nearest", cmap="RdBu_r", vmin=-bound, vmax=bound)
+    fig.colorbar(mesh, ax=ax, label=axis_label("control xi", units.control))
+    if tau is not None:
+        ax.axhline(tau, color="k", linestyle="--", linewidth=1.0)
+    ax.set_xlabel(axis_label(xlabel, units.length))
+    ax.set_ylabel(axis_label("time t", units.time))
+    if title:
+        ax.set_title(title)
+    return _save(fig, path)
+
+
+def _nearest_levels(t: np.ndarray, times) -> np.ndarray:
+    """Indices of the time levels nearest to each requested time."""
+    requested = np.atleast_1d(np.asarray(times, dtype=np.float64))
+    return np.abs(t[None, :] - requested[:, None]).argmin(axis=1)
+
+
+def plot_snapshots(path, x, t, values, times, *, ylabel, title=None, ncols: int = 4, units=None,
+                   field_unit=None) -> Path:
+    """Small multiples of a 1D field at selected times, with shared axes.
+
+    Parameters
+    ----------
+    path : path
+        Output PNG.
+    x : (nx,) array_like
+        Spatial nodes [units.length].
+    t : (nt,) array_like
+        Time levels [units.time].
+    values : (nt, nx) array_like
+        Field values per time level [field_unit].
+    times : sequence of float
+        Requested times; each panel shows the nearest time level (its actual time in the title).
+    ylabel : str
+        Label of the field axis (``[field_unit]`` is appended when given).
+    title : str, optional
+        Figure title (e.g. the run's name).
+    ncols : int
+        Panels per row.
+    units : Units, optional
+        Units of the space and time axes (default: all dimensionless).
+    field_unit : str, optional
+        Unit of the field, e.g. ``units.length`` for a displacement.
+
+    Returns
+    -------
+    Path
+    """
+    units = units or Units()
+    x, t = _as_1d("x", x), _as_1d("t", t)
+    values = _as_spacetime("values", values, len(t), len(x))
+    levels = _nearest_levels(t, times)
+    if not len(levels):
+        raise ValueError("plot_snapshots: no times requested")
+    ncols = min(ncols, len(levels))
+    nrows = math.ceil(len(levels) / ncols)
+    # A fixed layout: the constrained solver costs seconds on 16 panels and shared axes need none.
+    # Margins in inches, so that labels and titles fit a single row as well as four.
+    width, height = 2.6 * ncols, 2.2 * nrows
+    fig = _new_figure(width, height, layout=None)
+    fig.subplots_adjust(left=0.8 / width, right=1 - 0.15 / width, bottom=0.5 / height,
+                        top=1 - (0.3 + 0.3 * bool(title)) / height, wspace=0.15, hspace=0.35)
+    axes = fig.subplots(nrows, ncols, sharex=True, sharey=True, squeeze=False).ravel()
+    time_unit = "" if units.time == "-" else f" {units.time}"
+    ylabel = ylabel if field_unit is None else axis_label(ylabel, field_unit)
+    for ax, n in zip(axes, levels):
+        ax.plot(x, values[n], color="C0")
+        ax.set_title(f"t = {t[n]:.4g}{time_unit}", fontsize="medium")
+    for ax in axes[len(levels):]:
+        ax.set_visible(False)
+    for i, ax in enumerate(axes[: len(levels)]):
+        if i % ncols == 0:
+            ax.set_ylabel(ylabel)
+            ax.ticklabel_format(axis="y", scilimits=(-2, 3))  # short tick labels: the margin is fixed
+        if i + ncols >= len(levels):  # lowest visible panel of its column
+            ax.set_xlabel(axis_label("x", units.length))
+            ax.xaxis.set_tick_params(labelbottom=True)
+    if title:
+        fig.suptitle(title)
+    return _save(fig, path)
+
+
+def plot_history(path, histories: dict, *, logy_keys=("grad_norm",), title=None) -> Path:
+    """Optimizer histories (objective, gradient norm, tau, ...) vs iteration, one panel each.
+
+    Parameters
+    ----------
+    path : path
+        Output PNG.
+    histories : dict of str -> sequence of float
+        One sequence per quantity, indexed by iteration.
+    logy_keys : iterable of str
+        Quantities drawn on a log scale (when all their finite values are positive).
+    title : str, optional
+        Figure title (e.g. the run's name).
+
+    Returns
+    -------
+    Path
+    """
+    if not histories:
+        raise ValueError("plot_history: no histories given")
+    fig = _new_figure(6.4, 2.2 * len(histories))
+    axes = fig.subplots(len(histories), 1, sharex=True, squeeze=False)[:, 0]
+    for ax, (key, values) in zip(axes, histories.items()):
+        values = _as_1d(key, values)
+        ax.plot(np.arange(len(values)), values, marker="o", markersize=3)
+        ax.set_ylabel(key)
+        finite = values[np.isfinite(values)]
+        if key in logy_keys and finite.size and np.all(finite > 0):
+            ax.set_yscale("log")
+    axes[-1].set_xlabel("iteration")
+    axes[-1].xaxis.set_major_locator(MaxNLocator(integer=True))
+    if title:
+        fig.suptitle(title)
+    return _save(fig, path)

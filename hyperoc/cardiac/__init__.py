@@ -1,0 +1,1 @@
+"""Cardiac mechanics benchmarks (Land et al. 2015)."""

@@ -1,0 +1,2 @@
+"""Optimal control: objectives, the exact adjoint and its checkpointing, the reduced functional,
+the control space, optimizers and Taylor tests."""

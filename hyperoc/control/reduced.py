@@ -1,0 +1,364 @@
+"""The reduced functional ``J(m)``, ``m = (xi~, tau)``, of the hybrid optimal control problem.
+
+The control ``xi~`` lives on the fixed s-grid of a `TimeTransform` (nodal values on the control
+nodes at every s-level, shape (N+1, n_ctrl)); tau sets the t-grid through the step sizes. The
+gradient is the exact gradient of the discrete J (`hyperoc.control.adjoint`), its xi-part returned as the
+Riesz representative in the control space (`hyperoc.control.control_space.ControlSpace`): L2(0, 2; L2(omega))
+for the paper's cost, H^1(0, 2; L2(omega)) when the objective penalizes ``d xi/dt`` (``beta > 0``),
+so that optimizers see mesh- and step-independent quantities.
+
+With ``checkpoint_every=k`` the value and the gradient never hold the whole trajectory: the forward
+pass keeps every k-th level state, the levels the objective reads and the step multipliers, and the
+adjoint recomputes each segment from its checkpoint (`hyperoc.control.adjoint.Checkpoints`). With
+``checkpoint_snapshots=s`` it follows the binomial schedule of `hyperoc.control.revolve` instead (s snapshots,
+the least number of recomputed steps; `hyperoc.control.adjoint.RevolveRecord`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .. import _jax  # noqa: F401
+from ..dynamics.stepper import Scheme, StateSolution, TimeStepper
+from ..dynamics.timegrid import TimeTransform
+from ..errors import InputError
+from ..mechanics.model import StateModel
+from .adjoint import Adjoint, Checkpoints, RevolveRecord
+from .control_space import ControlSpace, control_space
+from .objectives import Objective, Trajectory
+
+__all__ = ["ControlPoint", "ReducedFunctional", "LevelStates", "checkpoint_options"]
+
+
+def checkpoint_options(every, snapshots) -> tuple[int | None, int | None]:
+    """Validated ``(checkpoint_every, checkpoint_snapshots)``: each None or an integer >= 1, not both set;
+    raises `InputError` naming the option."""
+    for name, value in (("checkpoint_every", every), ("checkpoint_snapshots", snapshots)):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1):
+            raise InputError(f"{name} must be None or an integer >= 1, got {value!r}")
+    if every is not None and snapshots is not None:
+        raise InputError(f"checkpoint_every = {every} and checkpoint_snapshots = {snapshots} exclude each other "
+                         "(equidistant or binomial checkpoints: set one to None)")
+    return (None if every is None else int(every)), (None if snapshots is None else int(snapshots))
+
+
+class LevelStates:
+    """Some level states of a trajectory, indexed like the (N+1, n) array they stand for.
+
+    ``states[k]`` (an int, negative from the end) returns the stored level k, (n,); a slice stacks
+    its levels. With checkpointing, objective terms see ``traj.y0`` and ``traj.y1`` as these: terms
+    that read single levels (``traj.y1[-1]``, ``traj.y0[traj.tau_index]``) work unchanged, terms that
+    use the whole array do not (they need ``checkpoint_every=None``).
+
+    num_levels : N+1; levels : the stored level indices (ascending); values : (len(levels), n).
+    """
+
+    def __init__(self, num_levels: int, levels, values):
+        self.num_levels, self.values = num_levels, values
+        self.rows = {int(k): i for i, k in enumerate(levels)}
+
+    def __len__(self) -> int:
+        return self.num_levels
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            return jnp.stack([self._level(k) for k in range(*index.indices(self.num_levels))])
+        if not isinstance(index, (int, np.integer)):
+            raise InputError("with checkpointing, objective terms index traj.y0 / traj.y1 by static levels "
+                             f"(ints or slices), got {type(index).__name__}")
+        k = int(index) + (self.num_levels if index < 0 else 0)
+        if not 0 <= k < self.num_levels:
+            raise IndexError(f"level {index} out of range for {self.num_levels} levels")
+        return self._level(k)
+
+    def _level(self, k: int):
+        return self.values[self.rows[k]]
+
+
+class _LevelRecorder(LevelStates):
+    """Notes the levels an objective reads (zeros stand in for the states)."""
+
+    def __init__(self, num_levels: int, n: int):
+        super().__init__(num_levels, (), None)
+        self.n, self.read = n, set()
+
+    def _level(self, k: int):
+        self.read.add(k)
+        return jnp.zeros(self.n)
+
+
+@dataclass(frozen=True, eq=False)
+class ControlPoint:
+    """A point (or direction) ``m = (xi, tau)``: xi (N+1, n_ctrl) on the s-levels, tau scalar."""
+
+    xi: np.ndarray
+    tau: float
+
+    def __add__(self, other: "ControlPoint") -> "ControlPoint":
+        return ControlPoint(self.xi + other.xi, self.tau + other.tau)
+
+    def __sub__(self, other: "ControlPoint") -> "ControlPoint":
+        return ControlPoint(self.xi - other.xi, self.tau - other.tau)
+
+    def __mul__(self, a: float) -> "ControlPoint":
+        return ControlPoint(a * self.xi, a * self.tau)
+
+    __rmul__ = __mul__
+
+    def flat(self) -> np.ndarray:
+        return np.concatenate([self.xi.ravel(), [self.tau]])
+
+
+class ReducedFunctional:
+    """``J(m)`` and its exact gradient for a model, a time transform and an objective (maximized).
+
+    Parameters
+    ----------
+    model : StateModel with a control operator.
+    transform : TimeTransform (its eps must match the objective's when the objective uses one).
+    objective : Objective.
+    scheme, solver : time-stepping options (multiplier "step").
+    u0, v0 : initial state (reduced vectors), zero by default.
+    gradient : "exact" (gradient of the discrete J, default) or "continuous" (the paper's
+        optimize-then-discretize gradient, `hyperoc.control.continuous_adjoint`; for comparison).
+    checkpoint_every : None (default: the value and the gradient store all N+1 level states
+        ``(y0, y1)``, 2 (N+1) n floats) or an int k >= 1: store the level states at ``0, k, 2k, ...``
+        only, plus the levels the objective reads, and recompute each segment of k steps from its
+        checkpoint during the adjoint sweep. Memory ``ceil(N/k) + k + 1`` level states (least near
+        ``k = sqrt(N)``), at the cost of one more forward solve per gradient (Newton included); the
+        gradient equals the stored one to round-off (same compiled step, same Newton warm start).
+        The objective's terms must read ``traj.y0`` / ``traj.y1`` by static levels (see
+        `LevelStates`); exact gradient only. `state` still returns the whole trajectory (for reports).
+    space : the control space (`ControlSpace`); by default L2 in time, or H^1 in time with the time
+        scale ``(2/T) sqrt(beta/alpha)`` of the objective's `hyperoc.control.objectives.ControlRateCost`.
+    checkpoint_snapshots : None (default) or an int s >= 1: binomial checkpointing (`hyperoc.control.revolve`,
+        Griewank's revolve): the forward pass keeps s snapshots, the state at level N-1, ``y0_N``, the
+        levels the objective reads and the step multipliers; the adjoint restores, advances and reverses
+        one step at a time. Memory s + 2 level states; cost ``t(N, s) + 1`` step evaluations per gradient
+        (`hyperoc.control.revolve.minimal_advances`: the fewest possible with s snapshots; N (N-1)/2 + 1 for
+        s = 1, N for s >= N - 1) against N when storing everything, e.g. 4.5 N for N = 3000, s = 10
+        and 3.3 N for s = 20. Same requirements as ``checkpoint_every``, which it excludes; the
+        gradient equals the stored one to round-off.
+    """
+
+    def __init__(self, model: StateModel, transform: TimeTransform, objective: Objective, *,
+                 scheme: Scheme = Scheme(), solver="auto", u0=None, v0=None, gradient: str = "exact",
+                 checkpoint_every: int | None = None, checkpoint_snapshots: int | None = None,
+                 space: ControlSpace | None = None):
+        if gradient not in ("exact", "continuous"):
+            raise InputError(f"gradient must be 'exact' or 'continuous', got {gradient!r}")
+        self.gradient_method = gradient
+        if model.control is None:
+            raise InputError("the optimal control problem needs a model with a control operator")
+        if objective.eps and abs(transform.eps - objective.eps) > 1e-14:
+            raise InputError(f"time transform eps = {transform.eps} differs from the objective's eps = {objective.eps}")
+        self.model, self.transform, self.objective = model, transform, objective
+        if space is None:
+            alpha, beta = objective.control_weights
+            space = control_space(transform, model.control, alpha, beta)
+        if gradient == "continuous" and objective.control_weights[1] > 0:
+            raise InputError("gradient = 'continuous' does not include the cost of d xi/dt: use 'exact' with beta > 0")
+        self.space = space
+        self.stepper = TimeStepper(model, scheme, solver)
+        self.adjoint = Adjoint(self.stepper)
+        self.u0 = np.zeros(model.n) if u0 is None else np.asarray(u0, float)
+        self.v0 = np.zeros(model.n) if v0 is None else np.asarray(v0, float)
+        self.N = transform.num_steps
+        self.counts = {"state": 0, "adjoint": 0}
+        self._cache_key, self._cache = None, None
+        self._set_checkpointing(checkpoint_every, checkpoint_snapshots)
+        from jax.experimental import sparse as jsparse
+
+        # Built eagerly: a cached property first touched inside a traced function would leak tracers.
+        self._control_mass = jsparse.BCOO.from_scipy_sparse(model.control.mass.tocoo())
+
+    @property
+    def checkpoint_every(self) -> int | None:
+        """Checkpoint spacing k (None: store every level); may be changed between evaluations."""
+        return self._checkpoint_every
+
+    @checkpoint_every.setter
+    def checkpoint_every(self, k: int | None) -> None:
+        self._set_checkpointing(k, self._checkpoint_snapshots)
+
+    @property
+    def checkpoint_snapshots(self) -> int | None:
+        """Snapshots s of the binomial schedule (None: not used); may be changed between evaluations."""
+        return self._checkpoint_snapshots
+
+    @checkpoint_snapshots.setter
+    def checkpoint_snapshots(self, s: int | None) -> None:
+        self._set_checkpointing(self._checkpoint_every, s)
+
+    @property
+    def checkpointed(self) -> bool:
+        """Whether the value and the gradient use checkpoints (equidistant or binomial)."""
+        return self._checkpoint_every is not None or self._checkpoint_snapshots is not None
+
+    def _set_checkpointing(self, every, snapshots) -> None:
+        every, snapshots = checkpoint_options(every, snapshots)
+        if (every or snapshots) and self.gradient_method != "exact":
+            raise InputError(f"{'checkpoint_every' if every else 'checkpoint_snapshots'} is implemented for the exact "
+                             "gradient only")
+        self._checkpoint_every, self._checkpoint_snapshots = every, snapshots
+        self._record_key, self._record = None, None
+
+    # --- geometry of the control space -----------------------------------------------------------
+    @property
+    def s_weights(self) -> np.ndarray:
+        """Trapezoid weights of the s-levels, (N+1,)."""
+        return self.space.weights
+
+    def zero(self, tau: float) -> ControlPoint:
+        return ControlPoint(np.zeros((self.N + 1, self.model.control.size)), float(tau))
+
+    def inner(self, a: ControlPoint, b: ControlPoint) -> float:
+        """The inner product of `space` (L2 or H^1 in s, times L2(omega), plus ``a.tau b.tau``)."""
+        return self.space.inner(a, b)
+
+    def norm(self, a: ControlPoint) -> float:
+        return self.space.norm(a)
+
+    def riesz(self, dual: ControlPoint) -> ControlPoint:
+        """Riesz representative of a derivative (dual vector) for `inner`."""
+        return self.space.riesz(dual)
+
+    def dual(self, g: ControlPoint) -> ControlPoint:
+        """Inverse of `riesz`: the dual vector ``d`` with ``d.xi . v.xi + d.tau v.tau = <g, v>``."""
+        return self.space.dual(g)
+
+    # --- evaluation ------------------------------------------------------------------------------
+    def _check(self, m: ControlPoint) -> None:
+        if m.xi.shape != (self.N + 1, self.model.control.size):
+            raise InputError(f"control must have shape {(self.N + 1, self.model.control.size)}, got {m.xi.shape}")
+        self.transform.check_tau(m.tau)
+
+    def state(self, m: ControlPoint) -> StateSolution:
+        """The state for m (cached for the last point)."""
+        self._check(m)
+        key = (m.tau, m.xi.tobytes())
+        if key != self._cache_key:
+            grid = self.transform.grid(m.tau)
+            sol = self.stepper.run(grid, m.xi, u0=self.u0, v0=self.v0, diagnose=False)
+            self.counts["state"] += 1
+            self._cache_key, self._cache = key, sol
+        return self._cache
+
+    def trajectory(self, sol: StateSolution) -> Trajectory:
+        n1, n2, _ = self.transform.steps
+        return Trajectory(jnp.asarray(sol.y0), jnp.asarray(sol.y1), jnp.asarray(sol.p_steps), jnp.asarray(sol.xi),
+                          jnp.asarray(sol.dt), n1, n1 + n2, self._control_mass, self.stepper._M, self.model)
+
+    def _objective_functions(self, states):
+        """Jitted ``J(y0, y1, p, xi, dt)`` and its value and partial derivatives; ``states`` turns the
+        y0 / y1 arguments into what the terms see (the arrays themselves, or `LevelStates`)."""
+        n1, n2, _ = self.transform.steps
+
+        def value(y0, y1, p, xi, dt):
+            traj = Trajectory(states(y0), states(y1), p, xi, dt, n1, n1 + n2, self._control_mass, self.stepper._M,
+                              self.model)
+            return self.objective.value(traj)
+
+        return jax.jit(value), jax.jit(jax.value_and_grad(value, argnums=(0, 1, 2, 3, 4)))
+
+    @cached_property
+    def _objective_and_partials(self):
+        return self._objective_functions(lambda y: y)
+
+    @cached_property
+    def objective_levels(self) -> tuple[int, ...]:
+        """The levels at which the objective reads y0 or y1 (found by tracing it once, no solve)."""
+        n1, n2, _ = self.transform.steps
+        N, n, nc = self.N, self.model.n, self.model.control.size
+        recorders = _LevelRecorder(N + 1, n), _LevelRecorder(N + 1, n)
+        f64 = lambda *shape: jax.ShapeDtypeStruct(shape, jnp.float64)
+        try:
+            jax.eval_shape(lambda p, xi, dt: self.objective.value(
+                Trajectory(*recorders, p, xi, dt, n1, n1 + n2, self._control_mass, self.stepper._M, self.model)),
+                f64(N), f64(N + 1, nc), f64(N))
+        except (TypeError, AttributeError) as err:
+            raise InputError(f"checkpointing: the objective uses traj.y0 / traj.y1 as whole arrays ({err}); "
+                             "index single levels (traj.y1[-1]) or set checkpoint_every and "
+                             "checkpoint_snapshots to None") from err
+        return tuple(sorted(recorders[0].read | recorders[1].read))
+
+    @cached_property
+    def _checkpointed_objective(self):
+        return self._objective_functions(lambda y: LevelStates(self.N + 1, self.objective_levels, y))
+
+    def record(self, m: ControlPoint) -> Checkpoints | RevolveRecord:
+        """Checkpointed forward solve for m (``checkpoint_every`` or ``checkpoint_snapshots`` set; cached
+        for the last point)."""
+        self._check(m)
+        key = (m.tau, m.xi.tobytes())
+        if key != self._record_key:
+            grid = self.transform.grid(m.tau)
+            loads = self.stepper.external_loads(None, grid)
+            record, count = ((self.adjoint.record_revolve, self.checkpoint_snapshots) if self.checkpoint_snapshots
+                             else (self.adjoint.record, self.checkpoint_every))
+            ck = record(grid, m.xi, loads, self.u0, self.v0, count, self.objective_levels)
+            self.counts["state"] += 1
+            self._record_key, self._record = key, ck
+        return self._record
+
+    def _checkpointed_arrays(self, ck: Checkpoints | RevolveRecord):
+        levels = self.objective_levels
+        kept = lambda i: jnp.stack([ck.kept[k][i] for k in levels]) if levels else jnp.zeros((0, self.model.n))
+        return kept(0), kept(1), jnp.asarray(ck.p_steps), jnp.asarray(ck.xi), jnp.asarray(ck.grid.dt)
+
+    def __call__(self, m: ControlPoint) -> float:
+        if self.checkpointed:
+            value, _ = self._checkpointed_objective
+            return float(value(*self._checkpointed_arrays(self.record(m))))
+        sol = self.state(m)
+        value, _ = self._objective_and_partials
+        return float(value(*self._arrays(sol)))
+
+    def _arrays(self, sol):
+        return (jnp.asarray(sol.y0), jnp.asarray(sol.y1), jnp.asarray(sol.p_steps), jnp.asarray(sol.xi),
+                jnp.asarray(sol.dt))
+
+    def value_and_derivative(self, m: ControlPoint) -> tuple[float, ControlPoint]:
+        """J(m) and dJ(m) as a dual vector: ``dJ.dm = sum(d.xi * dm.xi) + d.tau dm.tau``."""
+        if self.checkpointed:
+            ck = self.record(m)
+            _, vg = self._checkpointed_objective
+            J, (gY0, gY1, gP, gXi, gdt) = vg(*self._checkpointed_arrays(ck))
+            g_kept = {k: (gY0[i], gY1[i]) for i, k in enumerate(self.objective_levels)}
+            backward = (self.adjoint.backward_revolve if self.checkpoint_snapshots
+                        else self.adjoint.backward_checkpointed)
+            gXi_state, gdt_state = backward(ck, g_kept, gP)
+        else:
+            sol = self.state(m)
+            _, vg = self._objective_and_partials
+            J, (gY0, gY1, gP, gXi, gdt) = vg(*self._arrays(sol))
+            F = self.stepper.external_loads(None, self.transform.grid(m.tau))
+            V0 = float(sol.volume[0])
+            gXi_state, gdt_state = self.adjoint.backward(jnp.asarray(sol.y0), jnp.asarray(sol.y1),
+                                                         jnp.asarray(sol.p_steps), jnp.asarray(sol.xi), jnp.asarray(F),
+                                                         jnp.asarray(sol.dt), V0, gY0, gY1, gP)
+        self.counts["adjoint"] += 1
+        dxi = np.asarray(gXi) + gXi_state
+        ddt = np.asarray(gdt) + gdt_state
+        dtau = float(ddt @ self.transform.ddt_dtau())
+        return float(J), ControlPoint(dxi, dtau)
+
+    def derivative(self, m: ControlPoint) -> ControlPoint:
+        return self.value_and_derivative(m)[1]
+
+    def value_and_gradient(self, m: ControlPoint) -> tuple[float, ControlPoint]:
+        """J(m) and its Riesz gradient (L2(0,2; L2(omega)) x R), exact or continuous (see ``gradient``)."""
+        if self.gradient_method == "continuous":
+            from .continuous_adjoint import continuous_gradient
+
+            return self(m), continuous_gradient(self, m)
+        J, d = self.value_and_derivative(m)
+        return J, self.riesz(d)
+
+    def gradient(self, m: ControlPoint) -> ControlPoint:
+        return self.value_and_gradient(m)[1]

@@ -1,0 +1,1 @@
+"""Time: grids and the time transformation, the theta-scheme stepper, quasi-static solves."""

@@ -1,0 +1,528 @@
+"""Theta-scheme time stepping of the damped hyperelastic system with a global volume constraint.
+
+First-order system ``y0 = u``, ``y1 = u_t``; step ``n -> n+1`` of size ``dt``:
+
+    y0' = y0 + dt (theta y1' + (1 - theta) y1)
+    M (y1' - y1) + dt [theta A(y0', y1') + (1 - theta) A(y0, y1)] + dt p' [theta G(y0') + (1 - theta) G(y0)]
+                 = dt [theta L(xi') + (1 - theta) L(xi)]
+    vol(y0') = V0
+
+with ``A(y0, y1) = kappa K y1 + R(y0)``, ``L(xi) = B xi + g``. The unknown of a step is
+``x = (y0', p')``; ``y1'`` follows from the first line. ``p'`` is the step's multiplier, a
+second-order approximation of p at the mid-step; pressures at time levels are interpolated
+from the two adjacent steps (second order on non-uniform grids too).
+
+``multiplier="theta"`` weights the multiplier as ``theta p' G' + (1 - theta) p G`` (the paper's
+and GetFEM's choice), with ``p`` at t = 0 from the consistent initial acceleration. It is kept for
+comparison: at theta = 1/2 it carries an undamped alternating mode (see `tests/`).
+
+One step is a JAX function (Newton with backtracking inside a ``while_loop``); when the linear
+solver is traced (dense, tridiagonal) the whole time loop is one compiled ``lax.scan``, otherwise
+the step is jitted and driven from Python.
+"""
+
+from __future__ import annotations
+
+import time as _time
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .. import _jax  # noqa: F401
+from ..errors import InputError, SolverError
+from ..mechanics.model import StateModel
+from ..solvers.linsolve import make_solver
+from ..solvers.newton import newton
+from .timegrid import TimeGrid
+
+__all__ = ["Scheme", "StateSolution", "StepRecord", "TimeStepper", "solve_state", "level_pressure"]
+
+STATUS = {0: "ok", 1: "newton", 2: "nonfinite", 3: "detF"}
+
+# Blocks of steps a compiled time loop runs in when it shows progress (two compilations: the block
+# and the shorter last one).
+PROGRESS_CHUNKS = 20
+
+
+@dataclass(frozen=True)
+class Scheme:
+    """Time-stepping options.
+
+    theta : 1/2 (Crank-Nicolson, second order) ... 1 (implicit Euler).
+    multiplier : "step" (default) or "theta" (paper/GetFEM weighting, comparison only).
+    rtol : Newton stops when ``|dy0|_inf <= rtol |y0'|_inf + atol``.
+    atol : absolute floor of that test, in displacement units.
+    max_iter : Newton iterations per step before the step is declared failed.
+    """
+
+    theta: float = 0.5
+    multiplier: str = "step"
+    rtol: float = 1e-11
+    atol: float = 1e-15
+    max_iter: int = 30
+
+    def __post_init__(self):
+        if not 0.5 <= self.theta <= 1.0:
+            raise InputError(f"theta must lie in [1/2, 1], got {self.theta}")
+        if self.multiplier not in ("step", "theta"):
+            raise InputError(f"multiplier must be 'step' or 'theta', got {self.multiplier!r}")
+        if not (0 < self.rtol < 1 and self.atol >= 0 and self.max_iter >= 1):
+            raise InputError("Newton options: need 0 < rtol < 1, atol >= 0, max_iter >= 1")
+
+
+def level_pressure(p_steps, dt, multiplier: str = "step"):
+    """Pressure at the N+1 time levels from the N step multipliers (works on numpy and JAX arrays).
+
+    "step": interior levels by linear interpolation of the neighbouring mid-step values
+    ``p_{n-1/2}`` (at ``t_n - dt_{n-1}/2``) and ``p_{n+1/2}`` (at ``t_n + dt_n/2``); end levels by
+    linear extrapolation from the two nearest mid-steps. "theta": the multipliers are level values
+    already; ``p_steps`` then has N+1 entries (p_0 first) and is returned as is.
+    """
+    xp = jnp if isinstance(p_steps, jax.Array) else np
+    if multiplier == "theta":
+        return p_steps
+    if p_steps.shape[0] == 1:
+        return xp.concatenate([p_steps, p_steps])
+    a, b = dt[:-1], dt[1:]
+    interior = (b * p_steps[:-1] + a * p_steps[1:]) / (a + b)
+    first = p_steps[0] - (p_steps[1] - p_steps[0]) * dt[0] / (dt[0] + dt[1])
+    last = p_steps[-1] + (p_steps[-1] - p_steps[-2]) * dt[-1] / (dt[-1] + dt[-2])
+    return xp.concatenate([first[None], interior, last[None]])
+
+
+@dataclass(frozen=True)
+class StepRecord:
+    """One time step ``t_n -> t_{n+1}``, as a monitor sees it when the step ends.
+
+    step : n (0-based; the step `hyperoc.errors.SolverError` names).
+    t : t_{n+1}, the time level reached.
+    newton_iterations : Newton iterations of the step.
+    min_det_F : the smallest det F over the quadrature points at t_{n+1}.
+    volume_drift : ``|vol(u_{n+1}) - V0| / |V0|`` (the constraint holds to Newton's tolerance).
+    pressure : the step's multiplier p' (the mid-step pressure).
+    status : "ok", or the cause of the failure ("newton", "nonfinite", "detF"); a failed step is
+        the last one a monitor sees before the solve raises.
+    """
+
+    step: int
+    t: float
+    newton_iterations: int
+    min_det_F: float
+    volume_drift: float
+    pressure: float
+    status: str
+
+    def describe(self) -> str:
+        """``its 3, min det F 0.912, dV 2.1e-15, p 0.0123`` (and the cause when the step failed)."""
+        text = (f"its {self.newton_iterations}, min det F {self.min_det_F:.3g}, dV {self.volume_drift:.1e}, "
+                f"p {self.pressure:.4g}")
+        return text if self.status == "ok" else f"{text}, FAILED: {self.status}"
+
+
+@dataclass(eq=False)
+class StateSolution:
+    """Result of a state solve on a time grid.
+
+    Attributes
+    ----------
+    t : (N+1,) time levels.
+    y0, y1 : (N+1, n) reduced displacement and velocity at the levels.
+    p_steps : (N,) step multipliers (mid-step pressures); (N+1,) level values for multiplier="theta".
+    pressure : (N+1,) pressure at the levels (second order for multiplier="step").
+    volume : (N+1,) deformed volume ``int det F`` at the levels.
+    newton_iterations, min_det_F, max_grad : (N,) per-step monitors.
+    xi : (N+1, n_ctrl) control at the levels (or None).
+    wall_time : seconds spent in the solve (excluding compilation when it was cached).
+    warnings : regimes detected after the solve (loss of convexity, under-resolved fronts).
+    """
+
+    model: StateModel
+    t: np.ndarray
+    y0: np.ndarray
+    y1: np.ndarray
+    p_steps: np.ndarray
+    pressure: np.ndarray
+    volume: np.ndarray
+    newton_iterations: np.ndarray
+    min_det_F: np.ndarray
+    max_grad: np.ndarray
+    xi: np.ndarray | None = None
+    wall_time: float = 0.0
+    warnings: list = field(default_factory=list)
+
+    @property
+    def dt(self) -> np.ndarray:
+        return np.diff(self.t)
+
+    def displacement(self) -> np.ndarray:
+        """Full nodal displacement history (N+1, num_nodes, dim)."""
+        return self.model.expand(self.y0)
+
+    def velocity(self) -> np.ndarray:
+        return self.model.expand(self.y1)
+
+    def volume_drift(self) -> float:
+        """max_n |vol_n - vol_0| / vol_0."""
+        return float(np.max(np.abs(self.volume - self.volume[0])) / abs(self.volume[0]))
+
+    def energies(self) -> tuple[np.ndarray, np.ndarray]:
+        """Kinetic ``y1^T M y1 / 2`` and strain ``Pi(y0)`` energies at the levels, (N+1,) each."""
+        M = self.model.mass
+        kinetic = 0.5 * np.einsum("ti,ti->t", self.y1, (M @ self.y1.T).T)
+        pi = self.model.jitted["strain_energy"]
+        strain = np.array([float(pi(jnp.asarray(y))) for y in self.y0])
+        return kinetic, strain
+
+    def summary(self) -> dict:
+        return {
+            "steps": int(self.t.size - 1),
+            "T": float(self.t[-1]),
+            "dofs": int(self.model.n),
+            "pressure_max": float(np.max(self.pressure)),
+            "t_pressure_max": float(self.t[int(np.argmax(self.pressure))]),
+            "pressure_min": float(np.min(self.pressure)),
+            "volume_drift": self.volume_drift(),
+            "newton_iterations_total": int(np.sum(self.newton_iterations)),
+            "newton_iterations_max": int(np.max(self.newton_iterations)),
+            "min_det_F": float(np.min(self.min_det_F)),
+            "max_grad_u": float(np.max(self.max_grad)),
+            "wall_time_s": float(self.wall_time),
+            "warnings": list(self.warnings),
+        }
+
+
+class TimeStepper:
+    """Builds the traced step of the theta-scheme for a model and drives it over a grid.
+
+    Parameters
+    ----------
+    model : StateModel
+    scheme : Scheme
+    solver : "auto" | "tridiagonal" | "dense" | a `hyperoc.solvers.linsolve.SparseSolver` method
+        (``SparseSolver.methods``: "lu", "lu_reuse", "pardiso", "pardiso_reuse", "pardiso_single",
+        "pardiso_single_reuse", "minres"), or a solver object.
+    """
+
+    def __init__(self, model: StateModel, scheme: Scheme = Scheme(), solver="auto"):
+        self.model, self.scheme = model, scheme
+        self.solver = make_solver(model, solver) if isinstance(solver, str) else solver
+        M, K, B = model.jax_operators
+        self._M, self._K, self._B = M, K, B
+        self._mass_blocks = jnp.asarray(model.mass_blocks)
+        self._lap_blocks = jnp.asarray(model.laplace_blocks)
+
+    # --- the step residual: single source of truth for Newton and adjoint -------------------------
+    def load(self, xi, f):
+        """L = B xi + f on the reduced dofs (f: external load vector of the level)."""
+        if self._B is None:
+            return f
+        return self._B @ xi + f
+
+    def velocity(self, y0_new, y0, y1, dt):
+        th = self.scheme.theta
+        return (y0_new - y0) / (th * dt) - (1 - th) / th * y1
+
+    def residual(self, x, y0, y1, p_prev, xi0, xi1, f0, f1, dt, V0):
+        """Step residual (n+1,): momentum rows then the volume constraint."""
+        return self.residual_at(x, self.known_terms(y0, y1, xi0, xi1, f0, f1, dt), y0, y1, p_prev, dt, V0)
+
+    def known_terms(self, y0, y1, xi0, xi1, f0, f1, dt):
+        """The parts of the momentum rows that do not depend on the unknown x = (y0', p'): computed
+        once per step rather than at every Newton iterate.
+
+        Returns ``(c, G_old)`` with ``c = -M y1 + dt (1 - th) A(y0, y1) - dt (th L1 + (1 - th) L0)``
+        (n,), ``A(y0, y1) = kappa K y1 + f_int(y0)``, and ``G_old = dV/dy0 (y0)`` (n,).
+        """
+        m, th = self.model, self.scheme.theta
+        A_old = m.kappa * (self._K @ y1) + m.internal_force(y0)
+        c = -(self._M @ y1) + dt * (1 - th) * A_old - dt * (th * self.load(xi1, f1) + (1 - th) * self.load(xi0, f0))
+        return c, m.volume_gradient(y0)
+
+    def residual_at(self, x, known, y0, y1, p_prev, dt, V0):
+        """`residual` given the `known_terms` of the step."""
+        m, th = self.model, self.scheme.theta
+        c, G_old = known
+        y0n, pn = x[:-1], x[-1]
+        y1n = self.velocity(y0n, y0, y1, dt)
+        A_new = m.kappa * (self._K @ y1n) + m.internal_force(y0n)
+        G_new = m.volume_gradient(y0n)
+        if self.scheme.multiplier == "step":
+            mult = pn * (th * G_new + (1 - th) * G_old)
+        else:
+            mult = th * pn * G_new + (1 - th) * p_prev * G_old
+        Fu = self._M @ y1n + dt * th * A_new + dt * mult + c
+        Fc = m.volume(y0n) - V0
+        return jnp.concatenate([Fu, Fc[None]])
+
+    def jacobian_parts(self, x, y0, dt):
+        """(element blocks of dFu/dy0', column dFu/dp', row dFc/dy0') at x."""
+        m, th = self.model, self.scheme.theta
+        y0n, pn = x[:-1], x[-1]
+        blocks = (self._mass_blocks / (th * dt) + m.kappa * self._lap_blocks
+                  + dt * th * m.tangent_blocks(y0n, 1.0, pn))
+        G_new = m.volume_gradient(y0n)
+        if self.scheme.multiplier == "step":
+            col = dt * (th * G_new + (1 - th) * m.volume_gradient(y0))
+        else:
+            col = dt * th * G_new
+        return blocks, col, G_new
+
+    def step(self, carry, inputs):
+        """One time step on traced arrays.
+
+        carry = (y0, y1, p_prev, failed); inputs = (xi0, xi1, f0, f1, dt, V0) with f the external
+        load vectors at both ends of the step.
+        """
+        y0, y1, p_prev, failed = carry
+        xi0, xi1, f0, f1, dt, V0 = inputs
+        m, sch = self.model, self.scheme
+        known = self.known_terms(y0, y1, xi0, xi1, f0, f1, dt)
+
+        # After a failed step no Newton iteration is made (max_iter 0: x stays at the old state);
+        # a traced bound rather than a lax.cond, which costs XLA's CPU runtime more per step.
+        x, it, status = newton(lambda x: self.residual_at(x, known, y0, y1, p_prev, dt, V0),
+                               lambda x: self.jacobian_parts(x, y0, dt),
+                               self.solver, jnp.concatenate([y0, p_prev[None]]),
+                               rtol=sch.rtol, atol=sch.atol, max_iter=jnp.where(failed, 0, sch.max_iter))
+        mindet, maxgrad = m.min_det_F(x[:-1]), m.max_grad(x[:-1])
+        status = jnp.where(failed, 4, jnp.where((status == 0) & ~(mindet > 0), 3, status))
+        y0n, pn = x[:-1], x[-1]
+        y1n = self.velocity(y0n, y0, y1, dt)
+        failed = failed | (status != 0)
+        return (y0n, y1n, pn, failed), (y0n, y1n, pn, it, status, mindet, maxgrad)
+
+    @cached_property
+    def _scan(self):
+        def run(y0, y1, p0, xis, fs, dts, V0):
+            V = jnp.full(dts.shape, V0)
+            _, out = jax.lax.scan(self.step, (y0, y1, p0, jnp.asarray(False)),
+                                  (xis[:-1], xis[1:], fs[:-1], fs[1:], dts, V))
+            return out
+
+        return jax.jit(run)
+
+    @cached_property
+    def _scan_from(self):
+        """`_scan`'s loop from a given carry, returning the final carry too (`_chunked_scan`)."""
+        def run(carry, xis, fs, dts, V):
+            return jax.lax.scan(self.step, carry, (xis[:-1], xis[1:], fs[:-1], fs[1:], dts, V))
+
+        return jax.jit(run)
+
+    def _chunked_scan(self, y0, y1, p0, xis, fs, grid, V0):
+        """The compiled loop over ``PROGRESS_CHUNKS`` blocks of steps, with a bar updated between
+        blocks: "compiling" until the first block has run, then the steps."""
+        from tqdm.auto import tqdm
+
+        N = grid.num_steps
+        size = -(-N // PROGRESS_CHUNKS)
+        carry = (jnp.asarray(y0), jnp.asarray(y1), jnp.asarray(p0, dtype=jnp.float64), jnp.asarray(False))
+        outs = []
+        bar = tqdm(total=N, desc="compiling", leave=False)
+        for start in range(0, N, size):
+            stop = min(start + size, N)
+            carry, out = self._scan_from(carry, jnp.asarray(xis[start:stop + 1]), jnp.asarray(fs[start:stop + 1]),
+                                         jnp.asarray(grid.dt[start:stop]), jnp.full(stop - start, V0))
+            outs.append([np.asarray(o) for o in out])
+            if start == 0:  # the ETA from here on counts steps, not the compilation
+                bar.set_description("time steps", refresh=False)
+                bar.reset()
+            bar.update(stop - start)
+        bar.close()
+        return [np.concatenate([o[k] for o in outs]) for k in range(len(outs[0]))]
+
+    @cached_property
+    def _jit_step(self):
+        return jax.jit(self.step)
+
+    # --- driver ---------------------------------------------------------------------------------
+    def consistent_pressure(self, y0, y1, xi, f):
+        """The pressure consistent with the state (second time derivative of the constraint), traced.
+
+        ``G^T a + y1^T H y1 = 0`` with ``M a = L(xi, f) - A(y0, y1) - p G`` gives
+        ``p = (G^T M^-1 (L - A) + y1^T H y1) / (G^T M^-1 G)``; differentiable in all arguments.
+        """
+        m = self.model
+        G = m.volume_gradient(y0)
+        _, Hy1 = jax.jvp(m.volume_gradient, (y0,), (y1,))
+        rhs = self.load(xi, f) - m.kappa * (self._K @ y1) - m.internal_force(y0)
+        MinvG = m.apply_mass_inverse(G)
+        return (MinvG @ rhs + y1 @ Hy1) / (G @ MinvG)
+
+    def initial_pressure(self, y0, y1, xi0, f0) -> float:
+        """p(0) from the consistent initial acceleration (`consistent_pressure` at t = 0)."""
+        return float(self.consistent_pressure(*(jnp.asarray(a) for a in (y0, y1, xi0, f0))))
+
+    def run(self, grid: TimeGrid, xi=None, *, u0=None, v0=None, external=None, progress: bool = False,
+            monitor=None, diagnose: bool = True) -> StateSolution:
+        """Integrate on ``grid`` with nodal controls ``xi`` (N+1, n_ctrl) (None = no control).
+
+        ``diagnose``: run `detect_regimes` on the result (optimizers skip it inside their loops).
+
+        ``monitor``: called with a `StepRecord` as each step ends (a failed step included, before
+        `SolverError` is raised), e.g. ``monitor=lambda r: print(r.step, r.describe())``. With a
+        monitor the steps are driven from Python even when the linear solver is traced (one
+        dispatch per step instead of one compiled loop). ``progress``: a bar over the steps,
+        labelled "compiling" until the first step has run; where the steps are driven from Python
+        (a host solver, or a monitor) it shows the last record, where they are compiled it advances
+        by blocks of steps (`_chunked_scan`).
+
+        ``external``: external load vectors per level, (N+1, n), or a callable ``t -> (n,)``
+        (e.g. ``lambda t: model.load_vector(traction=g, t=t)``); default: the model's constant traction.
+        """
+        m = self.model
+        N = grid.num_steps
+        y0 = np.zeros(m.n) if u0 is None else np.asarray(u0, dtype=np.float64)
+        y1 = np.zeros(m.n) if v0 is None else np.asarray(v0, dtype=np.float64)
+        xis = self._controls(xi, N)
+        fs = self.external_loads(external, grid)
+        self._check_initial_velocity(y0, y1)
+        V0 = float(m.jitted["volume"](jnp.asarray(y0)))
+        p0 = self.initial_pressure(y0, y1, xis[0], fs[0]) if self.scheme.multiplier == "theta" else 0.0
+        start = _time.perf_counter()
+        if self.solver.traced and monitor is None and progress:
+            out = self._chunked_scan(y0, y1, p0, xis, fs, grid, V0)
+        elif self.solver.traced and monitor is None:
+            out = self._scan(jnp.asarray(y0), jnp.asarray(y1), jnp.asarray(p0), jnp.asarray(xis), jnp.asarray(fs),
+                             jnp.asarray(grid.dt), V0)
+            out = [np.asarray(o) for o in out]
+        else:
+            out = self._python_loop(y0, y1, p0, xis, fs, grid, V0, progress, monitor)
+        wall = _time.perf_counter() - start
+        Y0n, Y1n, P, its, status, mindet, maxgrad = out
+        self._raise_on_failure(status, grid, its, mindet)
+        Y0 = np.concatenate([y0[None], Y0n])
+        Y1 = np.concatenate([y1[None], Y1n])
+        if self.scheme.multiplier == "theta":
+            P = np.concatenate([[p0], P])
+        vol = np.asarray(self._volumes(jnp.asarray(Y0)))
+        sol = StateSolution(m, grid.t, Y0, Y1, P, level_pressure(P, grid.dt, self.scheme.multiplier), vol,
+                            its, mindet, maxgrad, xis if m.control is not None else None, wall)
+        if diagnose:
+            sol.warnings = detect_regimes(sol)
+        return sol
+
+    @cached_property
+    def _volumes(self):
+        return jax.jit(jax.vmap(self.model.volume))
+
+    def _controls(self, xi, N) -> np.ndarray:
+        nc = self.model.control.size if self.model.control is not None else 0
+        if xi is None:
+            return np.zeros((N + 1, nc))
+        xi = np.asarray(xi, dtype=np.float64)
+        if xi.shape != (N + 1, nc):
+            raise InputError(f"control array must have shape (N+1, n_ctrl) = {(N + 1, nc)}, got {xi.shape}")
+        return xi
+
+    def _check_initial_velocity(self, y0, y1) -> None:
+        """The constraint's time derivative ``G(u0) . v0 = 0`` must hold: an incompatible v0 would
+        leave an undamped alternating velocity at the constrained boundary."""
+        if not np.any(y1):
+            return
+        G = np.asarray(self.model.jitted["volume_gradient"](jnp.asarray(y0)))
+        scale = np.linalg.norm(G) * max(np.linalg.norm(y1), 1e-300)
+        if abs(G @ y1) > 1e-10 * scale:
+            raise InputError(f"initial velocity violates the volume constraint: G(u0).v0 = {G @ y1:.3g} "
+                             "(it must be 0; project v0 onto G(u0)^perp)")
+
+    def external_loads(self, external, grid) -> np.ndarray:
+        n, N = self.model.n, grid.num_steps
+        if external is None:
+            return np.broadcast_to(self.model.traction_load, (N + 1, n))
+        if callable(external):
+            return np.stack([np.asarray(external(t), dtype=np.float64) for t in grid.t])
+        ext = np.asarray(external, dtype=np.float64)
+        if ext.shape != (N + 1, n):
+            raise InputError(f"external loads must have shape (N+1, n) = {(N + 1, n)}, got {ext.shape}")
+        return ext
+
+    def _python_loop(self, y0, y1, p0, xis, fs, grid, V0, progress, monitor=None):
+        from tqdm.auto import tqdm
+
+        carry = (jnp.asarray(y0), jnp.asarray(y1), jnp.asarray(p0, dtype=jnp.float64), jnp.asarray(False))
+        outs = []
+        steps = tqdm(range(grid.num_steps), disable=not progress, desc="compiling", leave=False)
+        for n in steps:
+            inputs = (jnp.asarray(xis[n]), jnp.asarray(xis[n + 1]), jnp.asarray(fs[n]), jnp.asarray(fs[n + 1]),
+                      grid.dt[n], V0)
+            carry, out = self._jit_step(carry, inputs)
+            out = [np.asarray(o) for o in out]
+            outs.append(out)
+            if n == 0 and progress:  # the ETA from here on counts steps, not the compilation
+                steps.set_description("time steps", refresh=False)
+                steps.reset()
+            if monitor is not None or progress:
+                record = self._record(n, grid, out, V0)
+                steps.set_postfix_str(record.describe(), refresh=False)
+                if monitor is not None:
+                    monitor(record)
+            if int(out[4]) != 0:
+                break
+        stacked = [np.stack([o[k] for o in outs]) for k in range(7)]
+        if len(outs) < grid.num_steps:  # failed early: pad so that indices match the grid
+            pad = grid.num_steps - len(outs)
+            stacked = [np.concatenate([s, np.repeat(s[-1:], pad, axis=0)]) for s in stacked]
+            stacked[4][len(outs):] = 4
+        return stacked
+
+    def _record(self, n, grid, out, V0) -> StepRecord:
+        """The `StepRecord` of step n from the step's outputs (y0', y1', p', its, status, min det F, max grad)."""
+        y0n, _, pn, its, status, mindet, _ = out
+        volume = float(self.model.jitted["volume"](jnp.asarray(y0n)))
+        return StepRecord(n, float(grid.t[n + 1]), int(its), float(mindet), abs(volume - V0) / abs(V0), float(pn),
+                          STATUS.get(int(status), "unknown"))
+
+    def _raise_on_failure(self, status, grid, its, mindet):
+        bad = np.flatnonzero(np.asarray(status) != 0)
+        if bad.size == 0:
+            return
+        n = int(bad[0])
+        cause = STATUS.get(int(status[n]), "unknown")
+        detail = {
+            "newton": f"Newton did not converge in {int(its[n])} iterations (try a smaller dt, or a larger kappa)",
+            "nonfinite": "NaN/Inf in the Newton iterate, or in the residual at every line-search step "
+                         "(e.g. an element inverted all along the Newton direction; try a smaller dt)",
+            "detF": f"min det F = {float(mindet[n]):.3g} <= 0: an element is inverted",
+        }.get(cause, "")
+        raise SolverError(n, grid.t[n + 1], cause, detail)
+
+
+def detect_regimes(sol: StateSolution) -> list:
+    """Flag regimes where the discrete solution should not be trusted as is.
+
+    - loss of strong ellipticity (acoustic tensor not positive definite; SVK in strong compression),
+      checked at every level for small problems, at 21 levels otherwise;
+    - fronts at mesh scale: the jump of grad u between neighbouring cells is comparable to grad u
+      itself (only checked for 1D P1, where cells are ordered and u_x is constant per cell: the
+      difference quotients of the nodal values over the cell lengths).
+    """
+    m = sol.model
+    out = []
+    count = len(sol.t) if m.n * len(sol.t) <= 2_000_000 else 21
+    levels = np.unique(np.linspace(0, len(sol.t) - 1, count).astype(int))
+    eig = m.min_acoustic_eigenvalues(sol.y0[levels])
+    if np.any(eig < 0):
+        k = levels[int(np.argmax(eig < 0))]
+        out.append(f"loss of strong ellipticity from t = {sol.t[k]:.4g} "
+                   f"(min acoustic-tensor eigenvalue {eig.min():.3g}): "
+                   "the material is unstable there (e.g. Saint Venant-Kirchhoff in strong compression)")
+    if m.dim == 1 and m.space.degree == 1:
+        ux = np.diff(sol.displacement()[..., 0], axis=1) / np.diff(m.space.nodes[:, 0])[None, :]
+        jump = np.max(np.abs(np.diff(ux, axis=1)), axis=1)
+        ratio = jump / np.maximum(np.max(np.abs(ux), axis=1), 1e-300)
+        k = int(np.argmax(ratio))
+        if np.max(np.abs(ux[k])) > 1e-3 and ratio[k] > 0.5:
+            out.append(f"front at mesh scale at t = {sol.t[k]:.4g}: the jump of u_x between neighbouring cells is "
+                       f"{ratio[k]:.2f} of max|u_x| (refine h or increase kappa)")
+    return out
+
+
+def solve_state(model: StateModel, grid: TimeGrid, xi=None, *, u0=None, v0=None, external=None,
+                scheme: Scheme = Scheme(), solver="auto", progress: bool = False, monitor=None) -> StateSolution:
+    """Convenience wrapper: ``TimeStepper(model, scheme, solver).run(grid, xi, ...)``."""
+    return TimeStepper(model, scheme, solver).run(grid, xi, u0=u0, v0=v0, external=external, progress=progress,
+                                                  monitor=monitor)

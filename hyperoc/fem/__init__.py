@@ -1,0 +1,1 @@
+"""The finite element layer: meshes and geometries, quadrature, Lagrange spaces, sparse assembly, volumes."""

@@ -1,0 +1,1 @@
+"""The mechanics: strain energies, controls, fibres, loads, and the discrete state models."""

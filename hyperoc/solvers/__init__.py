@@ -1,0 +1,1 @@
+"""Nonlinear and linear solvers: Newton's method, the bordered linear solves, CPU threads."""

@@ -1,0 +1,473 @@
+"""Linear solvers for the bordered step system, by a Schur complement on the single multiplier.
+
+Each Newton iteration (and each adjoint step) solves
+
+    [ K    col ] [x]   [r_u]
+    [ row^T  0 ] [q] = [r_c]
+
+with K symmetric (possibly indefinite under compression) given by element blocks. With one
+factorization of K: ``K a = r_u``, ``K b = col``, ``q = (row.a - r_c) / (row.b)``, ``x = a - b q``.
+The adjoint solves the transpose, which is the same call with ``col`` and ``row`` swapped.
+
+- `DenseSolver`: LU in JAX (small problems; the whole time loop can be compiled).
+- `TridiagonalSolver`: 1D P1 meshes numbered along the line (the paper's case), in JAX.
+- `SparseSolver`: assembly into a fixed sparsity pattern and a host solver (SuperLU, MINRES from scipy;
+  MKL PARDISO's symmetric indefinite LDL^T, `hyperoc.solvers.pardiso`), called from traced code through
+  ``jax.pure_callback``; SuperLU runs on K permuted once by METIS nested dissection (`nested_dissection`).
+"""
+
+from __future__ import annotations
+
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from .. import _jax  # noqa: F401
+from ..errors import InputError
+
+__all__ = ["DenseSolver", "TridiagonalSolver", "SparseSolver", "make_solver", "nested_dissection"]
+
+
+def _schur(solve2, col, row, r_u, r_c):
+    ab = solve2(jnp.stack([r_u, col], axis=1))
+    a, b = ab[:, 0], ab[:, 1]
+    q = (row @ a - r_c) / (row @ b)
+    return a - b * q, q
+
+
+class DenseSolver:
+    """Dense LU of the assembled K, traced by JAX."""
+
+    traced = True
+
+    def __init__(self, model):
+        k = model.cell_dofs.shape[1]
+        n = model.n
+        ed = np.where(model.cell_dofs < 0, n, model.cell_dofs)
+        self.n = n
+        self._rows = jnp.asarray(np.repeat(ed, k, axis=1).ravel())
+        self._cols = jnp.asarray(np.tile(ed, (1, k)).ravel())
+
+    def assemble(self, blocks):
+        K = jnp.zeros((self.n + 1, self.n + 1), blocks.dtype).at[self._rows, self._cols].add(blocks.reshape(-1))
+        return K[: self.n, : self.n]
+
+    def solve(self, blocks, col, row, r_u, r_c):
+        lu = jax.scipy.linalg.lu_factor(self.assemble(blocks))
+        return _schur(lambda B: jax.scipy.linalg.lu_solve(lu, B), col, row, r_u, r_c)
+
+
+class TridiagonalSolver:
+    """Tridiagonal solve for 1D P1 meshes whose reduced dofs are numbered along the line."""
+
+    traced = True
+
+    def __init__(self, model):
+        ed = model.cell_dofs
+        if model.dim != 1 or model.space.degree != 1 or ed.shape[1] != 2:
+            raise InputError("the tridiagonal solver needs a 1D P1 model")
+        both = (ed[:, 0] >= 0) & (ed[:, 1] >= 0)
+        if not np.all(np.abs(ed[both, 1] - ed[both, 0]) == 1):
+            raise InputError("the tridiagonal solver needs dofs numbered along the line")
+        self.n = n = model.n
+        # Flat positions in blocks (nc, 2, 2) summed into each diagonal entry: gathers, which XLA
+        # fuses with the sums, rather than scatters.
+        cells = np.arange(len(ed))
+        flat = lambda c, a, b: 4 * c + 2 * a + b
+        lo = np.argmin(np.where(ed < 0, n, ed), axis=1)  # local index of the lower dof of a full cell
+        hi = 1 - lo
+        row_lo = ed[cells, lo]
+        diag = [(ed[:, a], flat(cells, a, a)) for a in (0, 1)]
+        self._diag = _gather_table(n, diag, 4 * len(ed))
+        self._upper = _gather_table(n, [(np.where(both, row_lo, -1), flat(cells, lo, hi))], 4 * len(ed))
+        self._lower = _gather_table(n, [(np.where(both, row_lo + 1, -1), flat(cells, hi, lo))], 4 * len(ed))
+
+    def solve(self, blocks, col, row, r_u, r_c):
+        flat = jnp.concatenate([blocks.reshape(-1), jnp.zeros(1, blocks.dtype)])
+        d, du, dl = (flat[t].sum(axis=1) for t in (self._diag, self._upper, self._lower))
+        solve2 = lambda B: jax.lax.linalg.tridiagonal_solve(dl, d, du, B)
+        return _schur(solve2, col, row, r_u, r_c)
+
+
+def _gather_table(n, pairs, sentinel):
+    """Index table (n, w) of the flat positions summed into each of n entries, padded with
+    ``sentinel`` (the index of an appended zero). pairs: [(target (m,), position (m,))], target < 0
+    skipped."""
+    target = np.concatenate([t for t, _ in pairs])
+    pos = np.concatenate([p for _, p in pairs])
+    keep = target >= 0
+    target, pos = target[keep], pos[keep]
+    order = np.argsort(target, kind="stable")
+    target, pos = target[order], pos[order]
+    counts = np.bincount(target, minlength=n)
+    table = np.full((n, max(int(counts.max(initial=0)), 1)), sentinel)
+    slot = np.arange(len(target)) - np.repeat(np.cumsum(counts) - counts, counts)
+    table[target, slot] = pos
+    return jnp.asarray(table)
+
+
+def nested_dissection(pattern) -> np.ndarray:
+    """Fill-reducing order ``q`` (n,) of a structurally symmetric pattern, new index -> old index
+    (the LU factors ``K[q][:, q]``), by METIS multilevel nested dissection of the graph of ``K``.
+
+    On 3D P2 meshes this gives fewer stored factor entries and faster SuperLU factorizations than
+    minimum degree (``python bench/bench_ordering.py``).
+    """
+    import pymetis
+
+    n = pattern.size
+    A = sp.csr_matrix((np.ones(pattern.nnz, dtype=np.int8), pattern.indices, pattern.indptr), shape=(n, n))
+    A = (A + A.T).tocsr()  # the element patterns are symmetric; this only guards the graph METIS needs
+    A.setdiag(0)
+    A.eliminate_zeros()
+    q, _ = pymetis.nested_dissection(pymetis.CSRAdjacency(A.indptr, A.indices))
+    return np.asarray(q, dtype=np.int64)
+
+
+class SparseSolver:
+    """Host solver on the sparsity pattern of the model, reached through ``jax.pure_callback``.
+
+    method
+        ``"lu"`` (default): SuperLU with diagonal pivots first and threshold partial pivoting as
+        the fallback (``pivot_thresh``, below), robust for indefinite K, with a symmetric
+        fill-reducing ordering (``ordering``) computed once and reused: the element blocks are
+        summed by one ``np.bincount`` straight into the CSC data of the permuted matrix (no
+        COO/CSR->CSC conversion, no re-ordering), then factored with the natural ordering.
+        ``"lu_reuse"``: the same factorization, kept across calls (Newton iterations, time steps,
+        the adjoint sweep) and used as the preconditioner of iterative refinement on the current
+        K until the normwise backward error ``|r| / (|K| |x| + |b|)`` is ``<= rtol``; K is
+        re-factored when that does not contract fast enough (``reuse_rate``) or within
+        ``reuse_max_iter`` iterations. Same accuracy as ``"lu"``, far fewer factorizations.
+        ``"pardiso"``, ``"pardiso_reuse"``: the same two strategies with MKL PARDISO's symmetric
+        indefinite ``L D L^T`` (`hyperoc.solvers.pardiso.PardisoLDL`) of the symmetric part ``(K + K^T) / 2``
+        in place of SuperLU, refined against K itself to the same ``rtol`` (so a K that is not
+        symmetric is still solved exactly, or the solve fails, never silently). For symmetric K
+        (conservative loads, and follower pressures on a surface whose rim is held: the clamped
+        benchmarks' tangents are symmetric to round-off; a sliding base lets the rim move) it stores one
+        triangle instead of L and U and runs threaded: bench/bench_pardiso.py. ``"pardiso_single"``,
+        ``"pardiso_single_reuse"``: the factorization in single precision (half its memory), refined
+        against K in double precision to the same ``rtol``, or the solve fails. The refinement of a
+        fresh PARDISO factorization goes on while the backward error falls by 10% or more in 3 steps,
+        up to ``refine_max_iter`` steps: its rate is ``|K_s^-1 K_a|``, K's skew part (follower
+        loads) against its symmetric part, plus ``cond * 6e-8`` with the single factor, so a fixed
+        small cap on the steps would stop short of ``rtol`` on slightly nonsymmetric tangents.
+        Needs the ``mkl`` package; ``pivot_thresh``, ``fallback_thresh`` and ``ordering`` do not
+        apply (PARDISO orders with METIS and pivots in 1x1 and 2x2 blocks, perturbing the pivots it
+        cannot take).
+        ``"minres"``: MINRES preconditioned by the absolute diagonal (K is mass dominated in
+        dynamics), restarted until the true backward error is ``<= rtol``. (Smoothed-aggregation
+        AMG of ``|K|``, set up at every call, is far slower here: ``python bench/bench_2d3d.py``.)
+    pivot_thresh, fallback_thresh : SuperLU keeps the diagonal pivot while
+        ``|K_jj| >= thresh * max_i |K_ij|`` and swaps a row in otherwise, which breaks the
+        nested-dissection structure and adds fill. The first factorization of a call uses
+        ``pivot_thresh`` (default 0: the diagonal unless it is exactly zero, i.e. the ordering's
+        structure is kept); when iterative refinement with it does not reach ``rtol`` (tiny pivots),
+        K is factored again with ``fallback_thresh`` (default 0.1) and ``stats["pivoting_fallbacks"]``
+        counts it. On the Taylor-Hood saddle point (zero pressure diagonal, indefinite K_uu under
+        load) threshold 0.1 swaps thousands of rows, with more fill and slower factorizations than
+        diagonal pivots (``python bench/bench_pivot.py``).
+    rtol : backward-error tolerance of the iterative parts (``<= 1e-12``; the gradients are exact
+        up to it).
+    ordering : ``"nd"`` (default): METIS nested dissection of the pattern (`nested_dissection`),
+        before the first factorization; ``"mmd"``: SuperLU's minimum degree on ``K + K^T``
+        (``MMD_AT_PLUS_A``), taken from the first factorization, kept for comparison
+        (``python bench/bench_ordering.py``).
+
+    ``stats`` accumulates ``calls``, ``factorizations``, ``iterations`` (refinement or Krylov)
+    and the host seconds ``order_s`` (nested dissection), ``assembly_s`` (blocks -> matrix),
+    ``factor_s``, ``solve_s`` and ``host_s`` (whole ``host_solve``); ``fill`` is the number of
+    entries SuperLU stores for L and U in the last factorization (``SuperLU.nnz``: supernodal, the
+    zeros inside supernodes included; PARDISO: the entries of L) and ``off_diagonal_pivots`` the pivots
+    it took off the diagonal (``perm_r != perm_c``; PARDISO: the perturbed pivots); ``failed`` counts
+    traced solves that returned NaN (singular K, MINRES failure, a stalled PARDISO refinement;
+    ``last_failure`` holds the message).
+
+    Threads: ``jax.pure_callback`` may run each call on a different XLA thread, and scipy's SuperLU
+    tracks a factorization's memory per thread: one freed on another thread than the one that built it
+    is never released (scipy issue #15921). ``"lu_reuse"`` keeps factorizations across calls, and leaked
+    one per refresh (LV Taylor-Hood at 11,569 unknowns: +70 MB per factorization, 4.5 GB after 43). So
+    every call runs on the solver's own single worker thread, where each factorization is built and freed.
+    """
+
+    traced = False
+    methods = ("lu", "lu_reuse", "pardiso", "pardiso_reuse", "pardiso_single", "pardiso_single_reuse", "minres")
+    orderings = ("nd", "mmd")
+
+    def __init__(self, model, method: str = "lu", rtol: float = 1e-13, *, pivot_thresh: float = 0.0,
+                 fallback_thresh: float = 0.1,
+                 reuse_rate: float = 0.25, reuse_max_iter: int = 8, refine_max_iter: int = 50,
+                 ordering: str = "nd"):
+        if method not in self.methods:
+            raise InputError(f"unknown sparse method {method!r} ({', '.join(self.methods)})")
+        if ordering not in self.orderings:
+            raise InputError(f"unknown ordering {ordering!r} ({', '.join(self.orderings)})")
+        if not 0 < rtol <= 1e-12:
+            raise InputError(f"the iterative tolerance must lie in (0, 1e-12], got {rtol}")
+        if method.startswith("pardiso"):
+            from .pardiso import available
+
+            if not available():
+                raise InputError(f"the {method!r} solver needs MKL: python -m pip install mkl")
+        self.pattern, self.n, self.method, self.rtol = model.pattern, model.n, method, rtol
+        self._pardiso, self._reuse = method.startswith("pardiso"), method.endswith("_reuse")
+        self._single = method.startswith("pardiso_single")
+        self._upper = None  # (slot, weight, indices, indptr): CSR data -> the upper triangle of (K + K^T) / 2
+        self.pivot_thresh, self.fallback_thresh, self.ordering = pivot_thresh, fallback_thresh, ordering
+        self.reuse_rate, self.reuse_max_iter, self.refine_max_iter = reuse_rate, reuse_max_iter, refine_max_iter
+        self._order = None  # (q, position, indices, indptr) of the permuted CSC, after the first call
+        self._lu = None  # kept factorization ("lu_reuse")
+        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hyperoc-superlu")
+        self.last_failure = None
+        self.reset_stats()
+
+    def __del__(self):
+        worker = getattr(self, "_worker", None)
+        if worker is None:
+            return
+        try:  # free a kept factorization on the thread that built it, then stop that thread
+            worker.submit(setattr, self, "_lu", None)
+        except RuntimeError:  # interpreter exit: the executors are already shut down
+            pass
+        worker.shutdown(wait=False)  # the submitted release still runs; never joins from the worker itself
+
+    def reset_stats(self):
+        self.stats = {"calls": 0, "factorizations": 0, "iterations": 0, "refactor_after_stall": 0, "failed": 0,
+                      "order_s": 0.0, "assembly_s": 0.0, "factor_s": 0.0, "solve_s": 0.0, "host_s": 0.0, "fill": 0,
+                      "off_diagonal_pivots": 0, "pivoting_fallbacks": 0}
+
+    # --- structure ----------------------------------------------------------------------------
+    def _factor(self, K, thresh, permuted: bool):
+        """SuperLU of K: in its own numbering if ``permuted`` (K already in the fixed ordering),
+        else ordered by SuperLU's minimum degree on ``K + K^T``."""
+        t0 = time.perf_counter()
+        lu = spla.splu(K, permc_spec="NATURAL" if permuted else "MMD_AT_PLUS_A",
+                       diag_pivot_thresh=thresh, options={"SymmetricMode": True})
+        self.stats["factor_s"] += time.perf_counter() - t0
+        self.stats["factorizations"] += 1
+        self.stats["fill"] = lu.nnz  # not lu.L / lu.U: each builds a copy of the factor (+2.8 GB at 80k dofs)
+        self.stats["off_diagonal_pivots"] = int(np.count_nonzero(lu.perm_r != lu.perm_c))
+        return lu
+
+    def _factor_ldl(self, K):
+        """PARDISO's ``L D L^T`` of ``(K + K^T) / 2``, from the CSR K by one bincount into its upper triangle."""
+        from .pardiso import PardisoLDL
+
+        t0 = time.perf_counter()
+        if self._upper is None:
+            self._upper = _upper_triangle_map(self.pattern)
+        slot, weight, indices, indptr = self._upper
+        data = np.bincount(slot, weights=K.data * weight, minlength=indices.size)
+        lu = PardisoLDL(sp.csr_matrix((data, indices, indptr), shape=K.shape), single=self._single)
+        self.stats["factor_s"] += time.perf_counter() - t0
+        self.stats["factorizations"] += 1
+        self.stats["fill"], self.stats["off_diagonal_pivots"] = lu.nnz, lu.perturbed_pivots
+        return lu
+
+    def _set_order(self, q):
+        """Permuted CSC structure and the map element entry -> CSC data slot, for ``K[q][:, q]``
+        (``q``: new index -> old index)."""
+        P = self.pattern
+        tag = sp.csr_matrix((np.arange(1, P.nnz + 1, dtype=np.float64), P.indices, P.indptr), shape=(P.size, P.size))
+        Kq = tag[q][:, q].tocsc()
+        Kq.sort_indices()
+        src = Kq.data.astype(np.int64) - 1  # permuted-CSC slot k holds CSR entry src[k]
+        slot = np.empty(P.nnz + 1, dtype=np.int64)
+        slot[src] = np.arange(P.nnz)
+        slot[P.nnz] = P.nnz  # dropped entries stay in the dump slot
+        self._order = (q, slot[P.position], Kq.indices.astype(np.int32), Kq.indptr.astype(np.int32))
+
+    def _matrix(self, blocks):
+        """K (CSC) in the solver's ordering, and the permutation q (None before an ordering is fixed)."""
+        t0 = time.perf_counter()
+        vals = np.asarray(blocks, dtype=np.float64).reshape(-1)
+        if self.method == "minres" or self._pardiso:  # in the original numbering (PARDISO orders itself)
+            K, q = self.pattern.matrix(vals.reshape(self.pattern.element_shape)), None
+        elif self._order is None:
+            K, q = self.pattern.matrix(vals.reshape(self.pattern.element_shape)).tocsc(), None
+        else:
+            q, position, indices, indptr = self._order
+            data = np.bincount(position, weights=vals, minlength=indices.size + 1)[: indices.size]
+            K = sp.csc_matrix((data, indices, indptr), shape=(self.n, self.n))
+        self.stats["assembly_s"] += time.perf_counter() - t0
+        return K, q
+
+    # --- solves -------------------------------------------------------------------------------
+    def host_solve(self, blocks, col, row, r_u, r_c):
+        """The bordered solve ``(x, q)`` as one array (n + 1,), on the solver's worker thread (class docstring)."""
+        return self._worker.submit(self._host_solve, blocks, col, row, r_u, r_c).result()
+
+    def _host_solve(self, blocks, col, row, r_u, r_c):
+        t_start = time.perf_counter()
+        self.stats["calls"] += 1
+        if self._order is None and self.ordering == "nd" and self.method in ("lu", "lu_reuse"):
+            self._set_order(nested_dissection(self.pattern))
+            self.stats["order_s"] += time.perf_counter() - t_start
+        K, q = self._matrix(blocks)
+        rhs = np.stack([np.asarray(r_u, dtype=np.float64), np.asarray(col, dtype=np.float64)], axis=1)
+        if not (np.isfinite(K.data).all() and np.isfinite(rhs).all()):
+            # A Newton iterate outside the energy's domain (inverted elements): no factorization
+            # can help, and PARDISO corrupts its heap on such values (`hyperoc.solvers.pardiso`).
+            raise np.linalg.LinAlgError("the tangent or the residual has non-finite entries (NaN or Inf)")
+        if self.method == "minres":
+            t0 = time.perf_counter()
+            ab = np.stack([self._minres(K, rhs[:, j]) for j in range(2)], axis=1)
+            self.stats["solve_s"] += time.perf_counter() - t0
+        else:
+            if q is not None:
+                rhs = rhs[q]
+            if not self._reuse or self._lu is None:
+                self._lu, ab = self._fresh_solve(K, rhs, q is not None)
+                if q is None and not self._pardiso:
+                    self._lu = None  # first "mmd" call: K in the original numbering; later ones are permuted
+            else:
+                ab = self._solve_refined(K, rhs, self._lu, max_iter=self.reuse_max_iter, rate=self.reuse_rate)
+                if ab is None:  # the kept factorization is too far from K: refresh it
+                    self.stats["refactor_after_stall"] += 1
+                    self._lu = None  # freed before the new factorization is built
+                    self._lu, ab = self._fresh_solve(K, rhs, q is not None)
+            if not self._reuse:
+                self._lu = None
+            if q is not None:
+                out = np.empty_like(ab)
+                out[q] = ab
+                ab = out
+        a, b = ab[:, 0], ab[:, 1]
+        row = np.asarray(row, dtype=np.float64)
+        qmult = (row @ a - float(r_c)) / (row @ b)
+        self.stats["host_s"] += time.perf_counter() - t_start
+        return np.concatenate([a - b * qmult, [qmult]])
+
+    def _fresh_solve(self, K, rhs, permuted: bool):
+        """Factor K (``permuted``: in the fixed ordering, `_matrix`) and solve with refinement:
+        ``(lu, x)``. Diagonal pivots first; when they leave the refinement short of ``rtol``,
+        threshold partial pivoting (``fallback_thresh``). PARDISO: refinement of its perturbed
+        ``L D L^T`` of ``(K + K^T) / 2`` while it contracts (by 0.9 or better in 3 steps), up to
+        ``refine_max_iter`` steps (a fresh factor is the best there is, so a slow contraction is waited
+        out, where a kept factor is refreshed instead)."""
+        if self._pardiso:
+            lu = self._factor_ldl(K)
+            return lu, self._solve_refined(K, rhs, lu, max_iter=self.refine_max_iter, rate=0.9, patience=3,
+                                           strict=True)
+        lu = self._direct(K, self.pivot_thresh, permuted)
+        can_fall_back = self.fallback_thresh > self.pivot_thresh  # else a second factorization repeats the first
+        x = self._solve_refined(K, rhs, lu, max_iter=2, rate=self.reuse_rate if can_fall_back else None)
+        if x is None:
+            self.stats["pivoting_fallbacks"] += 1
+            lu = None  # freed before the second factorization is built (GBs at 80k dofs)
+            lu = self._direct(K, self.fallback_thresh, permuted)
+            x = self._solve_refined(K, rhs, lu, max_iter=2)
+        return lu, x
+
+    def _direct(self, K, thresh, permuted: bool):
+        """Factor K; with ``ordering="mmd"`` the first factorization also fixes the ordering reused
+        afterwards. A K that is not ``permuted`` is ordered by SuperLU even when an ordering is fixed
+        by then: the fallback of the very first call factors the same unpermuted K again."""
+        lu = self._factor(K, thresh, permuted)
+        if self._order is None:
+            self._set_order(np.argsort(lu.perm_c))
+        return lu
+
+    def _solve_refined(self, K, rhs, lu, *, max_iter, rate=None, patience=1, strict=False):
+        """Iterative refinement with ``lu`` (of K or of an earlier K) to backward error ``rtol``.
+
+        Returns None when ``rate`` is given (a kept factorization, or diagonal pivots that can fall
+        back, `_fresh_solve`) and the refinement does not contract by at least that factor in
+        ``patience`` steps (the error of a stationary iteration need not fall at every step) or
+        does not converge in ``max_iter``; with ``strict`` (a factorization of a modified K:
+        PARDISO's perturbed LDL^T of the symmetric part) that raises ``LinAlgError``.
+        """
+        t0 = time.perf_counter()
+        x = lu.solve(rhs)
+        Knorm = abs(K).sum(axis=0).max()
+        bnorm = np.abs(rhs).max(axis=0)
+        history = []  # backward errors of the earlier iterates
+        for it in range(max_iter + 1):
+            r = rhs - K @ x
+            scale = Knorm * np.abs(x).max(axis=0) + bnorm
+            err = np.max(np.abs(r).max(axis=0) / np.where(scale > 0, scale, 1.0))
+            if err <= self.rtol:
+                self.stats["solve_s"] += time.perf_counter() - t0
+                return x
+            # A NaN backward error (a singular factor) does not recover by refining.
+            if it == max_iter or not np.isfinite(err) or (rate is not None and it >= patience
+                                                          and err > rate * history[-patience]):
+                break
+            history.append(err)
+            x = x + lu.solve(r)
+            self.stats["iterations"] += 1
+        self.stats["solve_s"] += time.perf_counter() - t0
+        if strict:
+            how = ("gave a non-finite iterate after" if not np.isfinite(err) else
+                   "did not converge in" if it == max_iter else "stalled after")
+            raise np.linalg.LinAlgError(f"iterative refinement {how} {it} steps at backward error {err:.2e} > "
+                                        f"{self.rtol:.0e} (K far from symmetric, or singular)")
+        # With a fresh factorization the refinement floor is round-off: keep the refined x (a
+        # numerically singular K shows up as a Newton failure, reported with the step).
+        return None if rate is not None else x
+
+    def _minres(self, K, rhs):
+        M = sp.diags(1.0 / np.abs(K.diagonal()))  # Jacobi: K is mass dominated in dynamics
+        count = [0]
+        cb = lambda _: count.__setitem__(0, count[0] + 1)
+        Knorm = abs(K).sum(axis=1).max()
+        x = None
+        for _ in range(4):  # restarts until the true backward error meets rtol (scipy tests an estimate)
+            x, info = spla.minres(K, rhs, x0=x, M=M, rtol=self.rtol, maxiter=5000, callback=cb)
+            err = np.abs(rhs - K @ x).max() / max(Knorm * np.abs(x).max() + np.abs(rhs).max(), 1e-300)
+            if err <= self.rtol:
+                break
+        self.stats["iterations"] += count[0]
+        if info != 0 or not err <= 10 * self.rtol:
+            raise np.linalg.LinAlgError(f"MINRES did not converge (info = {info}, backward error {err:.2e})")
+        return x
+
+    def _host_solve_or_nan(self, *args):
+        """`host_solve`, with NaN for a singular matrix (SuperLU), a tangent or residual with NaN or
+        Inf entries (an iterate with inverted elements), a refinement that fails (PARDISO) or a MINRES
+        failure: JAX leaves an exception raised inside ``jax.pure_callback`` undefined, while NaN
+        makes Newton fail, so the caller cuts the load step back or raises `SolverError` naming the
+        step. ``stats["failed"]`` counts these, and ``last_failure`` keeps the message."""
+        try:
+            return self.host_solve(*args)
+        except (RuntimeError, np.linalg.LinAlgError) as err:
+            self.stats["failed"] += 1
+            self.last_failure = str(err)
+            return np.full(self.n + 1, np.nan)
+
+    def solve(self, blocks, col, row, r_u, r_c):
+        out = jax.pure_callback(self._host_solve_or_nan, jax.ShapeDtypeStruct((self.n + 1,), jnp.float64),
+                                blocks, col, row, r_u, r_c)
+        return out[:-1], out[-1]
+
+
+def _upper_triangle_map(pattern) -> tuple:
+    """For the structurally symmetric CSR ``pattern``: ``(slot, weight, indices, indptr)`` with the
+    upper triangle's CSR structure and, per entry (i, j) of the pattern, the slot of (min, max) in it
+    and the weight (1 on the diagonal, 1/2 off it): ``bincount(slot, data * weight)`` is ``(K + K^T) / 2``."""
+    n = pattern.size
+    rows = np.repeat(np.arange(n, dtype=np.int64), np.diff(pattern.indptr))
+    cols = pattern.indices.astype(np.int64)
+    lo, hi = np.minimum(rows, cols), np.maximum(rows, cols)
+    key, slot = np.unique(lo * n + hi, return_inverse=True)
+    indptr = np.searchsorted(key // n, np.arange(n + 1)).astype(np.int32)
+    return slot, np.where(rows == cols, 1.0, 0.5), (key % n).astype(np.int32), indptr
+
+
+def make_solver(model, kind: str = "auto"):
+    """``"auto"``: tridiagonal for 1D P1, sparse LU otherwise. The dense LU is never faster than the
+    sparse one, compilation included, and up to several times slower from a few hundred dofs
+    (``python bench/bench_auto_solver.py``); it stays available as ``"dense"``."""
+    if kind == "auto":
+        kind = "tridiagonal" if model.dim == 1 and model.space.degree == 1 else "lu"
+    if kind == "tridiagonal":
+        return TridiagonalSolver(model)
+    if kind == "dense":
+        return DenseSolver(model)
+    if kind in SparseSolver.methods:
+        return SparseSolver(model, kind)
+    raise InputError(f"unknown linear solver {kind!r} (auto, tridiagonal, dense, {', '.join(SparseSolver.methods)})")

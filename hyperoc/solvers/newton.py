@@ -1,0 +1,168 @@
+"""Newton's method with backtracking for the bordered systems of hyperoc, as a traced JAX loop.
+
+The unknown is ``x = (u, p)`` (n displacement dofs and one multiplier). The caller gives the
+residual ``r(x)`` (n+1,) and the Jacobian parts ``(blocks, col, row)`` of
+``[[K, col], [row^T, 0]]``, K by element blocks, which a solver from `hyperoc.solvers.linsolve` inverts.
+
+The loop is compiled, so it prints nothing while it runs; a long solve (a fine 3D mesh, minutes per
+iteration) is followed through ``monitor``, a hook called once per iteration inside the loop, which
+the caller turns into a host callback (`hyperoc.dynamics.statics.solve_static`'s ``monitor``,
+`NewtonIteration`, `NewtonLog`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import jax
+import jax.numpy as jnp
+
+from .. import _jax  # noqa: F401
+
+__all__ = ["newton", "NewtonIteration", "NewtonLog"]
+
+
+@dataclass(frozen=True)
+class NewtonIteration:
+    """One Newton iteration, as seen by a monitor.
+
+    load : the load factor in (0, 1] of the load step (static solves).
+    iteration : 1, 2, ... within this Newton solve.
+    residual : ``|r_u|_2`` of the iterate the step starts from (the force balance over the
+        displacement unknowns).
+    constraint : ``|r_p|`` of that iterate (the volume constraint, or the gauge when unconstrained).
+    increment : ``|du|_inf`` of the full Newton increment over the displacement unknowns (mm in the
+        benchmarks); NaN when the linear solve failed (the solver's ``last_failure`` says why).
+    step : the step length taken, ``2^-k`` after k halvings (1 for a full step).
+    converged : whether this increment passed the stopping test (each block of unknowns against its
+        own scale: displacements, and the pressure field if there is one).
+    field_residual, field_increment : with a pressure field among the unknowns
+        (`hyperoc.mechanics.mixed.TaylorHoodModel`: kPa), ``|r_q|_2`` of its equations (``J - 1 - q/kappa``
+        tested against P1) and ``|dq|_inf`` of its increment; None without one.
+    """
+
+    load: float
+    iteration: int
+    residual: float
+    constraint: float
+    increment: float
+    step: float
+    converged: bool
+    field_residual: float | None = None
+    field_increment: float | None = None
+
+
+@dataclass
+class NewtonLog:
+    """A monitor that keeps every `NewtonIteration` (``records``) and, given a ``stream``, prints one
+    line per iteration as it ends, with the wall time since the previous line or the log's creation
+    (a factorization and the line search; the first line also holds the compilation).
+    ``NewtonLog(sys.stderr)`` follows a long solve live."""
+
+    stream: object = None
+    records: list = field(default_factory=list)
+    _last: float = field(default_factory=time.perf_counter, repr=False)
+
+    def __call__(self, record: NewtonIteration) -> None:
+        now = time.perf_counter()
+        self.records.append(record)
+        if self.stream is not None:
+            field = ("" if record.field_residual is None else
+                     f" |r_q| {record.field_residual:.3e} |dq| {record.field_increment:.3e}")
+            print(f"newton: load {record.load:.4g} it {record.iteration:2d} |r| {record.residual:.3e} "
+                  f"|r_p| {record.constraint:.2e} |du| {record.increment:.3e}{field} step {record.step:.4g}"
+                  f"{' converged' if record.converged else ''} ({now - self._last:.1f} s)",
+                  file=self.stream, flush=True)
+        self._last = now
+
+
+def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, max_iter,
+           line_search: bool = True, monitor=None, n_u: int | None = None):
+    """Solve ``residual(x) = 0``; returns ``(x, iterations, status)``.
+
+    Convergence: ``|du|_inf <= rtol |u + du|_inf + atol`` for the Newton increment du; with
+    quadratic convergence the error after that update is far below the test. With ``n_u`` (a
+    pressure field q among the unknowns) the test is made on each block apart,
+    ``|du|_inf <= rtol |u + du|_inf + atol`` and ``|dq|_inf <= rtol |q + dq|_inf + atol``, so that
+    neither block's stopping depends on the other's units (mm and kPa). Status 0 = converged,
+    1 = not converged in ``max_iter`` iterations, 2 = non-finite iterate, or a residual that is
+    non-finite at every line-search step. ``max_iter`` may be traced (0: no iteration, x0 returned
+    with status 1). When the full step does not decrease ``|r|^2``
+    (sufficient decrease 1e-4), it is halved (at most 12 times); ``line_search=False`` always
+    takes the full step (penalty-stiff static problems with load stepping, where the merit of the
+    first full step can grow although Newton then converges).
+
+    ``monitor(iteration, residual, constraint, increment, step, converged[, field_residual,
+    field_increment])``, if given, is called on traced scalars at the end of every iteration (the
+    fields of `NewtonIteration` but the load). ``n_u``: the first n_u of the n unknowns are
+    displacements, the others a pressure field (Taylor-Hood); the monitor then gets the two
+    parts' residuals and increments apart.
+    """
+    merit = lambda r: jnp.sum(r * r)
+
+    def body(state):
+        # r = residual(x) is carried: the line search evaluates it at the point it accepts, which
+        # is the next iterate, so each iteration evaluates the residual once (plus backtracking).
+        x, r, it, _, _ = state
+        blocks, col, row = jacobian_parts(x)
+        du, dp = solver.solve(blocks, col, row, -r[:-1], -r[-1])
+        dx = jnp.concatenate([du, dp[None]])
+        m0 = merit(r)
+
+        def shrink(ls):
+            alpha, _ = ls
+            return alpha / 2, residual(x + alpha / 2 * dx)
+
+        def keep_shrinking(ls):
+            alpha, r1 = ls
+            return (~(merit(r1) <= (1 - 1e-4 * alpha) * m0)) & (alpha > 2.0**-12)
+
+        # A failed linear solve returns NaN, whose max is not NaN in XLA's reduction (-inf on CPU):
+        # test for it first, so that it is neither "converged" nor backtracked on 12 times.
+        solved = jnp.all(jnp.isfinite(dx))
+        # An increment below the tolerance is taken whole: its merit is at round-off level and
+        # backtracking on it would only stall.
+        converged = solved & _small(x[:-1], du, n_u, rtol, atol)
+        r_full = residual(x + dx)
+        if line_search:
+            take_whole = converged | ~solved
+            alpha, r1 = jax.lax.while_loop(lambda ls: ~take_whole & keep_shrinking(ls), shrink, (1.0, r_full))
+        else:
+            alpha, r1 = 1.0, r_full
+        x_new = x + alpha * dx
+        if monitor is not None:
+            res, inc, *field = _parts(r[:-1], du, solved, n_u)
+            monitor(it + 1, res, jnp.abs(r[-1]), inc, alpha, converged, *field)
+        # A residual that is NaN even at the smallest step (e.g. log det F of an inverted element
+        # all along the Newton direction) is a failure now, not one iteration later; after a
+        # converged step the residual is not used, and not tested.
+        finite = jnp.all(jnp.isfinite(x_new)) & (converged | jnp.isfinite(merit(r1)))
+        status = jnp.where(~finite, 2, jnp.where(converged, 0, 1))
+        return x_new, r1, it + 1, status, finite
+
+    def cond(state):
+        _, _, it, status, finite = state
+        return (status == 1) & (it < max_iter) & finite
+
+    x, _, it, status, _ = jax.lax.while_loop(cond, body, (x0, residual(x0), 0, 1, True))
+    return x, it, status
+
+
+def _blocks(n_u):
+    """The blocks of the unknowns (the multiplier excluded): all of them, or with ``n_u`` the
+    displacements ``[:n_u]`` and the pressure field ``[n_u:]``."""
+    return [slice(None)] if n_u is None else [slice(None, n_u), slice(n_u, None)]
+
+
+def _small(u, du, n_u, rtol, atol):
+    """Whether ``|du_b|_inf <= rtol |u_b + du_b|_inf + atol`` on every block b (`_blocks`)."""
+    small = [jnp.max(jnp.abs(du[b])) <= rtol * jnp.max(jnp.abs(u[b] + du[b])) + atol for b in _blocks(n_u)]
+    return jnp.all(jnp.stack(small))
+
+
+def _parts(r_u, du, solved, n_u):
+    """``(|r_b|_2, |du_b|_inf)`` of each block b (`_blocks`), one after the other; increments NaN if
+    not ``solved``."""
+    norms = lambda r, d: (jnp.linalg.norm(r), jnp.where(solved, jnp.max(jnp.abs(d)), jnp.nan))
+    return tuple(value for b in _blocks(n_u) for value in norms(r_u[b], du[b]))
