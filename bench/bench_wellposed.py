@@ -53,7 +53,7 @@ COLUMNS = ["beta", "h", "dt", "J", "p(tau)", "max |xi|", "min det F", "at t", "t
 
 def end_point(beta: float, h: float, dt: float, max_iter: int) -> list:
     """One Algorithm 1 run from (0, TAU0); the row of table 1."""
-    cfg = paper_config(objective__beta=beta, mesh__n=int(round(1 / h)), dynamics__dt=dt)
+    cfg = paper_config({"objective.beta": beta, "mesh.n": int(round(1 / h)), "dynamics.dt": dt})
     J = build_reduced(cfg, TAU0)
     started = time.perf_counter()
     res = barzilai_borwein(J, J.zero(TAU0), gtol=1e-6, max_iter=max_iter)
@@ -74,8 +74,8 @@ VARIANT_COLUMNS = ["method", "tau0", "h", "dt", "J", "tau", "iterations", "conve
 
 def variant_run(alpha: float, beta: float, method: str, tau0: float, h: float, dt: float, max_iter: int) -> list:
     """One run of the variant with weights (alpha, beta); the row of the variant table."""
-    cfg = paper_config(objective__alpha=alpha, objective__beta=beta, mesh__n=int(round(1 / h)),
-                dynamics__dt=dt)
+    cfg = paper_config({"objective.alpha": alpha, "objective.beta": beta, "mesh.n": int(round(1 / h)),
+                       "dynamics.dt": dt})
     J = build_reduced(cfg, tau0)
     run = {"lbfgsb": lbfgsb, "bb": barzilai_borwein, "newton": newton_cg}[method]
     res = run(J, J.zero(tau0), gtol=1e-6, max_iter=max_iter)
@@ -112,7 +112,8 @@ def noise_study(alpha: float, beta: float, h: float = 0.01, dt: float = 0.02, sp
     (the quadratic part e^2 k^2 |H| / 2 is below 1e-16); the curvature |H| is a central difference
     with step 1e-3. A step along d gains at most |G|^2 / (2 |H|), which is below the noise once
     |G| < sqrt(2 |H| noise): the floor of any line search that compares values of J."""
-    cfg = paper_config(objective__alpha=alpha, objective__beta=beta, mesh__n=int(round(1 / h)), dynamics__dt=dt)
+    cfg = paper_config({"objective.alpha": alpha, "objective.beta": beta, "mesh.n": int(round(1 / h)),
+                        "dynamics.dt": dt})
     J = build_reduced(cfg, TAU0)
     res = lbfgsb(J, J.zero(TAU0), gtol=1e-6, max_iter=150)
     value, G = J.value_and_gradient(res.point)  # G: the gradient in the control space's metric
@@ -176,7 +177,7 @@ def grid_study(alpha: float, beta: float, max_iter: int, methods: list) -> None:
 
 def nodal_load_response(h: float, dt: float = 0.04) -> list:
     """p(tau) for a unit load at the node x = 1 and at x = 1 - h, held on [6.5, 7.5]; tau = 7.5."""
-    J = build_reduced(paper_config(mesh__n=int(round(1 / h)), dynamics__dt=dt), TAU0)
+    J = build_reduced(paper_config({"mesh.n": int(round(1 / h)), "dynamics.dt": dt}), TAU0)
     x = J.model.control.coordinates(J.model.space).ravel()
     on = (J.transform.grid(TAU0).t > 6.5)[:, None]
     row = [h]

@@ -15,7 +15,7 @@ from hyperoc.app.paper import PAPER_REPORT, SPG_WINDOW, WELL_POSED, XI_MAX, repr
 from hyperoc.app.workflows import build_reduced
 from hyperoc.control.optimize import lbfgsb
 
-SMALL = {"mesh__n": 20, "dynamics__dt": 0.1, "optimize__max_iter": 3}
+SMALL = {"mesh.n": 20, "dynamics.dt": 0.1, "optimize.max_iter": 3}
 HEADLINE_KEYS = ("tau", "objective", "iterations", "converged", "grad_norm_history", "objective_history",
                  "tau_history", "alpha", "beta", "paper")
 FIGURES = ("pressure.png", "control.png", "displacement.png", "velocity.png", "control_snapshots.png",
@@ -52,7 +52,7 @@ def test_diagnostics_use_the_stated_variants(parallel):
     assert runs["bounded"]["xi_bounds"] == [-XI_MAX, XI_MAX] and runs["bounded"]["max_abs_xi"] <= XI_MAX
     assert runs["bounded"]["nonmonotone"] == SPG_WINDOW
     for r in runs.values():
-        assert 0 < r["tau"] < T and r["iterations"] <= SMALL["optimize__max_iter"]
+        assert 0 < r["tau"] < T and r["iterations"] <= SMALL["optimize.max_iter"]
     scales = [row["scale"] for row in summary["ray"]]
     assert scales == sorted(scales) and 1.0 in scales
 
@@ -71,7 +71,7 @@ def test_headline_converges_to_the_kkt_tolerance(tmp_path):
     """The fast tier's run of the job: ``quick`` (the headline only), one process, h = 0.05, dt = 0.1.
     The headline (Newton-CG) must end at a KKT point of the well-posed problem, relative gradient <= gtol,
     and L-BFGS-B from the same start at the same maximizer."""
-    coarse = {"mesh__n": 20, "dynamics__dt": 0.1}
+    coarse = {"mesh.n": 20, "dynamics.dt": 0.1}
     summary = reproduce_paper_1d(tmp_path, quick=True, progress=False, workers=1, overrides=coarse)
     for name in ("summary.json", "results.npz", *FIGURES):
         assert (tmp_path / name).is_file(), name
@@ -82,13 +82,13 @@ def test_headline_converges_to_the_kkt_tolerance(tmp_path):
     g = on_disk["grad_norm_history"]
     assert g[-1] <= summary["config"]["optimize"]["gtol"] * g[0]
     assert on_disk["relative_gradient"] == pytest.approx(g[-1] / g[0])
-    assert (on_disk["alpha"], on_disk["beta"]) == (WELL_POSED["objective__alpha"], WELL_POSED["objective__beta"])
+    assert (on_disk["alpha"], on_disk["beta"]) == (WELL_POSED["objective.alpha"], WELL_POSED["objective.beta"])
     assert on_disk["paper"] == PAPER_REPORT and on_disk["diagnostics"] == {}
     T = summary["config"]["dynamics"]["T"]
     assert 0 < on_disk["tau"] < T and on_disk["objective"] > 0
     assert on_disk["min_det_F"] > 0.5  # the maximizer keeps every element well inside the elastic range
 
-    J = build_reduced(wellposed_config(**coarse), PAPER_REPORT["tau0"])
+    J = build_reduced(wellposed_config(coarse), PAPER_REPORT["tau0"])
     res = lbfgsb(J, J.zero(PAPER_REPORT["tau0"]), gtol=1e-6, max_iter=100)
     assert res.converged
     # Two points with relative gradients <= 1e-6 (|G| <= 2e-7 here) on a ridge whose curvature along tau

@@ -353,18 +353,31 @@ def apply_overrides(data: dict, overrides) -> dict:
     depth). VALUE is read as a TOML value (``0.05``, ``[1, 2]``, ``"svk"``, ``true``, ``{ a = 1 }``)
     or, when it is none, taken as a string (``material.law=svk``). The result is validated like the
     file by `parse_config`."""
-    data = copy.deepcopy(data)  # the caller's dict stays as read
+    entries = {}
     for item in overrides:
         path, sep, text = item.partition("=")
-        keys = path.strip().split(".")
-        if not sep or len(keys) < 2 or not all(keys):
+        if not sep:
             raise InputError(f"override {item!r}: expected SECTION.KEY=VALUE, e.g. dynamics.dt=0.01")
+        entries[path.strip()] = _read_value(text.strip())
+    return set_entries(data, entries)
+
+
+def set_entries(data: dict, entries) -> dict:
+    """A copy of ``data`` (a config as read from TOML) with each ``"SECTION.KEY": value`` of the
+    mapping ``entries`` set (a key path of any depth, as in ``--set``), e.g.
+    ``{"mesh.n": 50, "optimize.xi_bounds": [-0.05, 0.05]}``: the one way configurations are changed,
+    from the command line (`apply_overrides`) or from Python."""
+    data = copy.deepcopy(data)  # the caller's dict stays as read
+    for path, value in entries.items():
+        keys = path.strip().split(".")
+        if len(keys) < 2 or not all(keys):
+            raise InputError(f"override {path!r}: expected SECTION.KEY (--set SECTION.KEY=VALUE), e.g. dynamics.dt")
         table = data
         for key in keys[:-1]:
             table = table.setdefault(key, {})
             if not isinstance(table, dict):
-                raise InputError(f"override {item[:80]!r}: {key} is not a table")
-        table[keys[-1]] = _read_value(text.strip())
+                raise InputError(f"override {path[:80]!r}: {key} is not a table")
+        table[keys[-1]] = value
     return data
 
 

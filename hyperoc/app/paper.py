@@ -33,7 +33,7 @@ from ..control.reduced import ControlPoint
 from ..errors import InputError, SolverError
 from ..io import read_json, write_json
 from ..solvers.threads import ONE_THREAD_POOL, bind_threads
-from .config import Config, parse_config
+from .config import Config, parse_config, set_entries
 from .workflows import optimize_single, write_optimization_outputs
 
 __all__ = ["paper_config", "wellposed_config", "reproduce_paper_1d", "PAPER_REPORT", "WELL_POSED"]
@@ -51,7 +51,7 @@ PAPER_REPORT = {
 # The headline's changes to the paper's setup: a control cost that competes with the pressure, H^1 in
 # time (sqrt(beta / alpha) = 1 time unit), and the second-order method that reaches the KKT tolerance
 # past the round-off of J (docs/wellposedness.md).
-WELL_POSED = {"objective__alpha": 10.0, "objective__beta": 10.0, "optimize__method": "newton"}
+WELL_POSED = {"objective.alpha": 10.0, "objective.beta": 10.0, "optimize.method": "newton"}
 XI_MAX = 0.05  # bound of the bounded variant (same order as the control the paper's figures suggest)
 # The bounded variant's nonmonotone window (Birgin-Martinez-Raydan's SPG default): Algorithm 1's
 # unguarded BB steps let J fall to a tenth of its best value there.
@@ -60,27 +60,25 @@ RUN_NAMES = {"wellposed": "well-posed (alpha = beta = 10), Newton-CG", "as_state
              "bounded": f"as stated with |xi| <= {XI_MAX}, SPG"}
 
 
-def paper_config(**changes) -> Config:
+def paper_config(changes: dict | None = None) -> Config:
     """The shipped configuration of Table tab-param (``hyperoc/data/paper-1d.toml``) with ``changes``
-    (``section__key=value``, e.g. ``mesh__n=50``), validated as a whole (a changed method gets its own
-    options' defaults)."""
+    (``{"SECTION.KEY": value}``, as `set_entries` and ``--set``, e.g. ``{"mesh.n": 50}``), validated as a
+    whole (a changed method gets its own options' defaults)."""
     import tomllib
 
     data = tomllib.loads(resources.files("hyperoc").joinpath("data/paper-1d.toml").read_text())
-    for dotted, value in changes.items():
-        section, key = dotted.split("__")
-        data.setdefault(section, {})[key] = value
-    return parse_config(data)
+    return parse_config(set_entries(data, changes or {}))
 
 
-def wellposed_config(**changes) -> Config:
+def wellposed_config(changes: dict | None = None) -> Config:
     """The headline's configuration: the paper's with `WELL_POSED` (``alpha = beta = 10``, Newton-CG)."""
-    return paper_config(**{**WELL_POSED, **changes})
+    return paper_config({**WELL_POSED, **(changes or {})})
 
 
-def bounded_config(**changes) -> Config:
+def bounded_config(changes: dict | None = None) -> Config:
     """The bounded variant of the paper's configuration: ``|xi| <= XI_MAX`` by SPG (window ``SPG_WINDOW``)."""
-    return paper_config(**{"optimize__xi_bounds": [-XI_MAX, XI_MAX], "optimize__nonmonotone": SPG_WINDOW, **changes})
+    bounds = {"optimize.xi_bounds": [-XI_MAX, XI_MAX], "optimize.nonmonotone": SPG_WINDOW}
+    return paper_config({**bounds, **(changes or {})})
 
 
 def _run(cfg: Config, key: str, out: Path, *, progress: bool, J=None) -> tuple[dict, object, object]:
@@ -155,17 +153,17 @@ def ray_study(J, point: ControlPoint, scales=(0.25, 0.5, 0.75, 1.0, 1.1, 1.25, 1
 
 def _headline_job(overrides: dict, out: Path, progress: bool) -> dict:
     """The well-posed problem solved by Newton-CG, written to the top level of ``out``."""
-    row, _, _ = _run(wellposed_config(**overrides), "wellposed", out, progress=progress)
+    row, _, _ = _run(wellposed_config(overrides), "wellposed", out, progress=progress)
     return row
 
 
 def _diagnostics_job(overrides: dict, out: Path, progress: bool) -> dict:
     """The problem as stated: Algorithm 1, the ray study at its end point, then the bounded variant
     |xi| <= XI_MAX (SPG) with the same compiled reduced functional."""
-    as_stated, J, res = _run(paper_config(**overrides), "as_stated", out / "as_stated", progress=progress)
+    as_stated, J, res = _run(paper_config(overrides), "as_stated", out / "as_stated", progress=progress)
     ray = ray_study(J, res.point)
     write_json(out / "ray.json", ray)
-    bounded, _, _ = _run(bounded_config(**overrides), "bounded", out / "bounded", progress=progress, J=J)
+    bounded, _, _ = _run(bounded_config(overrides), "bounded", out / "bounded", progress=progress, J=J)
     return {"as_stated": as_stated, "bounded": bounded, "ray": ray}
 
 
@@ -240,7 +238,8 @@ def reproduce_paper_1d(out: Path, *, quick: bool = False, progress: bool = True,
 
     ``workers`` processes run the independent studies in parallel (default: ``min(2, cpu count)``;
     1 runs everything in this process). ``overrides`` changes the shipped configuration of every run,
-    as ``{"section__key": value}`` (e.g. a coarser grid for a smoke test); the paper's setup is the default.
+    as ``{"SECTION.KEY": value}`` (`set_entries`; e.g. a coarser grid for a smoke test); the paper's setup
+    is the default.
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -259,7 +258,7 @@ def reproduce_paper_1d(out: Path, *, quick: bool = False, progress: bool = True,
                                                            "min_det_F", "max_abs_xi")},
                "paper": PAPER_REPORT, "diagnostics": {k: diagnostics[k] for k in ("as_stated", "bounded")
                                                      if k in diagnostics},
-               "ray": diagnostics.get("ray", []), "config": wellposed_config(**overrides).sections,
+               "ray": diagnostics.get("ray", []), "config": wellposed_config(overrides).sections,
                "workers": workers, "wall_time_s": time.perf_counter() - started}
     write_json(out / "summary.json", summary)
     _print_report(out, summary)
