@@ -38,7 +38,7 @@ def main():
         st = ho.TimeStepper(model, cfg.scheme(), solver)
         V0 = float(model.volume(np.zeros(model.n)))
         zero = np.zeros(model.n)
-        scan = lambda st=st, V0=V0: np.asarray(st._scan(zero, zero, 0.0, xi, fs, grid.dt, V0)[0])
+        scan = lambda st=st, V0=V0: np.asarray(st.march(zero, zero, 0.0, xi, fs, grid.dt, V0)[0])
         rows[f"state solve (lax.scan, {solver})"] = best_of(scan)
         rows[f"state solve + diagnostics (TimeStepper.run, {solver})"] = best_of(lambda: st.run(grid, xi), repeat=3)
     J = build_reduced(cfg, 7.5, model)

@@ -111,13 +111,13 @@ def test_schedule_arguments():
 
 def _counting_steps(J):
     """Counts the stepper's jitted step evaluations (the revolve path steps only through it)."""
-    step, calls = J.stepper._jit_step, Counter()
+    step, calls = J.stepper.advance, Counter()
 
     def counted(*args):
         calls["steps"] += 1
         return step(*args)
 
-    J.stepper.__dict__["_jit_step"] = counted
+    J.stepper.__dict__["advance"] = counted
     return calls
 
 

@@ -152,7 +152,7 @@ class Adjoint:
         return jax.jit(run)
 
     @cached_property
-    def _jit_step(self):
+    def advance(self):
         return jax.jit(self.step)
 
     def sweep(self, lam, Y0, Y1, P, Xi, F, dt, V0, gY0, gY1, gP):
@@ -169,7 +169,7 @@ class Adjoint:
             lam, gXi, gdt = self._scan(lam, *(jnp.asarray(a) for a in args), V0, jnp.asarray(gY0), jnp.asarray(gY1),
                                        jnp.asarray(gP))
         else:
-            lam, (gxi0, gxi1, gdt) = self._python_loop(lam, gY0, gY1, self._inputs(Y0, Y1, P, Xi, F, dt, V0, gP))
+            lam, (gxi0, gxi1, gdt) = self.march_stepwise(lam, gY0, gY1, self._inputs(Y0, Y1, P, Xi, F, dt, V0, gP))
             gXi = self._control_totals(Xi, gxi0, gxi1)
         return lam, np.asarray(gXi), np.asarray(gdt)
 
@@ -180,18 +180,6 @@ class Adjoint:
         return gXi, gdt
 
     # --- checkpointing ----------------------------------------------------------------------------
-    def advance(self, y0, y1, p_prev, t, xi, loads, V0):
-        """The stepper's own loop (compiled scan, or jitted step driven from Python) over the levels
-        ``t`` (L+1,) from ``(y0, y1)`` with previous multiplier ``p_prev`` (Newton's initial guess; a
-        Python float, as `TimeStepper.run` passes it, so that the compiled scans are shared);
-        xi (L+1, n_ctrl), loads (L+1, n). Returns the stepper's outputs (Y0, Y1 (L, n), P, iterations,
-        status, min det F, max |grad u| (L,)) for the levels after the first."""
-        st = self.stepper
-        if st.solver.traced:
-            return st._scan(jnp.asarray(y0), jnp.asarray(y1), jnp.asarray(p_prev), jnp.asarray(xi), jnp.asarray(loads),
-                            jnp.asarray(np.diff(t)), V0)
-        return st._python_loop(y0, y1, p_prev, xi, loads, TimeGrid(t), V0, False)
-
     def record(self, grid: TimeGrid, xi, loads, u0, v0, every: int, keep=()) -> Checkpoints:
         """Forward solve keeping the level states at ``0, every, 2 every, ...`` and at the levels
         ``keep``; raises `SolverError` (step, cause) like `TimeStepper.run` when a step fails."""
@@ -202,12 +190,12 @@ class Adjoint:
         states, P, its, status, mindet = [], [], [], [], []
         for a, b in zip(bounds[:-1], bounds[1:]):
             states.append((y0, y1))
-            out = self.advance(y0, y1, float(P[-1][-1]) if P else 0.0, grid.t[a:b + 1], xi[a:b + 1],
+            out = self.stepper.march_levels(y0, y1, float(P[-1][-1]) if P else 0.0, grid.t[a:b + 1], xi[a:b + 1],
                                loads[a:b + 1], V0)
             for store, o in zip((P, its, status, mindet), out[2:6]):
                 store.append(np.asarray(o))
             if np.any(status[-1] != 0):
-                self.stepper._raise_on_failure(np.concatenate(status), grid, np.concatenate(its),
+                self.stepper.raise_on_failure(np.concatenate(status), grid, np.concatenate(its),
                                                np.concatenate(mindet))
             kept.update({k: (jnp.asarray(out[0][k - a - 1]), jnp.asarray(out[1][k - a - 1]))
                          for k in keep if a < k <= b})
@@ -224,7 +212,7 @@ class Adjoint:
         for j in reversed(range(len(ck.states))):
             a, b = ck.bounds[j], ck.bounds[j + 1]
             y0, y1 = ck.states[j]
-            Y0n, Y1n, P = self.advance(y0, y1, float(ck.p_steps[a - 1]) if a else 0.0, ck.grid.t[a:b + 1],
+            Y0n, Y1n, P = self.stepper.march_levels(y0, y1, float(ck.p_steps[a - 1]) if a else 0.0, ck.grid.t[a:b + 1],
                                        ck.xi[a:b + 1], ck.loads[a:b + 1], ck.V0)[:3]
             gY0, gY1 = np.zeros((b - a, n)), np.zeros((b - a, n))
             for k, (g0, g1) in g_kept.items():
@@ -245,7 +233,7 @@ class Adjoint:
     @staticmethod
     def _step_inputs(grid: TimeGrid, xi, loads, V0):
         """``n -> (xi_n, xi_{n+1}, f_n, f_{n+1}, dt_n, V0)``, the inputs of `TimeStepper.step` with the
-        argument types of `TimeStepper._python_loop` (so the jitted step compiles once for both)."""
+        argument types of `TimeStepper.march_stepwise` (so the jitted step compiles once for both)."""
         return lambda n: (xi[n], xi[n + 1], loads[n], loads[n + 1], grid.dt[n], V0)
 
     def _walk(self, inputs, y0, y1, p_prev, a: int, b: int):
@@ -254,7 +242,7 @@ class Adjoint:
         (``p_{a-1/2}`` of the forward run, 0 at a = 0), one jitted step at a time."""
         carry = (y0, y1, jnp.asarray(p_prev, dtype=jnp.float64), jnp.asarray(False))
         for n in range(a, b):
-            carry, out = self.stepper._jit_step(carry, inputs(n))
+            carry, out = self.stepper.advance(carry, inputs(n))
             yield out
 
     def record_revolve(self, grid: TimeGrid, xi, loads, u0, v0, snapshots: int, keep=()) -> RevolveRecord:
@@ -275,7 +263,7 @@ class Adjoint:
                 held[n] = out[:2]
         P, its, status, mindet = (np.asarray(m) for m in zip(*jax.device_get(monitors)))  # on the host: a jnp.stack
         # of N arrays would compile an N-operand concatenation for every N
-        self.stepper._raise_on_failure(status, grid, its, mindet)
+        self.stepper.raise_on_failure(status, grid, its, mindet)
         return RevolveRecord(grid, xi, loads, V0, actions, start, {k: held[k] for k in stores}, held[N - 1],
                              out[0], P, {k: held[k] for k in keep})
 
@@ -308,10 +296,10 @@ class Adjoint:
     def _reverse_step(self, lam, inputs, g=None):
         """`step` (jitted) from the totals ``lam`` at level n+1; adds J's partials ``g = (dJ/dy0_n,
         dJ/dy1_n)`` when given. Returns the totals at level n and the step's derivatives."""
-        (l0, l1), out = self._jit_step(lam, inputs)
+        (l0, l1), out = self.advance(lam, inputs)
         return ((l0, l1) if g is None else (l0 + g[0], l1 + g[1])), out
 
-    def _python_loop(self, lam, gY0, gY1, xs):
+    def march_stepwise(self, lam, gY0, gY1, xs):
         N = xs[0].shape[0]
         carry = lam
         outs = [None] * N

@@ -252,7 +252,7 @@ class ReducedFunctional:
     def trajectory(self, sol: StateSolution) -> Trajectory:
         n1, n2, _ = self.transform.steps
         return Trajectory(jnp.asarray(sol.y0), jnp.asarray(sol.y1), jnp.asarray(sol.p_steps), jnp.asarray(sol.xi),
-                          jnp.asarray(sol.dt), n1, n1 + n2, self._control_mass, self.stepper._M, self.model)
+                          jnp.asarray(sol.dt), n1, n1 + n2, self._control_mass, self.stepper.mass, self.model)
 
     def _objective_functions(self, states):
         """Jitted ``J(y0, y1, p, xi, dt)`` and its value and partial derivatives; ``states`` turns the
@@ -260,7 +260,7 @@ class ReducedFunctional:
         n1, n2, _ = self.transform.steps
 
         def value(y0, y1, p, xi, dt):
-            traj = Trajectory(states(y0), states(y1), p, xi, dt, n1, n1 + n2, self._control_mass, self.stepper._M,
+            traj = Trajectory(states(y0), states(y1), p, xi, dt, n1, n1 + n2, self._control_mass, self.stepper.mass,
                               self.model)
             return self.objective.value(traj)
 
@@ -279,7 +279,7 @@ class ReducedFunctional:
         f64 = lambda *shape: jax.ShapeDtypeStruct(shape, jnp.float64)
         try:
             jax.eval_shape(lambda p, xi, dt: self.objective.value(
-                Trajectory(*recorders, p, xi, dt, n1, n1 + n2, self._control_mass, self.stepper._M, self.model)),
+                Trajectory(*recorders, p, xi, dt, n1, n1 + n2, self._control_mass, self.stepper.mass, self.model)),
                 f64(N), f64(N + 1, nc), f64(N))
         except (TypeError, AttributeError) as err:
             raise InputError(f"checkpointing: the objective uses traj.y0 / traj.y1 as whole arrays ({err}); "

@@ -215,6 +215,11 @@ class TimeStepper:
         self._lap_blocks = jnp.asarray(model.laplace_blocks)
 
     # --- the step residual: single source of truth for Newton and adjoint -------------------------
+    @property
+    def mass(self):
+        """The mass matrix M of the reduced dofs (JAX sparse, as the step uses it)."""
+        return self._M
+
     def load(self, xi, f):
         """L = B xi + f on the reduced dofs (f: external load vector of the level)."""
         if self._B is None:
@@ -295,7 +300,11 @@ class TimeStepper:
         return (y0n, y1n, pn, failed), (y0n, y1n, pn, it, status, mindet, maxgrad)
 
     @cached_property
-    def _scan(self):
+    def march(self):
+        """The compiled loop over levels, ``march(y0, y1, p0, xis, fs, dts, V0)``: from the state
+        ``(y0, y1)`` (n,) with Newton's first multiplier guess p0, controls xis (L+1, n_ctrl), loads
+        fs (L+1, n), steps dts (L,) and the reference volume V0, the outputs of `step` stacked over
+        the L steps: (y0, y1 (L, n), p, iterations, status, min det F, max |grad u| (L,))."""
         def run(y0, y1, p0, xis, fs, dts, V0):
             V = jnp.full(dts.shape, V0)
             _, out = jax.lax.scan(self.step, (y0, y1, p0, jnp.asarray(False)),
@@ -306,7 +315,7 @@ class TimeStepper:
 
     @cached_property
     def _scan_from(self):
-        """`_scan`'s loop from a given carry, returning the final carry too (`_chunked_scan`)."""
+        """`march`'s loop from a given carry, returning the final carry too (`_chunked_scan`)."""
         def run(carry, xis, fs, dts, V):
             return jax.lax.scan(self.step, carry, (xis[:-1], xis[1:], fs[:-1], fs[1:], dts, V))
 
@@ -335,8 +344,20 @@ class TimeStepper:
         return [np.concatenate([o[k] for o in outs]) for k in range(len(outs[0]))]
 
     @cached_property
-    def _jit_step(self):
+    def advance(self):
+        """One compiled step, ``advance(carry, inputs) -> (carry, outputs)`` (`step` jitted): carry
+        ``(y0, y1, p, failed)``, inputs ``(xi0, xi1, f0, f1, dt, V0)``, outputs as in `march`."""
         return jax.jit(self.step)
+
+    def march_levels(self, y0, y1, p_prev, t, xi, loads, V0):
+        """This stepper's own loop (`march`, or `march_stepwise` for host solvers) over the levels
+        ``t`` (L+1,) from ``(y0, y1)`` with previous multiplier ``p_prev`` (Newton's initial guess; a
+        Python float, as `run` passes it, so that the compiled loops are shared); xi (L+1, n_ctrl),
+        loads (L+1, n). Returns the outputs of `march` for the levels after the first."""
+        if self.solver.traced:
+            return self.march(jnp.asarray(y0), jnp.asarray(y1), jnp.asarray(p_prev), jnp.asarray(xi),
+                              jnp.asarray(loads), jnp.asarray(np.diff(t)), V0)
+        return self.march_stepwise(y0, y1, p_prev, xi, loads, TimeGrid(t), V0, False)
 
     # --- driver ---------------------------------------------------------------------------------
     def consistent_pressure(self, y0, y1, xi, f):
@@ -386,14 +407,14 @@ class TimeStepper:
         if self.solver.traced and monitor is None and progress:
             out = self._chunked_scan(y0, y1, p0, xis, fs, grid, V0)
         elif self.solver.traced and monitor is None:
-            out = self._scan(jnp.asarray(y0), jnp.asarray(y1), jnp.asarray(p0), jnp.asarray(xis), jnp.asarray(fs),
+            out = self.march(jnp.asarray(y0), jnp.asarray(y1), jnp.asarray(p0), jnp.asarray(xis), jnp.asarray(fs),
                              jnp.asarray(grid.dt), V0)
             out = [np.asarray(o) for o in out]
         else:
-            out = self._python_loop(y0, y1, p0, xis, fs, grid, V0, progress, monitor)
+            out = self.march_stepwise(y0, y1, p0, xis, fs, grid, V0, progress, monitor)
         wall = _time.perf_counter() - start
         Y0n, Y1n, P, its, status, mindet, maxgrad = out
-        self._raise_on_failure(status, grid, its, mindet)
+        self.raise_on_failure(status, grid, its, mindet)
         Y0 = np.concatenate([y0[None], Y0n])
         Y1 = np.concatenate([y1[None], Y1n])
         if self.scheme.multiplier == "theta":
@@ -440,7 +461,10 @@ class TimeStepper:
             raise InputError(f"external loads must have shape (N+1, n) = {(N + 1, n)}, got {ext.shape}")
         return ext
 
-    def _python_loop(self, y0, y1, p0, xis, fs, grid, V0, progress, monitor=None):
+    def march_stepwise(self, y0, y1, p0, xis, fs, grid, V0, progress, monitor=None):
+        """`march` driven from Python, one `advance` at a time, on the TimeGrid ``grid``: a progress bar
+        (``progress``), ``monitor(StepRecord)`` after each step, and a stop at the first failed step
+        (the outputs padded to the grid with status 4)."""
         from tqdm.auto import tqdm
 
         carry = (jnp.asarray(y0), jnp.asarray(y1), jnp.asarray(p0, dtype=jnp.float64), jnp.asarray(False))
@@ -449,7 +473,7 @@ class TimeStepper:
         for n in steps:
             inputs = (jnp.asarray(xis[n]), jnp.asarray(xis[n + 1]), jnp.asarray(fs[n]), jnp.asarray(fs[n + 1]),
                       grid.dt[n], V0)
-            carry, out = self._jit_step(carry, inputs)
+            carry, out = self.advance(carry, inputs)
             out = [np.asarray(o) for o in out]
             outs.append(out)
             if n == 0 and progress:  # the ETA from here on counts steps, not the compilation
@@ -476,7 +500,9 @@ class TimeStepper:
         return StepRecord(n, float(grid.t[n + 1]), int(its), float(mindet), abs(volume - V0) / abs(V0), float(pn),
                           STATUS.get(int(status), "unknown"))
 
-    def _raise_on_failure(self, status, grid, its, mindet):
+    def raise_on_failure(self, status, grid, its, mindet):
+        """`SolverError` naming the first step whose status (L,) is not 0, its time on ``grid`` and the
+        cause (Newton iterations ``its``, ``mindet`` = min det F per step); nothing if all steps passed."""
         bad = np.flatnonzero(np.asarray(status) != 0)
         if bad.size == 0:
             return
