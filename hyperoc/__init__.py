@@ -2,6 +2,7 @@
 
 The curated API (see the README for a tour)::
 
+    layers      fem, solvers, mechanics, dynamics, control, cardiac, app (the API reference's table)
     mesh        interval, rectangle, box, refine, Mesh; geometry: annulus, thick_shell, ventricle, from_file
     materials   SaintVenantKirchhoff, Fung, Ogden, NeoHookean; Guccione, HolzapfelOgden (fibre frames)
     fibres      transmural_coordinate, rule_based_fibres (helix angle rule), prolate_fibres (analytic, Land)
@@ -12,9 +13,10 @@ The curated API (see the README for a tour)::
                 deformed boundary), FibreTension (active stress), and NewtonLog, a monitor that
                 prints or keeps every Newton iteration
     time        uniform_grid, TimeGrid, TimeTransform
-    objectives  Objective, ControlCost, PressureAt, PressureRise
-    gradients   ReducedFunctional, ControlPoint, taylor_test
-    optimizers  barzilai_borwein (the paper's Algorithm 1), lbfgsb, newton_cg
+    objectives  Objective, ControlCost, ControlRateCost (beta/2 ||xi_t||^2), InjectivityPenalty,
+                PressureAt, PressureRise, PressureMean
+    gradients   ReducedFunctional, ControlPoint, ControlSpace (inner product, Riesz map), taylor_test
+    optimizers  barzilai_borwein (the paper's Algorithm 1), lbfgsb, newton_cg -> OptimizationResult
     config      load_config
 
 Importing hyperoc is cheap: the names above are imported on first use (PEP 562), so that the
@@ -78,6 +80,11 @@ _LAZY = {
     "NewtonLog": "solvers.newton",
     "ControlCost": "control.objectives",
     "ControlRateCost": "control.objectives",
+    "InjectivityPenalty": "control.objectives",
+    "PressureMean": "control.objectives",
+    "OptimizationResult": "control.optimize",
+    "ControlSpace": "control.control_space",
+    "StepRecord": "dynamics.stepper",
     "Objective": "control.objectives",
     "PressureAt": "control.objectives",
     "PressureRise": "control.objectives",
@@ -113,8 +120,8 @@ __all__ = [
     "HyperocError", "InputError", "SolverError", "annulus", "from_file", "thick_shell", "ventricle", "Fung",
     "NeoHookean", "Ogden", "SaintVenantKirchhoff", "Guccione", "HolzapfelOgden", "rule_based_fibres", "prolate_fibres",
     "transmural_coordinate", "Mesh", "box", "interval", "rectangle", "refine", "StateModel", "TaylorHoodModel",
-    "ControlCost", "Objective", "PressureAt", "PressureRise", "barzilai_borwein", "lbfgsb", "newton_cg",
-    "ControlPoint",
+    "ControlCost", "ControlRateCost", "InjectivityPenalty", "Objective", "PressureAt", "PressureRise", "PressureMean",
+    "barzilai_borwein", "lbfgsb", "newton_cg", "OptimizationResult", "ControlPoint", "ControlSpace", "StepRecord",
     "ReducedFunctional", "solve_static", "NewtonLog", "FollowerPressure", "FibreTension", "TimeGrid", "TimeTransform",
     "uniform_grid", "taylor_test",
 ]
