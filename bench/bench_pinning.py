@@ -39,7 +39,7 @@ def child(pinned: bool) -> None:
     start = time.perf_counter()
     cfg = paper_config()
     with tempfile.TemporaryDirectory() as out:
-        J, res = optimize_single(cfg, float(cfg["optimize"]["tau0"]), checkpoint=Path(out) / "checkpoint")
+        J, res = optimize_single(cfg, float(cfg["optimize"]["tau0"]), cache_dir=Path(out) / "cache")
         write_optimization_outputs(Path(out), cfg, J, res)
     usage = resource.getrusage(resource.RUSAGE_SELF)
     print(json.dumps({"wall": time.perf_counter() - start, "cpu": usage.ru_utime + usage.ru_stime,

@@ -13,19 +13,10 @@ JSON
 `write_json` writes pretty-printed, key-sorted JSON and converts numpy scalars and arrays to
 Python types. Non-finite floats (NaN, +-inf) are written as ``null``: strict JSON has no such
 values, and a NaN objective in a history must not make the whole file unwritable.
-
-Checkpoints
------------
-`Checkpoint` keeps ``checkpoint.npz`` (the arrays) and ``checkpoint.json`` (metadata and the
-SHA-256 of the npz). The json is written last and is the commit record: if a crash happens
-between the two writes, the json's hash no longer matches the npz and `Checkpoint.load`
-raises `CheckpointError` (an `InputError`: the CLI reports it in one line) instead of
-resuming from an inconsistent state.
 """
 
 from __future__ import annotations
 
-import hashlib
 import io
 import json
 import math
@@ -41,8 +32,6 @@ from pathlib import Path
 import meshio
 import numpy as np
 
-from .errors import InputError
-
 __all__ = [
     "atomic_write_bytes",
     "atomic_write_text",
@@ -52,8 +41,6 @@ __all__ = [
     "read_npz",
     "write_time_series",
     "time_series_format",
-    "Checkpoint",
-    "CheckpointError",
 ]
 
 NODES_PER_CELL = {"line": 2, "triangle": 3, "tetra": 4, "line3": 3, "triangle6": 6, "tetra10": 10}
@@ -350,72 +337,3 @@ def _remove_stale_pieces(directory: Path, name: str, keep: set) -> None:
     for path in directory.iterdir():
         if pattern.fullmatch(path.name) and path.name not in keep:
             path.unlink(missing_ok=True)
-
-
-# ----------------------------------------------------------------------------- checkpoints
-
-
-class CheckpointError(InputError):
-    """A checkpoint exists but is inconsistent (missing npz, hash mismatch, unreadable json)."""
-
-
-class Checkpoint:
-    """Restart data in ``directory/checkpoint.npz`` + ``directory/checkpoint.json``.
-
-    The json holds ``{"format": 1, "npz_sha256": ..., "keys": [...], "meta": meta}`` and is
-    written after the npz: it is the commit record of a save.
-    """
-
-    NPZ = "checkpoint.npz"
-    JSON = "checkpoint.json"
-
-    def __init__(self, directory):
-        self.directory = Path(directory)
-
-    @property
-    def npz_path(self) -> Path:
-        return self.directory / self.NPZ
-
-    @property
-    def json_path(self) -> Path:
-        return self.directory / self.JSON
-
-    def exists(self) -> bool:
-        """True once a save has completed (the json record exists)."""
-        return self.json_path.is_file()
-
-    def save(self, state: dict, meta: dict) -> None:
-        """Store arrays/scalars ``state`` and JSON-serializable ``meta`` (see `write_json`)."""
-        data = _npz_bytes(state)
-        self.directory.mkdir(parents=True, exist_ok=True)
-        atomic_write_bytes(self.npz_path, data)
-        record = {"format": 1, "npz_sha256": hashlib.sha256(data).hexdigest(), "keys": sorted(state), "meta": meta}
-        write_json(self.json_path, record)
-
-    def load(self):
-        """The saved ``(state, meta)``, or None if no save has completed.
-
-        Scalars come back as numpy scalars, arrays as arrays.
-
-        Raises
-        ------
-        CheckpointError
-            If the json record is unreadable, the npz is missing, or its SHA-256 differs from
-            the recorded one (e.g. a crash between the two writes of a save).
-        """
-        if not self.exists():
-            return None
-        try:
-            record = read_json(self.json_path)
-            expected = record["npz_sha256"]
-        except (ValueError, KeyError, TypeError) as err:
-            raise CheckpointError(f"checkpoint record {self.json_path} is unreadable ({err})") from None
-        try:
-            data = self.npz_path.read_bytes()
-        except FileNotFoundError:
-            raise CheckpointError(f"checkpoint {self.json_path} refers to a missing {self.npz_path}") from None
-        if hashlib.sha256(data).hexdigest() != expected:
-            raise CheckpointError(f"checkpoint {self.npz_path} does not match the hash in {self.json_path}; "
-                                  "delete both to start over")
-        arrays = read_npz(io.BytesIO(data))
-        return {key: a[()] if a.ndim == 0 else a for key, a in arrays.items()}, record["meta"]

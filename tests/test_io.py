@@ -1,4 +1,3 @@
-import json
 import os
 import struct
 import sys
@@ -13,7 +12,6 @@ import pytest
 import hyperoc.app.plotting
 import hyperoc.io as hio
 from hyperoc.app.plotting import Units, plot_control_spacetime, plot_history, plot_pressure, plot_snapshots
-from hyperoc.errors import InputError
 from hyperoc.fem.mesh import interval, rectangle
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -251,46 +249,6 @@ def test_time_series_rejects_bad_shapes(tmp_path):
     with pytest.raises(ValueError, match="name"):
         hio.write_time_series(tmp_path, "../s", **series, fmt="pvd")
     assert list(tmp_path.iterdir()) == []
-
-
-# ----------------------------------------------------------------------------- checkpoints
-
-
-def test_checkpoint_round_trip(tmp_path):
-    ckpt = hio.Checkpoint(tmp_path / "run")
-    assert not ckpt.exists() and ckpt.load() is None
-    state = {"u": np.arange(6.0).reshape(3, 2), "step": 12, "tau": 0.25}
-    ckpt.save(state, {"iteration": np.int64(3), "objective": np.float64(0.5)})
-    assert ckpt.exists()
-    loaded, meta = hio.Checkpoint(tmp_path / "run").load()
-    np.testing.assert_array_equal(loaded["u"], state["u"])
-    assert loaded["step"] == 12 and loaded["tau"] == 0.25 and np.ndim(loaded["tau"]) == 0
-    assert meta == {"iteration": 3, "objective": 0.5}
-    record = json.loads(ckpt.json_path.read_text())
-    assert record["keys"] == ["step", "tau", "u"] and len(record["npz_sha256"]) == 64
-
-
-def test_checkpoint_crash_between_writes_is_detected(tmp_path, monkeypatch):
-    ckpt = hio.Checkpoint(tmp_path)
-    ckpt.save({"u": np.zeros(3)}, {"iteration": 1})
-
-    def crash(*args, **kwargs):
-        raise KeyboardInterrupt
-
-    monkeypatch.setattr(hio, "write_json", crash)
-    with pytest.raises(KeyboardInterrupt):
-        ckpt.save({"u": np.ones(3)}, {"iteration": 2})
-    with pytest.raises(hio.CheckpointError, match="does not match the hash"):
-        ckpt.load()
-    assert issubclass(hio.CheckpointError, InputError)
-
-
-def test_checkpoint_missing_npz_is_detected(tmp_path):
-    ckpt = hio.Checkpoint(tmp_path)
-    ckpt.save({"u": np.zeros(3)}, {})
-    ckpt.npz_path.unlink()
-    with pytest.raises(hio.CheckpointError, match="missing"):
-        ckpt.load()
 
 
 # ----------------------------------------------------------------------------- plots

@@ -25,7 +25,7 @@ def test_sigkill_then_resume_is_bitwise_identical(tmp_path):
                    capture_output=True)
     proc = subprocess.Popen(_optimize("examples/paper-1d.toml", "--out", str(killed), *SETTINGS), cwd=ROOT,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    cache = killed / "checkpoint"
+    cache = killed / "cache"
     deadline = time.monotonic() + 300
     while proc.poll() is None and time.monotonic() < deadline:  # kill once a few evaluations are on disk
         if cache.is_dir() and len(list(cache.glob("*.npz"))) >= 4:

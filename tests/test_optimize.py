@@ -256,12 +256,12 @@ def bar_reference():
 @pytest.mark.slow
 @pytest.mark.parametrize("run", [barzilai_borwein, newton_cg])
 def test_resume_replays_to_the_same_result(tmp_path, run):
-    full = run(_J(), _J().zero(1.0), max_iter=8, checkpoint=tmp_path / "full")
+    full = run(_J(), _J().zero(1.0), max_iter=8, cache_dir=tmp_path / "full")
     J = _J()
-    run(J, J.zero(1.0), max_iter=4, checkpoint=tmp_path / "cut")  # "interrupted" after 4
+    run(J, J.zero(1.0), max_iter=4, cache_dir=tmp_path / "cut")  # "interrupted" after 4
     J2 = _J()
-    resumed = run(J2, J2.zero(1.0), max_iter=8, checkpoint=tmp_path / "cut")
-    assert resumed.evaluations["cache_hits"] >= 5  # the first iterations came from the checkpoint
+    resumed = run(J2, J2.zero(1.0), max_iter=8, cache_dir=tmp_path / "cut")
+    assert resumed.evaluations["cache_hits"] >= 5  # the first iterations came from the cache
     assert resumed.evaluations["state_solves"] < full.evaluations["state_solves"]
     np.testing.assert_array_equal(resumed.point.xi, full.point.xi)
     assert resumed.point.tau == full.point.tau

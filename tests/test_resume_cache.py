@@ -28,7 +28,7 @@ def test_resume_drops_damaged_entries_and_ends_where_the_run_ended(tmp_path, cap
     assert main(["optimize", str(cfg), "--out", str(out), "--no-progress"]) == 0
     first = json.loads((out / "summary.json").read_text())
     xi = np.load(out / "results.npz")["xi"]
-    entries = sorted((out / "checkpoint").glob("*.npz"))
+    entries = sorted((out / "cache").glob("*.npz"))
     assert len(entries) >= 3 and first["iterations"] == 3
     _damage(entries)
     capsys.readouterr()
@@ -41,7 +41,7 @@ def test_resume_drops_damaged_entries_and_ends_where_the_run_ended(tmp_path, cap
     again = json.loads((out / "summary.json").read_text())
     assert again["objective"] == first["objective"] and again["tau"] == first["tau"]
     np.testing.assert_array_equal(np.load(out / "results.npz")["xi"], xi)
-    assert len(list((out / "checkpoint").glob("*.npz"))) == len(entries)  # the two recomputed
+    assert len(list((out / "cache").glob("*.npz"))) == len(entries)  # the two recomputed
 
 
 class _Linear:

@@ -34,7 +34,7 @@ from ..errors import InputError, SolverError
 from ..io import read_json, write_json
 from ..solvers.threads import ONE_THREAD_POOL, bind_threads
 from .config import Config, parse_config, set_entries
-from .workflows import optimize_single, write_optimization_outputs
+from .workflows import CACHE_DIR, optimize_single, write_optimization_outputs
 
 __all__ = ["paper_config", "wellposed_config", "reproduce_paper_1d", "PAPER_REPORT", "WELL_POSED"]
 
@@ -87,7 +87,7 @@ def _run(cfg: Config, key: str, out: Path, *, progress: bool, J=None) -> tuple[d
     started = time.perf_counter()
     if J is not None:
         J.counts.update(state=0, adjoint=0)  # evaluations are reported per run
-    J, res = optimize_single(cfg, float(cfg["optimize"]["tau0"]), checkpoint=out / "checkpoint", progress=progress,
+    J, res = optimize_single(cfg, float(cfg["optimize"]["tau0"]), cache_dir=out / CACHE_DIR, progress=progress,
                              J=J)
     sol = J.state(res.point)
     marks = [(t, "paper's pressure maxima") for t in PAPER_REPORT["pressure_maxima_near_t"]]

@@ -24,7 +24,8 @@ from .report import DEFAULT_TITLE, write_state_outputs
 __all__ = ["check_run", "simulate", "build_reduced", "optimize_single", "optimize", "check_gradient", "resume_state",
            "run_title", "figure_units"]
 
-ITERATIONS_FILE = "iterations.json"  # in a run's checkpoint folder: the last iteration completed
+ITERATIONS_FILE = "iterations.json"  # in a run's evaluation cache folder: the last iteration completed
+CACHE_DIR = "cache"  # a run's evaluation cache, OUT/cache (what --resume replays)
 BEST_FILE = "best.npz"  # an iterate with a higher J than the final one (`OptimizationResult.best`)
 
 
@@ -90,14 +91,14 @@ def build_reduced(cfg: Config, tau0: float, model=None) -> ReducedFunctional:
                              checkpoint_snapshots=o.get("checkpoint_snapshots"))
 
 
-def optimize_single(cfg: Config, tau0: float, *, checkpoint=None, progress: bool = False,
+def optimize_single(cfg: Config, tau0: float, *, cache_dir=None, progress: bool = False,
                     J: ReducedFunctional | None = None,
                     iterations_done: int = 0) -> tuple[ReducedFunctional, OptimizationResult]:
     """One optimization from ``(xi, tau) = (0, tau0)`` with the method of ``[optimize]`` (whose
     method-specific options the schema keeps only for that method).
 
     ``J``: the config's reduced functional (default: `build_reduced`); passing one reuses its
-    compiled state and adjoint solves. ``checkpoint``: the folder of the evaluation cache, where
+    compiled state and adjoint solves. ``cache_dir``: the folder of the evaluation cache, where
     the last completed iteration is also recorded (`resume_state`); ``iterations_done``: where a
     resumed run's progress bar starts (the iterations up to it replay cached evaluations).
     """
@@ -105,19 +106,19 @@ def optimize_single(cfg: Config, tau0: float, *, checkpoint=None, progress: bool
     o = cfg["optimize"]
     bar = _progress_bar(progress, o["max_iter"], f"optimize (tau0={tau0:g})", iterations_done)
     best = {"objective": -np.inf}
-    if checkpoint is not None:
-        Path(checkpoint).mkdir(parents=True, exist_ok=True)
+    if cache_dir is not None:
+        Path(cache_dir).mkdir(parents=True, exist_ok=True)
 
     def callback(k, m, value, measure):  # measure: the stopping test's (projected, with bounds) ||G||
         if value > best["objective"]:
             best.update(point=m, objective=value, iteration=k)
-        if checkpoint is not None and k > iterations_done:
-            write_json(Path(checkpoint) / ITERATIONS_FILE, {"iterations": k})
+        if cache_dir is not None and k > iterations_done:
+            write_json(Path(cache_dir) / ITERATIONS_FILE, {"iterations": k})
         if bar is not None and k > iterations_done:
             bar.update(1)
             bar.set_postfix(J=f"{value:.5g}", tau=f"{m.tau:.4f}", G=f"{measure:.2e}")
 
-    kwargs = dict(gtol=float(o["gtol"]), max_iter=int(o["max_iter"]), checkpoint=checkpoint, callback=callback,
+    kwargs = dict(gtol=float(o["gtol"]), max_iter=int(o["max_iter"]), cache_dir=cache_dir, callback=callback,
                   tau_margin=o.get("tau_margin"), xi_bounds=cfg.xi_bounds())
     if o["method"] == "bb":
         res = barzilai_borwein(J, J.zero(tau0), steps=o["steps"], bb_step=o["bb_step"], nonmonotone=o["nonmonotone"],
@@ -143,17 +144,17 @@ def resume_state(cfg: Config, out) -> dict:
     folders = [out] if len(starts) == 1 else [_start_dir(out, k, t) for k, t in enumerate(starts)]
     total, iterations, dropped = 0, 0, []
     for folder in folders:
-        count, bad = EvaluationCache.scan(folder / "checkpoint")
+        count, bad = EvaluationCache.scan(folder / CACHE_DIR)
         total, dropped = total + count, dropped + bad
-        iterations += _iterations_done(folder / "checkpoint")
+        iterations += _iterations_done(folder / CACHE_DIR)
     return {"evaluations": total, "iterations": iterations, "dropped": dropped}
 
 
-def _iterations_done(checkpoint: Path) -> int:
-    """The iteration recorded in ``checkpoint/iterations.json`` (0 if none or unreadable: the
+def _iterations_done(cache_dir: Path) -> int:
+    """The iteration recorded in ``cache_dir/iterations.json`` (0 if none or unreadable: the
     progress count only, the cached evaluations are replayed either way)."""
     try:
-        k = read_json(checkpoint / ITERATIONS_FILE)["iterations"]
+        k = read_json(cache_dir / ITERATIONS_FILE)["iterations"]
     except (OSError, ValueError, KeyError, TypeError):
         return 0
     return k if isinstance(k, int) and k >= 0 else 0
@@ -209,7 +210,7 @@ def _run_start(cfg_sections: dict, base: str, tau0: float, folder: str, title: s
     cfg = _Config(cfg_sections, Path(base))
     folder = Path(folder)
     try:
-        J, res = optimize_single(cfg, tau0, checkpoint=folder / "checkpoint")
+        J, res = optimize_single(cfg, tau0, cache_dir=folder / CACHE_DIR)
         summary = write_optimization_outputs(folder, cfg, J, res, title=title)
         return {"tau0": tau0, "status": "ok", "tau": summary["tau"], "objective": summary["objective"],
                 "converged": summary["converged"], "iterations": summary["iterations"], "folder": folder.name}
@@ -234,7 +235,7 @@ def optimize(cfg: Config, out, *, progress: bool = False, scheduler: str | None 
     starts = cfg.tau_starts()
     start_time = time.perf_counter()
     if len(starts) == 1:
-        J, res = optimize_single(cfg, starts[0], checkpoint=out / "checkpoint", progress=progress,
+        J, res = optimize_single(cfg, starts[0], cache_dir=out / CACHE_DIR, progress=progress,
                                  J=build_reduced(cfg, starts[0], model), iterations_done=iterations_done)
         return write_optimization_outputs(out, cfg, J, res, title=title)
     results = _multistart(cfg, out, starts, scheduler, workers, title)

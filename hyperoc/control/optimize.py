@@ -288,7 +288,7 @@ def _safe_eval(evaluate, m):
 def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e-6, gtol_abs: float = 0.0,
                      max_iter: int = 200, tau_margin: float | None = None, armijo: float = 0.5,
                      max_backtracks: int = 30, xi_bounds=(None, None), fix_tau: bool = False,
-                     steps: str = "joint", bb_step: str = "bb1", nonmonotone: int = 0, checkpoint=None,
+                     steps: str = "joint", bb_step: str = "bb1", nonmonotone: int = 0, cache_dir=None,
                      callback=None) -> OptimizationResult:
     """The paper's Algorithm 1 (maximization): one Armijo step along G0, then Barzilai-Borwein steps.
 
@@ -330,7 +330,7 @@ def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e
     start = time.perf_counter()
     tau_range = _tau_range(J, tau_margin, fix_tau, m0.tau)
     metric = control_metric(J, xi_bounds)
-    cache = EvaluationCache(J, checkpoint)
+    cache = EvaluationCache(J, cache_dir)
     evaluate = _in_metric(cache, metric)
     res = OptimizationResult(m0, np.nan, 0, False, "")
     m, value, G, gnorm = _first_iterate(J, metric, evaluate, m0, tau_range, xi_bounds, res)
@@ -468,7 +468,7 @@ def check_tau_scale(tau_scale):
 
 def lbfgsb(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gtol: float = 1e-6,
            max_iter: int = 200, tau_margin: float | None = None, memory: int = 10, fix_tau: bool = False,
-           checkpoint=None, callback=None, tau_scale: float | str = "range") -> OptimizationResult:
+           cache_dir=None, callback=None, tau_scale: float | str = "range") -> OptimizationResult:
     """L-BFGS-B (scipy) on ``-J`` with bounds ``xi_bounds`` on every control value and tau in
     ``[tau_margin, T - eps - tau_margin]``.
 
@@ -486,7 +486,7 @@ def lbfgsb(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gt
     start = time.perf_counter()
     tau_range = _tau_range(J, tau_margin, fix_tau, m0.tau)
     tau_scale = tau_scaling(J, tau_scale, tau_range, xi_bounds)
-    evaluate = EvaluationCache(J, checkpoint)
+    evaluate = EvaluationCache(J, cache_dir)
     coords = _coordinates(J, xi_bounds)
     shape = m0.xi.shape
     res = OptimizationResult(m0, np.nan, 0, False, "")
@@ -556,7 +556,7 @@ def _coordinates(J: ReducedFunctional, xi_bounds) -> ControlSpace:
 
 def newton_cg(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gtol: float = 1e-6,
               max_iter: int = 100, max_cg: int = 20, tau_margin: float | None = None, fix_tau: bool = False,
-              armijo: float = 0.5, max_backtracks: int = 30, checkpoint=None, callback=None) -> OptimizationResult:
+              armijo: float = 0.5, max_backtracks: int = 30, cache_dir=None, callback=None) -> OptimizationResult:
     """Projected truncated Newton-CG (the projected Newton method of Bertsekas, SIAM J. Control Optim.
     20, 1982, with CG stopped at nonconcavity as in Steihaug's method): second-order steps from
     Hessian-vector products.
@@ -588,7 +588,7 @@ def newton_cg(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None),
     start = time.perf_counter()
     tau_range = _tau_range(J, tau_margin, fix_tau, m0.tau)
     metric = control_metric(J, xi_bounds)
-    cache = EvaluationCache(J, checkpoint)
+    cache = EvaluationCache(J, cache_dir)
     evaluate = _in_metric(cache, metric)
     counts = {"hessian_products": 0, "nonconcave_iterations": 0, "gradient_steps": 0}
     res = OptimizationResult(m0, np.nan, 0, False, "")
