@@ -60,3 +60,26 @@ def enable_compilation_cache(directory=None):
     os.environ["JAX_COMPILATION_CACHE_DIR"] = str(directory)
     os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0.1"
     return directory
+
+
+# JAX's monitoring events of one compilation: tracing to a jaxpr, lowering to MLIR, XLA's compile.
+_COMPILE_EVENTS = frozenset({"/jax/core/compile/jaxpr_trace_duration",
+                             "/jax/core/compile/jaxpr_to_mlir_module_duration",
+                             "/jax/core/compile/backend_compile_duration"})
+_compiling = {"seconds": 0.0, "count": 0}
+
+
+def _on_duration(event: str, duration: float, **_) -> None:
+    if event in _COMPILE_EVENTS:
+        _compiling["seconds"] += duration
+        _compiling["count"] += event == "/jax/core/compile/backend_compile_duration"
+
+
+jax.monitoring.register_event_duration_secs_listener(_on_duration)
+
+
+def compilation_clock() -> tuple[float, int]:
+    """``(seconds, compilations)`` this process has spent tracing, lowering and compiling JAX programs
+    since hyperoc set JAX up (a program loaded from the persistent cache counts its tracing and
+    lowering only): differences of two readings time the compilation inside a run."""
+    return _compiling["seconds"], _compiling["count"]

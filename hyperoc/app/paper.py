@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._jax import compilation_clock
 from ..control.reduced import ControlPoint
 from ..errors import InputError, SolverError
 from ..io import read_json, write_json
@@ -84,15 +85,19 @@ def bounded_config(changes: dict | None = None) -> Config:
 def _run(cfg: Config, key: str, out: Path, *, progress: bool, J=None) -> tuple[dict, object, object]:
     """One optimization from ``(0, tau0)`` written to ``out`` (figures titled with the run's name);
     ``J`` reuses a compiled reduced functional of the same problem. Returns the run's row, J and the result."""
-    started = time.perf_counter()
+    started, (compiling, compilations) = time.perf_counter(), compilation_clock()
     if J is not None:
         J.counts.update(state=0, adjoint=0)  # evaluations are reported per run
     J, res = optimize_single(cfg, float(cfg["optimize"]["tau0"]), cache_dir=out / CACHE_DIR, progress=progress,
                              J=J)
+    optimized, (compiled, compilations_after) = time.perf_counter(), compilation_clock()
     sol = J.state(res.point)
     marks = [(t, "paper's pressure maxima") for t in PAPER_REPORT["pressure_maxima_near_t"]]
     summary = write_optimization_outputs(out, cfg, J, res, extra={"label": RUN_NAMES[key]},
                                          title=f"paper-1d, {RUN_NAMES[key]}", pressure_marks=marks)
+    timings = {"compilation_s": compiled - compiling, "compilations": compilations_after - compilations,
+               "optimization_s": optimized - started - (compiled - compiling),
+               "outputs_s": time.perf_counter() - optimized}
     g = summary["grad_norm_history"]
     maxima_t, maxima_p = _local_maxima(sol.t, sol.pressure)
     return {
@@ -119,6 +124,7 @@ def _run(cfg: Config, key: str, out: Path, *, progress: bool, J=None) -> tuple[d
         "pressure_local_maxima_p": maxima_p,
         "warnings": sol.warnings,
         "wall_time_s": time.perf_counter() - started,
+        "timings": timings,
     }, J, res
 
 
@@ -255,7 +261,7 @@ def reproduce_paper_1d(out: Path, *, quick: bool = False, progress: bool = True,
     summary = {**run_summary, **{k: headline[k] for k in ("label", "alpha", "beta", "method", "relative_gradient",
                                                            "pressure_at_tau", "control_off_from_t",
                                                            "pressure_local_maxima_t", "pressure_local_maxima_p",
-                                                           "min_det_F", "max_abs_xi")},
+                                                           "min_det_F", "max_abs_xi", "timings")},
                "paper": PAPER_REPORT, "diagnostics": {k: diagnostics[k] for k in ("as_stated", "bounded")
                                                      if k in diagnostics},
                "ray": diagnostics.get("ray", []), "config": wellposed_config(overrides).sections,
