@@ -26,9 +26,10 @@ from jax.experimental import sparse as jsparse
 
 from .. import _jax  # noqa: F401
 from ..errors import InputError
-from ..fem.assembly import SparsePattern, reduced_numbering
+from ..fem.assembly import SparsePattern
 from ..fem.mesh import Mesh
 from ..fem.spaces import VectorSpace, prolong
+from . import constraints
 from .materials import Material, det
 
 __all__ = ["StateModel", "det", "VOLUMETRIC"]
@@ -50,47 +51,6 @@ def _voigt(d: int):
         sym[i, j] = sym[j, i] = k
     I, J = (np.array(c) for c in zip(*pairs))
     return I, J, sym, np.where(I == J, 1.0, 0.5)
-
-
-def _rigid_motions(x: np.ndarray) -> np.ndarray:
-    """Nodal values of the rigid motions (translations e_i, rotations e_k x (X - centre)) as flat dof
-    vectors (nodes * d, d (d + 1) / 2); the centre is the mean node, for conditioning."""
-    n, d = x.shape
-    x = x - x.mean(axis=0)
-    modes = [np.tile(np.eye(d)[i], n) for i in range(d)]
-    if d == 2:
-        modes.append(np.stack([-x[:, 1], x[:, 0]], axis=1).ravel())
-    elif d == 3:
-        modes += [np.cross(np.eye(3)[k], x).ravel() for k in range(3)]
-    return np.stack(modes, axis=1)
-
-
-def _free_motions(rigid: np.ndarray, constrained: np.ndarray) -> np.ndarray:
-    """Orthonormal basis (num_dofs, m) of the rigid motions that vanish on the constrained dofs."""
-    k = rigid.shape[1]
-    R = np.linalg.qr(rigid[constrained], mode="r") if constrained.size else np.zeros((0, k))
-    # The SVD of the small triangular factor, padded to (k, k), gives all k right singular vectors.
-    _, sv, Vt = np.linalg.svd(np.vstack([R, np.zeros((k - R.shape[0], k))]) if R.shape[0] < k else R)
-    rank = int(np.sum(sv > 1e-10 * max(sv.max(initial=0.0), 1e-300)))
-    free = rigid @ Vt[rank:].T
-    return np.linalg.qr(free)[0] if free.shape[1] else free
-
-
-def _isostatic_pins(rigid: np.ndarray, constrained: np.ndarray, candidates: np.ndarray) -> np.ndarray:
-    """The fewest dofs among ``candidates`` whose fixing removes the rigid motions left by
-    ``constrained``: one per motion, picked by QR with column pivoting of the motions' values at the
-    candidates (each pick removes the motion that moves it most, so the support is well conditioned)."""
-    import scipy.linalg
-
-    free = _free_motions(rigid, constrained)
-    m = free.shape[1]
-    if m == 0:
-        return np.zeros(0, np.int64)
-    _, R, piv = scipy.linalg.qr(free[candidates].T, pivoting=True, mode="economic")
-    if len(piv) < m or abs(R[m - 1, m - 1]) <= 1e-10 * abs(R[0, 0]):
-        raise InputError(f"the Dirichlet conditions leave {m} rigid motion(s) that no single dof of the "
-                         "dirichlet_components boundaries removes; constrain more components")
-    return np.sort(candidates[piv[:m]])
 
 
 _VOIGT = {d: _voigt(d) for d in (1, 2, 3)}
@@ -183,16 +143,9 @@ class StateModel:
         self.kappa, self.density = float(kappa), float(density)
         self.space = VectorSpace(mesh, degree)
         self.dim = mesh.dim
-        constrained, sliding = self._dirichlet_dofs(dirichlet, dirichlet_components or {})
-        rigid = _rigid_motions(self.space.nodes)
-        self.pinned_dofs = (_isostatic_pins(rigid, constrained, sliding) if pin_rigid and sliding.size
-                            else np.zeros(0, int))
-        constrained = np.union1d(constrained, self.pinned_dofs)
-        self.free, self.to_reduced = reduced_numbering(self.space.num_dofs, constrained)
-        self.rigid_modes = _free_motions(rigid, constrained)[self.free]
+        self.free, self.to_reduced, self.pinned_dofs, self.rigid_modes = constraints.constrain(
+            self.space, dirichlet, dirichlet_components or {}, pin_rigid)
         self.n = self.free.size
-        if self.n == 0:
-            raise InputError("every dof is on the Dirichlet boundary: nothing to solve")
         self.quad = self.space.quadrature(0 if degree == 1 else 4)
         self.control = control.build(self.space, self.to_reduced) if control is not None else None
         self.neumann = neumann
@@ -212,27 +165,6 @@ class StateModel:
         while a kernel is traced would become that trace's constant)."""
         self.cell_dofs = cell_dofs
         self._element_gather = jnp.asarray(np.where(cell_dofs < 0, self.n, cell_dofs))
-
-    def _dirichlet_dofs(self, dirichlet, components: dict) -> tuple[np.ndarray, np.ndarray]:
-        """Constrained global dofs (sorted) and the other dofs of the nodes on the sliding boundaries."""
-        sp = self.space
-        fixed = [sp.node_dofs(sp.boundary_nodes(dirichlet))] if dirichlet is not None else []
-        sliding = []
-        for name, comps in components.items():
-            comps = np.atleast_1d(np.asarray(comps))
-            if comps.size == 0 or comps.dtype.kind not in "iu" or len(set(comps.tolist())) != comps.size \
-                    or comps.min() < 0 or comps.max() >= self.dim:
-                raise InputError(f"dirichlet_components[{name!r}]: need distinct component indices in "
-                                 f"0..{self.dim - 1}, got {comps.tolist()}")
-            nodes = sp.boundary_nodes(name)
-            if fixed and np.all(np.isin(sp.node_dofs(nodes), fixed[0])):
-                raise InputError(f"dirichlet_components[{name!r}]: that boundary is already clamped by "
-                                 f"dirichlet = {dirichlet!r}; pass dirichlet=None to let it slide")
-            fixed.append((nodes[:, None] * self.dim + comps).ravel())
-            sliding.append(sp.node_dofs(nodes))
-        fixed = np.unique(np.concatenate(fixed)) if fixed else np.zeros(0, np.int64)
-        sliding = np.setdiff1d(np.concatenate(sliding), fixed) if sliding else np.zeros(0, np.int64)
-        return fixed, sliding
 
     # --- constant operators --------------------------------------------------------------------
     @cached_property
@@ -323,14 +255,11 @@ class StateModel:
 
     def expand(self, u) -> np.ndarray:
         """Reduced vector(s) (..., n) -> full nodal displacement (..., num_nodes, dim)."""
-        u = np.asarray(u)
-        full = np.zeros(u.shape[:-1] + (self.space.num_dofs,))
-        full[..., self.free] = u
-        return full.reshape(u.shape[:-1] + (self.space.num_nodes, self.dim))
+        return constraints.expand(self.space, self.free, u)
 
     def restrict(self, full) -> np.ndarray:
         """Full nodal field (num_nodes, dim) or flat (num_dofs,) -> reduced vector (n,)."""
-        return np.asarray(full, dtype=np.float64).reshape(-1)[self.free]
+        return constraints.restrict(self.free, full)
 
     def prolong(self, coarse: "StateModel", u) -> np.ndarray:
         """This model's reduced vector (n,) of the state ``u`` (coarse.n,) of ``coarse``, the same
@@ -341,23 +270,9 @@ class StateModel:
         return self.restrict(self.repin(prolong(coarse.space, self.space, coarse.expand(u).reshape(-1))))
 
     def repin(self, full) -> np.ndarray:
-        """``full + r`` (num_dofs,) for a full displacement ``full`` (num_dofs,): r the rigid motion,
-        among those the other constraints leave free, that makes ``full + r`` vanish on the
-        `pinned_dofs` (unique, the support being isostatic); ``full`` itself without pins.
-
-        Why: the pins are picked on each mesh anew, so on a refined mesh they are other material
-        points, where a coarse solution is not 0 (Land problem 2, sliding base, level 0 -> 1: up to
-        4.6 mm, the base's radial expansion that the coarse pins turned into a translation).
-        Dropping those values would leave a spike at each pin, and Newton failed from such a guess.
-        The pinned solution is only defined up to this motion, so adding it loses nothing; r is the
-        linearized motion ``a + w x X``: exact for translations, for a rotation by w it adds a strain
-        of order w^2."""
-        full = np.asarray(full, dtype=np.float64).reshape(-1)
-        if not self.pinned_dofs.size:
-            return full
-        fixed = np.setdiff1d(np.setdiff1d(np.arange(self.space.num_dofs), self.free), self.pinned_dofs)
-        motions = _free_motions(_rigid_motions(self.space.nodes), fixed)  # (num_dofs, pins)
-        return full - motions @ np.linalg.solve(motions[self.pinned_dofs], full[self.pinned_dofs])
+        """``full + r`` (num_dofs,) for a full displacement ``full`` (num_dofs,), r the rigid motion
+        that makes it vanish on the `pinned_dofs` (`hyperoc.mechanics.constraints.repin`)."""
+        return constraints.repin(self.space, self.free, self.pinned_dofs, full)
 
     def interpolate(self, fn) -> np.ndarray:
         """Reduced nodal interpolant of ``fn(x: (n, dim)) -> (n, dim)``; Dirichlet values are dropped."""
@@ -435,7 +350,7 @@ class StateModel:
 
     def volume(self, u):
         """vol(u) = int det(I + grad u) dx (scalar)."""
-        return jnp.sum(self._w * det(self.deformation_gradient(u)))
+        return constraints.volume(self.deformation_gradient(u), self._w)
 
     def volume_gradient(self, u):
         """G(u) = (cof F, grad phi), (n,)."""
