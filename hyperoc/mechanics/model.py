@@ -22,24 +22,20 @@ from functools import cached_property
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.experimental import sparse as jsparse
+import scipy.sparse.linalg as spla
 
 from .. import _jax  # noqa: F401
 from ..errors import InputError
 from ..fem.assembly import SparsePattern
 from ..fem.mesh import Mesh
 from ..fem.spaces import VectorSpace, prolong
-from . import constraints
+from . import constraints, operators
 from .materials import Material, det
 
 __all__ = ["StateModel", "det", "VOLUMETRIC"]
 
 #: `StateModel` ``volumetric`` choices.
 VOLUMETRIC = ("pointwise", "cell-mean")
-
-
-def _to_bcoo(mat):
-    return jsparse.BCOO.from_scipy_sparse(mat.tocoo())
 
 
 def _voigt(d: int):
@@ -166,22 +162,16 @@ class StateModel:
         self.cell_dofs = cell_dofs
         self._element_gather = jnp.asarray(np.where(cell_dofs < 0, self.n, cell_dofs))
 
-    # --- constant operators --------------------------------------------------------------------
+    # --- constant operators (`hyperoc.mechanics.operators`) ----------------------------------------
     @cached_property
     def mass_blocks(self) -> np.ndarray:
         """Element mass matrices (nc, k, k): ``density int N_a N_b delta_ij``."""
-        q = self.space.quadrature(2 * self.space.degree)
-        Ms = self.density * np.einsum("cq,qa,qb->cab", q.wdx, q.N, q.N)
-        return self._vectorize_blocks(Ms)
+        return operators.mass_blocks(self.space, self.density)
 
     @cached_property
     def laplace_blocks(self) -> np.ndarray:
         """Element vector-Laplacian matrices (nc, k, k): ``int grad N_a . grad N_b delta_ij``."""
-        return self._vectorize_blocks(self.space.laplace_blocks())
-
-    def _vectorize_blocks(self, scalar_blocks: np.ndarray) -> np.ndarray:
-        d, k = self.dim, self.space.nloc
-        return np.einsum("cab,ij->caibj", scalar_blocks, np.eye(d)).reshape(len(scalar_blocks), k * d, k * d)
+        return operators.laplace_blocks(self.space)
 
     @cached_property
     def mass(self):
@@ -194,30 +184,17 @@ class StateModel:
     @cached_property
     def mass_lu(self):
         """Sparse LU factorization of the mass matrix (consistent pressure, terminal projections)."""
-        import scipy.sparse.linalg as spla
-
         return spla.splu(self.mass.tocsc())
 
     def apply_mass_inverse(self, v):
         """``M^-1 v`` inside traced code (a host solve; linear, so its JVP is itself)."""
-
-        @jax.custom_jvp
-        def solve(v):
-            return jax.pure_callback(lambda x: self.mass_lu.solve(np.asarray(x)),
-                                     jax.ShapeDtypeStruct(v.shape, v.dtype), v)
-
-        @solve.defjvp
-        def _(primals, tangents):
-            (v,), (dv,) = primals, tangents
-            return solve(v), solve(dv)
-
-        return solve(v)
+        return operators.apply_inverse(lambda x: self.mass_lu.solve(x), v)
 
     @cached_property
     def jax_operators(self):
         """(M, K, B) as JAX sparse matrices for traced matvecs (B is None without control)."""
-        B = _to_bcoo(self.control.load) if self.control is not None else None
-        return _to_bcoo(self.mass), _to_bcoo(self.laplace), B
+        B = operators.to_bcoo(self.control.load) if self.control is not None else None
+        return operators.to_bcoo(self.mass), operators.to_bcoo(self.laplace), B
 
     def load_vector(self, *, body_force=None, traction=None, t: float = 0.0, neumann: str | None = None) -> np.ndarray:
         """External load ``int_Omega f . phi + int_{Gamma_N} g . phi`` on the reduced dofs, (n,).
@@ -225,27 +202,14 @@ class StateModel:
         ``body_force`` and ``traction`` are constant vectors (dim,) or callables ``(x, t) -> (..., dim)``
         with x of shape (..., dim); ``neumann`` names the boundary of g (default: the model's Gamma_N).
         """
-        full = np.zeros(self.space.num_dofs)
-        if body_force is not None:
-            q = self.space.quadrature(2 * self.space.degree + 2)
-            f = self._field_values(body_force, q.x, t)
-            contrib = np.einsum("cq,qa,cqi->cai", q.wdx, q.N, f)
-            np.add.at(full, self.space.cell_dofs, contrib.reshape(len(contrib), -1))
-        if traction is not None:
-            facets = self.mesh.boundary(neumann or self.neumann)
-            x, w, N, dS = self.space.facet_quadrature(facets, 2 * self.space.degree + 2)
-            g = self._field_values(traction, x, t)
-            contrib = np.einsum("fq,q,qa,fqi->fai", dS, w, N, g)
-            fdofs = self.space.node_dofs(self.space.facet_nodes(facets).ravel()).reshape(len(facets), -1)
-            np.add.at(full, fdofs, contrib.reshape(len(facets), -1))
-        return full[self.free]
+        return operators.load_vector(self.space, self.free, body_force=body_force, traction=traction, t=t,
+                                     neumann=neumann or self.neumann)
 
-    def _field_values(self, fn, x, t) -> np.ndarray:
-        if callable(fn):
-            return np.broadcast_to(np.asarray(fn(x, t), dtype=np.float64), x.shape[:-1] + (self.dim,))
-        return np.broadcast_to(np.asarray(fn, dtype=np.float64).reshape(self.dim), x.shape[:-1] + (self.dim,))
+    def control_values(self, fn, t) -> np.ndarray:
+        """Nodal control values (len(t), n_ctrl) of a callable ``xi(x, t)``, x of shape (n_nodes, dim),
+        returning (n_nodes,) or (n_nodes, components) (a prescribed control as a Python function)."""
+        return operators.control_values(self.control, self.space, fn, t)
 
-    # --- fields ---------------------------------------------------------------------------------
     @cached_property
     def pattern(self) -> SparsePattern:
         """CSR pattern of the matrices assembled from element blocks on ``cell_dofs`` (n, n); built on
@@ -253,6 +217,7 @@ class StateModel:
         only the pattern in use is built (at 145k Taylor-Hood cells one build sorts 1.7e8 keys)."""
         return SparsePattern(self.cell_dofs, self.n)
 
+    # --- fields (`hyperoc.mechanics.constraints`) --------------------------------------------------
     def expand(self, u) -> np.ndarray:
         """Reduced vector(s) (..., n) -> full nodal displacement (..., num_nodes, dim)."""
         return constraints.expand(self.space, self.free, u)
@@ -277,16 +242,6 @@ class StateModel:
     def interpolate(self, fn) -> np.ndarray:
         """Reduced nodal interpolant of ``fn(x: (n, dim)) -> (n, dim)``; Dirichlet values are dropped."""
         return self.restrict(self.space.interpolate(fn))
-
-    def control_values(self, fn, t) -> np.ndarray:
-        """Nodal control values (len(t), n_ctrl) of a callable ``xi(x, t)``, x of shape (n_nodes, dim),
-        returning (n_nodes,) or (n_nodes, components) (a prescribed control as a Python function)."""
-        if self.control is None:
-            raise InputError("this model has no control operator")
-        x = self.control.coordinates(self.space)
-        rows = [np.broadcast_to(np.asarray(fn(x, float(tk)), dtype=np.float64).reshape(x.shape[0], -1),
-                                (x.shape[0], self.control.components)).ravel() for tk in np.atleast_1d(t)]
-        return np.stack(rows)
 
     # --- traced kernels -------------------------------------------------------------------------
     def _cell_values(self, u):
