@@ -29,47 +29,11 @@ from ..errors import InputError
 from ..fem.assembly import SparsePattern
 from ..fem.mesh import Mesh
 from ..fem.spaces import VectorSpace, prolong
-from . import constraints, operators
+from . import constraints, kernels, operators
+from .kernels import VOLUMETRIC
 from .materials import Material, det
 
 __all__ = ["StateModel", "det", "VOLUMETRIC"]
-
-#: `StateModel` ``volumetric`` choices.
-VOLUMETRIC = ("pointwise", "cell-mean")
-
-
-def _voigt(d: int):
-    """Independent strain pairs ``(I, J)``, ``I <= J`` (diagonal first), the (d, d) map back to
-    the pair index, and 1 (diagonal) or 1/2 (off-diagonal) per pair."""
-    pairs = [(i, i) for i in range(d)] + [(i, j) for i in range(d) for j in range(d) if i < j][::-1]
-    sym = np.zeros((d, d), dtype=np.int64)
-    for k, (i, j) in enumerate(pairs):
-        sym[i, j] = sym[j, i] = k
-    I, J = (np.array(c) for c in zip(*pairs))
-    return I, J, sym, np.where(I == J, 1.0, 0.5)
-
-
-_VOIGT = {d: _voigt(d) for d in (1, 2, 3)}
-_EPS2 = np.array([[0.0, 1.0], [-1.0, 0.0]])
-_EPS3 = np.zeros((3, 3, 3))
-for _i, _j, _k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
-    _EPS3[_i, _j, _k], _EPS3[_i, _k, _j] = 1.0, -1.0
-# T_r of `StateModel._element_tangent`: I for the stress term, then the det F Hessian's eps_ik(m).
-_CLOSED_FORM_T = {1: np.eye(1)[None], 2: np.stack([np.eye(2), _EPS2]),
-                  3: np.concatenate([np.eye(3)[None], np.moveaxis(_EPS3, 2, 0)])}
-
-
-def _split(material: Material, volumetric: str):
-    """``(pointwise law, cell-mean U or None)`` for `StateModel` ``volumetric``."""
-    if volumetric not in VOLUMETRIC:
-        raise InputError(f"volumetric must be one of {list(VOLUMETRIC)}, got {volumetric!r}")
-    if volumetric == "pointwise":
-        return material, None
-    rest, bulk = material.volumetric_split()
-    if bulk is None:
-        raise InputError(f"volumetric='cell-mean' needs a law with a separate bulk term (Guccione, "
-                         f"Holzapfel-Ogden, neo-Hookean); {type(material).__name__} has none")
-    return rest, bulk
 
 
 class StateModel:
@@ -135,7 +99,7 @@ class StateModel:
             raise InputError(f"need kappa >= 0 and density > 0, got kappa = {kappa}, density = {density}")
         self.mesh, self.material = mesh, material.validate()
         self.volumetric = volumetric
-        self._point_material, self._bulk = _split(self.material, volumetric)
+        self._point_material, self._bulk = kernels.split_law(self.material, volumetric)
         self.kappa, self.density = float(kappa), float(density)
         self.space = VectorSpace(mesh, degree)
         self.dim = mesh.dim
@@ -151,13 +115,13 @@ class StateModel:
         self._w = jnp.asarray(self.quad.wdx)
         self._cell_volume = jnp.sum(self._w, axis=1)  # (nc,)
         self._set_cell_dofs(self.to_reduced[self.space.cell_dofs])
-        # the displacement's gather (`_cell_values`); a subclass appending unknowns to the element
-        # (Taylor-Hood's pressures) resets `_element_gather` only, so this one stays the displacement's
+        # the displacement's gather (`deformation_gradient`); a subclass appending unknowns to the
+        # element (Taylor-Hood's pressures) resets `_element_gather` only, so this one stays the displacement's
         self._gather = self._element_gather
 
     def _set_cell_dofs(self, cell_dofs: np.ndarray) -> None:
         """Set ``cell_dofs`` (nc, k) (-1 = constrained) and ``_element_gather``, the same with constrained
-        entries pointing at a dump slot n (read as 0, `_element_args`). Set eagerly (an array created
+        entries pointing at a dump slot n (read as 0, `kernels.gather`). Set eagerly (an array created
         while a kernel is traced would become that trace's constant)."""
         self.cell_dofs = cell_dofs
         self._element_gather = jnp.asarray(np.where(cell_dofs < 0, self.n, cell_dofs))
@@ -243,19 +207,15 @@ class StateModel:
         """Reduced nodal interpolant of ``fn(x: (n, dim)) -> (n, dim)``; Dirichlet values are dropped."""
         return self.restrict(self.space.interpolate(fn))
 
-    # --- traced kernels -------------------------------------------------------------------------
-    def _cell_values(self, u):
-        """The reduced displacement u (n_u,) on each cell's nodes, (nc, nloc, d); 0 on Dirichlet dofs."""
-        ue = jnp.concatenate([u, jnp.zeros(1, u.dtype)])[self._gather]
-        return ue.reshape(ue.shape[0], -1, self.dim)
-
+    # --- traced kernels (`hyperoc.mechanics.kernels`) ----------------------------------------------
     def deformation_gradient(self, u):
         """F = I + grad u at every quadrature point, (nc, nq, d, d)."""
-        return jnp.eye(self.dim) + jnp.einsum("cqaj,cai->cqij", self._dN, self._cell_values(u))
+        ue = kernels.gather(u, self._gather)
+        return kernels.deformation_gradient(ue.reshape(ue.shape[0], -1, self.dim), self._dN)
 
     def _pointwise(self, fn, F):
         """``fn(F, frame)`` at every quadrature point, F (nc, nq, d, d)."""
-        return jax.vmap(lambda G, frames: self._at_points(fn, G, frames))(F, self._frames)
+        return kernels.pointwise(fn, F, self._frames)
 
     def strain_energy(self, u):
         """Pi(u) = int W(E) dx, or with ``volumetric="cell-mean"`` int W_rest(E) dx + sum_e |e| U(theta_e),
@@ -267,41 +227,17 @@ class StateModel:
         unknowns, summed into the dofs. Cells go `_map_cells` chunks at a time, so the intermediates
         reverse mode keeps are one chunk's, not the mesh's (3.6 GB at 145k Taylor-Hood cells)."""
         forces = self._map_cells(lambda xs: jax.grad(self._element_energy)(*xs), self._element_args(u))
-        return jnp.zeros(self.n + 1, forces.dtype).at[self._element_gather].add(forces)[: self.n]
+        return kernels.scatter(forces, self._element_gather, self.n)
 
     def _element_args(self, x):
         """``(x_e (nc, k), dN, w, frames)``: each cell's unknowns (0 on constrained dofs) and quadrature
         data, the per-cell arguments of `_element_energy`."""
-        xe = jnp.concatenate([x, jnp.zeros(1, x.dtype)])[self._element_gather]
-        return xe, self._dN, self._w, self._frames
+        return kernels.gather(x, self._element_gather), self._dN, self._w, self._frames
 
     def _element_energy(self, ue, dN, w, frames):
-        """``sum_q w_q W(F_q)`` of one cell (plus ``|e| U(theta_e)`` with ``volumetric="cell-mean"``),
-        ue (k,) node-major, dN (nq, nloc, d), w (nq,), frames (nq, kf, d) or None (scalar)."""
-        F = self._element_F(ue.reshape(-1, self.dim), dN)
-        energy = jnp.sum(w * self._at_points(self._point_material.energy_of_F, F, frames))
-        if self._bulk is None:
-            return energy
-        vol = jnp.sum(w)
-        return energy + vol * self._bulk(jnp.sum(w * det(F)) / vol)
-
-    @staticmethod
-    def _element_F(ue, dN):
-        """F = I + grad u at the points of one cell, (nq, d, d); ue (nloc, d), dN (nq, nloc, d)."""
-        return jnp.eye(ue.shape[1]) + jnp.einsum("qaj,ai->qij", dN, ue)
-
-    @staticmethod
-    def _at_points(fn, F, frames):
-        """``fn(F_q, frame_q)`` at the points of one cell, F (nq, d, d)."""
-        return jax.vmap(lambda G: fn(G, None))(F) if frames is None else jax.vmap(fn)(F, frames)
-
-    def _cell_mean(self, values):
-        """|e|^-1 int_e values dx per cell, (nc,), for values at the quadrature points (nc, nq)."""
-        return jnp.sum(self._w * values, axis=1) / self._cell_volume
-
-    def cell_mean_J(self, u):
-        """theta_e = |e|^-1 int_e det F dx per cell, (nc,): the dilatation "cell-mean" constrains."""
-        return self._cell_mean(det(self.deformation_gradient(u)))
+        """One cell's `kernels.element_energy` (scalar) of its unknowns ue (k,), node-major; a model
+        with other element unknowns overrides it (`hyperoc.mechanics.mixed`)."""
+        return kernels.element_energy(self._point_material, self._bulk, ue.reshape(-1, self.dim), dN, w, frames)
 
     def volume(self, u):
         """vol(u) = int det(I + grad u) dx (scalar)."""
@@ -319,81 +255,27 @@ class StateModel:
         columns node-major (``a * dim + i``); the same values as ``jax.hessian`` of the element
         energy, to round-off. With a = 1, b = p this is the element form of ``K_T(u) + p H(u)``.
 
-        Cells are processed ``tangent_chunk_points // nq`` at a time (`_element_tangent` on each).
+        Cells are processed ``tangent_chunk_points // nq`` at a time (`kernels.element_tangent` on each).
         """
-        return self._map_cells(lambda xs: self._element_tangent(xs[0].reshape(-1, self.dim), *xs[1:], a, b),
+        return self._map_cells(lambda xs: kernels.element_tangent(self._point_material, self._bulk,
+                                                                  xs[0].reshape(-1, self.dim), *xs[1:], a, b),
                                self._element_args(u))
 
     def _map_cells(self, kernel, xs):
-        """``kernel`` over the cells (the leading axis of every array in xs), ``tangent_chunk_points // nq``
-        cells at a time: one vmap when they all fit, else a chunked map (bounds the kernel's memory)."""
-        nc, nq = self._w.shape
-        batch = max(1, self.tangent_chunk_points // nq)
-        return jax.vmap(kernel)(xs) if nc <= batch else jax.lax.map(kernel, xs, batch_size=batch)
+        """`kernels.map_cells`, ``tangent_chunk_points // nq`` cells at a time."""
+        return kernels.map_cells(kernel, xs, max(1, self.tangent_chunk_points // self._w.shape[1]))
 
     def _voigt_derivatives(self, e, frame):
-        """``(d2W/de2 (nv, nv), dW/de (nv,))`` at one point, W as a function of the nv = d(d+1)/2
-        independent strains ``e_alpha = E_{I_alpha J_alpha}`` (`_VOIGT`: E = e[sym])."""
-        sym = _VOIGT[self.dim][2]
-        g = jax.grad(lambda e: self._point_material.energy(e[sym], frame))
-        return jax.jacfwd(lambda e: (g(e), g(e)), has_aux=True)(e)
+        """`kernels.voigt_derivatives` of the law at the points: ``(d2W/de2 (nv, nv), dW/de (nv,))``."""
+        return kernels.voigt_derivatives(self._point_material, self.dim, e, frame)
 
-    def _element_tangent(self, ue, dN, w, frames, a, b):
-        """Hessian of ``sum_q w_q (a W(F_q) + b det F_q)`` in the cell's dofs ue (nloc, d): (k, k)
-        (with ``volumetric="cell-mean"`` W is the rest and ``a |e| U(theta)`` is added, below).
+    def _cell_mean(self, values):
+        """|e|^-1 int_e values dx per cell, (nc,), for values at the quadrature points (nc, nq)."""
+        return jnp.sum(self._w * values, axis=1) / self._cell_volume
 
-        With ``dF = e_i (x) grad N_a`` and ``E = (F^T F - I) / 2`` (W depends on F through E only):
-
-        - material part ``sum_q w_q a B_q^T H_q B_q``, H = d2W/de2 in the nv independent strains,
-          ``B_q[alpha, (a, i)] = (F_iI dN_aJ + F_iJ dN_aI) / 2`` (``(I, J)`` = pair alpha): the
-          change of e under a unit change of dof (a, i);
-        - parts known in closed form, each ``(sum_q w_q dN_a^T M_r dN_b) T_r[i, k]``: the geometric
-          (stress) term ``M_0 = a S``, ``S = dW/dE``, ``T_0 = I``, and the Hessian of det F,
-          ``d2 det F / dF_iJ dF_kL = eps_ik eps_JL`` (2D: ``M_1 = b eps``, ``T_1 = eps``) and
-          ``eps_ikm eps_JLN F_mN`` (3D: ``M_m = b eps_JLN F_mN``, ``T_m = eps_ikm``, m = 0, 1, 2);
-        - cell-mean bulk term: ``a U''(theta) / |e| g g^T`` with ``g = sum_q w_q (cof F_q) dN_q`` the
-          gradient of ``|e| theta``, plus ``a U'(theta)`` added to b in the det F Hessian.
-
-        Shapes: dN (nq, nloc, d) physical shape gradients, w (nq,) weights times |det J|, frames
-        (nq, kf, d) or None; a a scalar, b a scalar or one value per point (nq,) (the Taylor-Hood
-        pressure, `hyperoc.mechanics.mixed`).
-        """
-        d, n = self.dim, ue.shape[0]
-        I, J, sym, half = _VOIGT[d]
-        F = self._element_F(ue, dN)  # (nq, d, d)
-        if self._bulk is not None:
-            b, bulk = self._cell_bulk_tangent(F, dN, w, a, b)
-        e = (0.5 * (jnp.einsum("qkI,qkJ->qIJ", F, F) - jnp.eye(d)))[:, I, J]  # (nq, nv)
-        if frames is None:
-            H, s = jax.vmap(lambda x: self._voigt_derivatives(x, None))(e)
-        else:
-            H, s = jax.vmap(self._voigt_derivatives)(e, frames)
-        # B[q, alpha, a, i]; the contraction over (q, alpha) is one matrix product per cell.
-        FI, FJ = F[:, :, I].transpose(0, 2, 1)[:, :, None, :], F[:, :, J].transpose(0, 2, 1)[:, :, None, :]
-        dNI, dNJ = dN[:, :, I].transpose(0, 2, 1)[..., None], dN[:, :, J].transpose(0, 2, 1)[..., None]
-        B = (0.5 * (FI * dNJ + FJ * dNI)).reshape(len(w), len(I), n * d)
-        K = jnp.einsum("qak,qal->kl", B, jnp.einsum("qab,qbl->qal", (a * w)[:, None, None] * H, B))
-        S = (s * half)[:, sym]  # (nq, d, d): the off-diagonal e_alpha stands for E_IJ and E_JI
-        M = [a * S[:, None]]
-        b = jnp.broadcast_to(b, w.shape)
-        if d == 2:
-            M.append(b[:, None, None, None] * _EPS2)
-        elif d == 3:
-            M.append(jnp.einsum("q,JLN,qmN->qmJL", b, _EPS3, F))
-        M = jnp.concatenate(M, axis=1)  # (nq, r, d, d)
-        G = jnp.einsum("qaJ,qrJb->rab", dN, jnp.einsum("q,qrJL,qbL->qrJb", w, M, dN))
-        K = K.reshape(n, d, n, d) + jnp.einsum("rab,rik->aibk", G, _CLOSED_FORM_T[d])
-        K = K.reshape(n * d, n * d)
-        return K if self._bulk is None else K + bulk
-
-    def _cell_bulk_tangent(self, F, dN, w, a, b):
-        """``(b + a U'(theta), a U''(theta) / |e| g g^T (k, k))`` for one cell: the cell-mean bulk
-        term's share of the det F Hessian's coefficient and its rank-one part."""
-        vol = jnp.sum(w)
-        theta = jnp.sum(w * det(F)) / vol
-        dU = jax.grad(self._bulk)
-        g = jnp.einsum("q,qiJ,qaJ->ai", w, jax.vmap(jax.grad(det))(F), dN).reshape(-1)  # d(|e| theta)/d ue
-        return b + a * dU(theta), (a * jax.grad(dU)(theta) / vol) * jnp.outer(g, g)
+    def cell_mean_J(self, u):
+        """theta_e = |e|^-1 int_e det F dx per cell, (nc,): the dilatation "cell-mean" constrains."""
+        return self._cell_mean(det(self.deformation_gradient(u)))
 
     def min_det_F(self, u):
         return jnp.min(det(self.deformation_gradient(u)))
