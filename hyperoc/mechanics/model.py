@@ -13,6 +13,11 @@ With ``volumetric="cell-mean"`` the law's bulk term ``U(J)`` is evaluated on the
 instead (``Pi = int W_rest dx + sum_e |e| U(theta_e)``, ``theta_e = |e|^-1 int_e J dx``): the
 mixed displacement-pressure formulation with a pressure constant on each cell, condensed cell by
 cell (see `StateModel`).
+
+`StateModel` composes four modules: `hyperoc.mechanics.constraints` (the reduced dofs, the pins,
+the volume constraint), `hyperoc.mechanics.kernels` (the element energy and tangent),
+`hyperoc.mechanics.operators` (mass and damping operators, loads) and
+`hyperoc.mechanics.diagnostics` (the monitors' min det F, max |grad u|, ellipticity).
 """
 
 from __future__ import annotations
@@ -29,7 +34,7 @@ from ..errors import InputError
 from ..fem.assembly import SparsePattern
 from ..fem.mesh import Mesh
 from ..fem.spaces import VectorSpace, prolong
-from . import constraints, kernels, operators
+from . import constraints, diagnostics, kernels, operators
 from .kernels import VOLUMETRIC
 from .materials import Material, det
 
@@ -269,60 +274,31 @@ class StateModel:
         """`kernels.voigt_derivatives` of the law at the points: ``(d2W/de2 (nv, nv), dW/de (nv,))``."""
         return kernels.voigt_derivatives(self._point_material, self.dim, e, frame)
 
-    def _cell_mean(self, values):
-        """|e|^-1 int_e values dx per cell, (nc,), for values at the quadrature points (nc, nq)."""
-        return jnp.sum(self._w * values, axis=1) / self._cell_volume
-
-    def cell_mean_J(self, u):
-        """theta_e = |e|^-1 int_e det F dx per cell, (nc,): the dilatation "cell-mean" constrains."""
-        return self._cell_mean(det(self.deformation_gradient(u)))
-
+    # --- diagnostics (`hyperoc.mechanics.diagnostics`) ---------------------------------------------
     def min_det_F(self, u):
-        return jnp.min(det(self.deformation_gradient(u)))
+        """min det F over the quadrature points (scalar)."""
+        return diagnostics.min_det_F(self.deformation_gradient(u))
 
     def max_grad(self, u):
         """max |grad u| (Frobenius) over quadrature points."""
-        F = self.deformation_gradient(u)
-        return jnp.max(jnp.sqrt(jnp.sum((F - jnp.eye(self.dim)) ** 2, axis=(-2, -1))))
+        return diagnostics.max_grad(self.deformation_gradient(u))
 
-    # --- diagnostics on host ----------------------------------------------------------------------
-    @cached_property
-    def _directions(self) -> np.ndarray:
-        """Unit directions sampling the half sphere (1D: 1; 2D: 12 angles; 3D: 31 Fibonacci points)."""
-        if self.dim == 1:
-            return np.ones((1, 1))
-        if self.dim == 2:
-            a = np.pi * np.arange(12) / 12
-            return np.stack([np.cos(a), np.sin(a)], axis=1)
-        k = np.arange(31) + 0.5
-        z = k / 31
-        phi = np.pi * (1 + 5**0.5) * k
-        r = np.sqrt(1 - z**2)
-        return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
-
-    def _min_acoustic(self, u):
-        """Traced `min_acoustic_eigenvalues` of one state u (n,)."""
-        F = self.deformation_gradient(u)
-        A = self._pointwise(jax.hessian(self.material.energy_of_F), F)  # (nc, nq, d, d, d, d)
-        dirs = jnp.asarray(self._directions)
-        Q = jnp.einsum("cqijkl,nj,nl->cqnik", A, dirs, dirs)  # acoustic tensors
-        return jnp.min(jnp.linalg.eigvalsh(Q))
+    def cell_mean_J(self, u):
+        """theta_e = |e|^-1 int_e det F dx per cell, (nc,): the dilatation "cell-mean" constrains."""
+        return diagnostics.cell_mean(det(self.deformation_gradient(u)), self._w, self._cell_volume)
 
     @cached_property
     def _ellipticity_fn(self):
         # one compiled loop over the states (lax.map: one state's tensors in memory at a time)
-        return jax.jit(lambda U: jax.lax.map(self._min_acoustic, U))
+        return jax.jit(lambda U: jax.lax.map(lambda u: diagnostics.min_acoustic_eigenvalue(
+            self.material.energy_of_F, self.deformation_gradient(u), self._frames), U))
 
     def min_acoustic_eigenvalues(self, U) -> np.ndarray:
-        """Smallest eigenvalue of the acoustic tensor ``Q(n)_ik = dP_iJ/dF_kL n_J n_L`` over quadrature
-        points and sampled unit directions n, for each state of ``U`` (levels, n): (levels,).
-
-        Negative values mean loss of strong ellipticity: the continuum problem is no longer
-        well posed and discrete solutions localize (e.g. Saint Venant-Kirchhoff in strong
-        compression; in 1D exactly ``dP/dF < 0``, i.e. ``u_x < -1 + 1/sqrt(3)``).
-        """
+        """`hyperoc.mechanics.diagnostics.min_acoustic_eigenvalue` of the full law, for each state of
+        ``U`` (levels, n): (levels,). Negative: loss of strong ellipticity."""
         return np.asarray(self._ellipticity_fn(jnp.asarray(U)))
 
+    # --- compiled kernels cached on the model --------------------------------------------------------
     @cached_property
     def jitted(self):
         """Jitted host-callable versions of the scalar functionals and their gradients."""
