@@ -64,7 +64,7 @@ class HessianTangentModel(ho.StateModel):
 
 def new_pointwise(model, u):
     """The pointwise part of the new route alone: Voigt Hessian and gradient of W at every point."""
-    from hyperoc.mechanics.model import _VOIGT
+    from hyperoc.mechanics.kernels import VOIGT as _VOIGT
 
     I, J = _VOIGT[model.dim][:2]
     F = model.deformation_gradient(u)

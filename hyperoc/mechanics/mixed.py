@@ -37,6 +37,7 @@ from .. import _jax  # noqa: F401
 from ..errors import InputError
 from ..fem.mesh import Mesh
 from ..fem.spaces import VectorSpace, prolong, reference_shape
+from .kernels import at_points, element_F, element_tangent
 from .materials import Material, det
 from .model import StateModel
 
@@ -136,9 +137,9 @@ class TaylorHoodModel(StateModel):
         p_q^2 / (2 kappa))``, xe (k,) = (u_e node-major, vertex pressures); its gradient in x, summed
         over the cells, is the residual (force, constraint) (`StateModel.internal_force`)."""
         ue, pe = self._split_element(xe)
-        F = self._element_F(ue, dN)
+        F = element_F(ue, dN)
         p = self._Np @ pe
-        density = self._at_points(self._point_material.energy_of_F, F, frames) + p * (det(F) - 1.0) \
+        density = at_points(self._point_material.energy_of_F, F, frames) + p * (det(F) - 1.0) \
             - self._compliance(p)
         return jnp.sum(w * density)
 
@@ -151,7 +152,7 @@ class TaylorHoodModel(StateModel):
         (nc, k, k), k = 10 d + (d + 1) in 3D (6 d + 3 in 2D): displacement rows node-major, then
         the vertex pressures. Cells go ``tangent_chunk_points // nq`` at a time.
 
-        ``[[K_uu, G], [G^T, -a M_p / kappa]]``: K_uu is `StateModel._element_tangent` of ``W_rest`` with
+        ``[[K_uu, G], [G^T, -a M_p / kappa]]``: K_uu is `hyperoc.mechanics.kernels.element_tangent` of ``W_rest`` with
         the det F Hessian weighted by ``b + a p`` at each point; ``G_(ai),c = a sum_q w_q (cof F_q)_iJ
         dN_aJ N^p_c`` couples the pressures to dJ; ``M_p = sum_q w_q N^p N^p^T`` (0 when kappa = inf).
         """
@@ -164,8 +165,8 @@ class TaylorHoodModel(StateModel):
 
     def _element_block(self, ue, pe, dN, w, frames, a, b):
         """The (k, k) saddle-point block of one cell (`tangent_blocks`); ue (nloc, d), pe (d + 1,)."""
-        Kuu = self._element_tangent(ue, dN, w, frames, a, b + a * (self._Np @ pe))
-        F = self._element_F(ue, dN)
+        Kuu = element_tangent(self._point_material, None, ue, dN, w, frames, a, b + a * (self._Np @ pe))
+        F = element_F(ue, dN)
         dJ = jnp.einsum("qiJ,qaJ->qai", jax.vmap(jax.grad(det))(F), dN).reshape(len(w), -1)  # (nq, k_u)
         G = a * jnp.einsum("q,qk,qc->kc", w, dJ, self._Np)
         Mp = jnp.zeros((pe.size, pe.size)) if math.isinf(self.bulk_modulus) else \

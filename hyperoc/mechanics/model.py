@@ -13,6 +13,11 @@ With ``volumetric="cell-mean"`` the law's bulk term ``U(J)`` is evaluated on the
 instead (``Pi = int W_rest dx + sum_e |e| U(theta_e)``, ``theta_e = |e|^-1 int_e J dx``): the
 mixed displacement-pressure formulation with a pressure constant on each cell, condensed cell by
 cell (see `StateModel`).
+
+`StateModel` composes four modules: `hyperoc.mechanics.constraints` (the reduced dofs, the pins,
+the volume constraint), `hyperoc.mechanics.kernels` (the element energy and tangent),
+`hyperoc.mechanics.operators` (mass and damping operators, loads) and
+`hyperoc.mechanics.diagnostics` (the monitors' min det F, max |grad u|, ellipticity).
 """
 
 from __future__ import annotations
@@ -22,98 +27,18 @@ from functools import cached_property
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.experimental import sparse as jsparse
+import scipy.sparse.linalg as spla
 
 from .. import _jax  # noqa: F401
 from ..errors import InputError
-from ..fem.assembly import SparsePattern, reduced_numbering
+from ..fem.assembly import SparsePattern
 from ..fem.mesh import Mesh
 from ..fem.spaces import VectorSpace, prolong
+from . import constraints, diagnostics, kernels, operators
+from .kernels import VOLUMETRIC
 from .materials import Material, det
 
 __all__ = ["StateModel", "det", "VOLUMETRIC"]
-
-#: `StateModel` ``volumetric`` choices.
-VOLUMETRIC = ("pointwise", "cell-mean")
-
-
-def _to_bcoo(mat):
-    return jsparse.BCOO.from_scipy_sparse(mat.tocoo())
-
-
-def _voigt(d: int):
-    """Independent strain pairs ``(I, J)``, ``I <= J`` (diagonal first), the (d, d) map back to
-    the pair index, and 1 (diagonal) or 1/2 (off-diagonal) per pair."""
-    pairs = [(i, i) for i in range(d)] + [(i, j) for i in range(d) for j in range(d) if i < j][::-1]
-    sym = np.zeros((d, d), dtype=np.int64)
-    for k, (i, j) in enumerate(pairs):
-        sym[i, j] = sym[j, i] = k
-    I, J = (np.array(c) for c in zip(*pairs))
-    return I, J, sym, np.where(I == J, 1.0, 0.5)
-
-
-def _rigid_motions(x: np.ndarray) -> np.ndarray:
-    """Nodal values of the rigid motions (translations e_i, rotations e_k x (X - centre)) as flat dof
-    vectors (nodes * d, d (d + 1) / 2); the centre is the mean node, for conditioning."""
-    n, d = x.shape
-    x = x - x.mean(axis=0)
-    modes = [np.tile(np.eye(d)[i], n) for i in range(d)]
-    if d == 2:
-        modes.append(np.stack([-x[:, 1], x[:, 0]], axis=1).ravel())
-    elif d == 3:
-        modes += [np.cross(np.eye(3)[k], x).ravel() for k in range(3)]
-    return np.stack(modes, axis=1)
-
-
-def _free_motions(rigid: np.ndarray, constrained: np.ndarray) -> np.ndarray:
-    """Orthonormal basis (num_dofs, m) of the rigid motions that vanish on the constrained dofs."""
-    k = rigid.shape[1]
-    R = np.linalg.qr(rigid[constrained], mode="r") if constrained.size else np.zeros((0, k))
-    # The SVD of the small triangular factor, padded to (k, k), gives all k right singular vectors.
-    _, sv, Vt = np.linalg.svd(np.vstack([R, np.zeros((k - R.shape[0], k))]) if R.shape[0] < k else R)
-    rank = int(np.sum(sv > 1e-10 * max(sv.max(initial=0.0), 1e-300)))
-    free = rigid @ Vt[rank:].T
-    return np.linalg.qr(free)[0] if free.shape[1] else free
-
-
-def _isostatic_pins(rigid: np.ndarray, constrained: np.ndarray, candidates: np.ndarray) -> np.ndarray:
-    """The fewest dofs among ``candidates`` whose fixing removes the rigid motions left by
-    ``constrained``: one per motion, picked by QR with column pivoting of the motions' values at the
-    candidates (each pick removes the motion that moves it most, so the support is well conditioned)."""
-    import scipy.linalg
-
-    free = _free_motions(rigid, constrained)
-    m = free.shape[1]
-    if m == 0:
-        return np.zeros(0, np.int64)
-    _, R, piv = scipy.linalg.qr(free[candidates].T, pivoting=True, mode="economic")
-    if len(piv) < m or abs(R[m - 1, m - 1]) <= 1e-10 * abs(R[0, 0]):
-        raise InputError(f"the Dirichlet conditions leave {m} rigid motion(s) that no single dof of the "
-                         "dirichlet_components boundaries removes; constrain more components")
-    return np.sort(candidates[piv[:m]])
-
-
-_VOIGT = {d: _voigt(d) for d in (1, 2, 3)}
-_EPS2 = np.array([[0.0, 1.0], [-1.0, 0.0]])
-_EPS3 = np.zeros((3, 3, 3))
-for _i, _j, _k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
-    _EPS3[_i, _j, _k], _EPS3[_i, _k, _j] = 1.0, -1.0
-# T_r of `StateModel._element_tangent`: I for the stress term, then the det F Hessian's eps_ik(m).
-_CLOSED_FORM_T = {1: np.eye(1)[None], 2: np.stack([np.eye(2), _EPS2]),
-                  3: np.concatenate([np.eye(3)[None], np.moveaxis(_EPS3, 2, 0)])}
-
-
-def _split(material: Material, volumetric: str):
-    """``(pointwise law, cell-mean U or None)`` for `StateModel` ``volumetric``."""
-    if volumetric not in VOLUMETRIC:
-        raise InputError(f"volumetric must be one of {list(VOLUMETRIC)}, got {volumetric!r}")
-    if volumetric == "pointwise":
-        return material, None
-    rest, bulk = material.volumetric_split()
-    if bulk is None:
-        raise InputError(f"volumetric='cell-mean' needs a law with a separate bulk term (Guccione, "
-                         f"Holzapfel-Ogden, neo-Hookean); {type(material).__name__} has none")
-    return rest, bulk
 
 
 class StateModel:
@@ -179,20 +104,13 @@ class StateModel:
             raise InputError(f"need kappa >= 0 and density > 0, got kappa = {kappa}, density = {density}")
         self.mesh, self.material = mesh, material.validate()
         self.volumetric = volumetric
-        self._point_material, self._bulk = _split(self.material, volumetric)
+        self._point_material, self._bulk = kernels.split_law(self.material, volumetric)
         self.kappa, self.density = float(kappa), float(density)
         self.space = VectorSpace(mesh, degree)
         self.dim = mesh.dim
-        constrained, sliding = self._dirichlet_dofs(dirichlet, dirichlet_components or {})
-        rigid = _rigid_motions(self.space.nodes)
-        self.pinned_dofs = (_isostatic_pins(rigid, constrained, sliding) if pin_rigid and sliding.size
-                            else np.zeros(0, int))
-        constrained = np.union1d(constrained, self.pinned_dofs)
-        self.free, self.to_reduced = reduced_numbering(self.space.num_dofs, constrained)
-        self.rigid_modes = _free_motions(rigid, constrained)[self.free]
+        self.free, self.to_reduced, self.pinned_dofs, self.rigid_modes = constraints.constrain(
+            self.space, dirichlet, dirichlet_components or {}, pin_rigid)
         self.n = self.free.size
-        if self.n == 0:
-            raise InputError("every dof is on the Dirichlet boundary: nothing to solve")
         self.quad = self.space.quadrature(0 if degree == 1 else 4)
         self.control = control.build(self.space, self.to_reduced) if control is not None else None
         self.neumann = neumann
@@ -202,54 +120,27 @@ class StateModel:
         self._w = jnp.asarray(self.quad.wdx)
         self._cell_volume = jnp.sum(self._w, axis=1)  # (nc,)
         self._set_cell_dofs(self.to_reduced[self.space.cell_dofs])
-        # the displacement's gather (`_cell_values`); a subclass appending unknowns to the element
-        # (Taylor-Hood's pressures) resets `_element_gather` only, so this one stays the displacement's
+        # the displacement's gather (`deformation_gradient`); a subclass appending unknowns to the
+        # element (Taylor-Hood's pressures) resets `_element_gather` only, so this one stays the displacement's
         self._gather = self._element_gather
 
     def _set_cell_dofs(self, cell_dofs: np.ndarray) -> None:
         """Set ``cell_dofs`` (nc, k) (-1 = constrained) and ``_element_gather``, the same with constrained
-        entries pointing at a dump slot n (read as 0, `_element_args`). Set eagerly (an array created
+        entries pointing at a dump slot n (read as 0, `kernels.gather`). Set eagerly (an array created
         while a kernel is traced would become that trace's constant)."""
         self.cell_dofs = cell_dofs
         self._element_gather = jnp.asarray(np.where(cell_dofs < 0, self.n, cell_dofs))
 
-    def _dirichlet_dofs(self, dirichlet, components: dict) -> tuple[np.ndarray, np.ndarray]:
-        """Constrained global dofs (sorted) and the other dofs of the nodes on the sliding boundaries."""
-        sp = self.space
-        fixed = [sp.node_dofs(sp.boundary_nodes(dirichlet))] if dirichlet is not None else []
-        sliding = []
-        for name, comps in components.items():
-            comps = np.atleast_1d(np.asarray(comps))
-            if comps.size == 0 or comps.dtype.kind not in "iu" or len(set(comps.tolist())) != comps.size \
-                    or comps.min() < 0 or comps.max() >= self.dim:
-                raise InputError(f"dirichlet_components[{name!r}]: need distinct component indices in "
-                                 f"0..{self.dim - 1}, got {comps.tolist()}")
-            nodes = sp.boundary_nodes(name)
-            if fixed and np.all(np.isin(sp.node_dofs(nodes), fixed[0])):
-                raise InputError(f"dirichlet_components[{name!r}]: that boundary is already clamped by "
-                                 f"dirichlet = {dirichlet!r}; pass dirichlet=None to let it slide")
-            fixed.append((nodes[:, None] * self.dim + comps).ravel())
-            sliding.append(sp.node_dofs(nodes))
-        fixed = np.unique(np.concatenate(fixed)) if fixed else np.zeros(0, np.int64)
-        sliding = np.setdiff1d(np.concatenate(sliding), fixed) if sliding else np.zeros(0, np.int64)
-        return fixed, sliding
-
-    # --- constant operators --------------------------------------------------------------------
+    # --- constant operators (`hyperoc.mechanics.operators`) ----------------------------------------
     @cached_property
     def mass_blocks(self) -> np.ndarray:
         """Element mass matrices (nc, k, k): ``density int N_a N_b delta_ij``."""
-        q = self.space.quadrature(2 * self.space.degree)
-        Ms = self.density * np.einsum("cq,qa,qb->cab", q.wdx, q.N, q.N)
-        return self._vectorize_blocks(Ms)
+        return operators.mass_blocks(self.space, self.density)
 
     @cached_property
     def laplace_blocks(self) -> np.ndarray:
         """Element vector-Laplacian matrices (nc, k, k): ``int grad N_a . grad N_b delta_ij``."""
-        return self._vectorize_blocks(self.space.laplace_blocks())
-
-    def _vectorize_blocks(self, scalar_blocks: np.ndarray) -> np.ndarray:
-        d, k = self.dim, self.space.nloc
-        return np.einsum("cab,ij->caibj", scalar_blocks, np.eye(d)).reshape(len(scalar_blocks), k * d, k * d)
+        return operators.laplace_blocks(self.space)
 
     @cached_property
     def mass(self):
@@ -262,30 +153,17 @@ class StateModel:
     @cached_property
     def mass_lu(self):
         """Sparse LU factorization of the mass matrix (consistent pressure, terminal projections)."""
-        import scipy.sparse.linalg as spla
-
         return spla.splu(self.mass.tocsc())
 
     def apply_mass_inverse(self, v):
         """``M^-1 v`` inside traced code (a host solve; linear, so its JVP is itself)."""
-
-        @jax.custom_jvp
-        def solve(v):
-            return jax.pure_callback(lambda x: self.mass_lu.solve(np.asarray(x)),
-                                     jax.ShapeDtypeStruct(v.shape, v.dtype), v)
-
-        @solve.defjvp
-        def _(primals, tangents):
-            (v,), (dv,) = primals, tangents
-            return solve(v), solve(dv)
-
-        return solve(v)
+        return operators.apply_inverse(lambda x: self.mass_lu.solve(x), v)
 
     @cached_property
     def jax_operators(self):
         """(M, K, B) as JAX sparse matrices for traced matvecs (B is None without control)."""
-        B = _to_bcoo(self.control.load) if self.control is not None else None
-        return _to_bcoo(self.mass), _to_bcoo(self.laplace), B
+        B = operators.to_bcoo(self.control.load) if self.control is not None else None
+        return operators.to_bcoo(self.mass), operators.to_bcoo(self.laplace), B
 
     def load_vector(self, *, body_force=None, traction=None, t: float = 0.0, neumann: str | None = None) -> np.ndarray:
         """External load ``int_Omega f . phi + int_{Gamma_N} g . phi`` on the reduced dofs, (n,).
@@ -293,27 +171,14 @@ class StateModel:
         ``body_force`` and ``traction`` are constant vectors (dim,) or callables ``(x, t) -> (..., dim)``
         with x of shape (..., dim); ``neumann`` names the boundary of g (default: the model's Gamma_N).
         """
-        full = np.zeros(self.space.num_dofs)
-        if body_force is not None:
-            q = self.space.quadrature(2 * self.space.degree + 2)
-            f = self._field_values(body_force, q.x, t)
-            contrib = np.einsum("cq,qa,cqi->cai", q.wdx, q.N, f)
-            np.add.at(full, self.space.cell_dofs, contrib.reshape(len(contrib), -1))
-        if traction is not None:
-            facets = self.mesh.boundary(neumann or self.neumann)
-            x, w, N, dS = self.space.facet_quadrature(facets, 2 * self.space.degree + 2)
-            g = self._field_values(traction, x, t)
-            contrib = np.einsum("fq,q,qa,fqi->fai", dS, w, N, g)
-            fdofs = self.space.node_dofs(self.space.facet_nodes(facets).ravel()).reshape(len(facets), -1)
-            np.add.at(full, fdofs, contrib.reshape(len(facets), -1))
-        return full[self.free]
+        return operators.load_vector(self.space, self.free, body_force=body_force, traction=traction, t=t,
+                                     neumann=neumann or self.neumann)
 
-    def _field_values(self, fn, x, t) -> np.ndarray:
-        if callable(fn):
-            return np.broadcast_to(np.asarray(fn(x, t), dtype=np.float64), x.shape[:-1] + (self.dim,))
-        return np.broadcast_to(np.asarray(fn, dtype=np.float64).reshape(self.dim), x.shape[:-1] + (self.dim,))
+    def control_values(self, fn, t) -> np.ndarray:
+        """Nodal control values (len(t), n_ctrl) of a callable ``xi(x, t)``, x of shape (n_nodes, dim),
+        returning (n_nodes,) or (n_nodes, components) (a prescribed control as a Python function)."""
+        return operators.control_values(self.control, self.space, fn, t)
 
-    # --- fields ---------------------------------------------------------------------------------
     @cached_property
     def pattern(self) -> SparsePattern:
         """CSR pattern of the matrices assembled from element blocks on ``cell_dofs`` (n, n); built on
@@ -321,16 +186,14 @@ class StateModel:
         only the pattern in use is built (at 145k Taylor-Hood cells one build sorts 1.7e8 keys)."""
         return SparsePattern(self.cell_dofs, self.n)
 
+    # --- fields (`hyperoc.mechanics.constraints`) --------------------------------------------------
     def expand(self, u) -> np.ndarray:
         """Reduced vector(s) (..., n) -> full nodal displacement (..., num_nodes, dim)."""
-        u = np.asarray(u)
-        full = np.zeros(u.shape[:-1] + (self.space.num_dofs,))
-        full[..., self.free] = u
-        return full.reshape(u.shape[:-1] + (self.space.num_nodes, self.dim))
+        return constraints.expand(self.space, self.free, u)
 
     def restrict(self, full) -> np.ndarray:
         """Full nodal field (num_nodes, dim) or flat (num_dofs,) -> reduced vector (n,)."""
-        return np.asarray(full, dtype=np.float64).reshape(-1)[self.free]
+        return constraints.restrict(self.free, full)
 
     def prolong(self, coarse: "StateModel", u) -> np.ndarray:
         """This model's reduced vector (n,) of the state ``u`` (coarse.n,) of ``coarse``, the same
@@ -341,51 +204,23 @@ class StateModel:
         return self.restrict(self.repin(prolong(coarse.space, self.space, coarse.expand(u).reshape(-1))))
 
     def repin(self, full) -> np.ndarray:
-        """``full + r`` (num_dofs,) for a full displacement ``full`` (num_dofs,): r the rigid motion,
-        among those the other constraints leave free, that makes ``full + r`` vanish on the
-        `pinned_dofs` (unique, the support being isostatic); ``full`` itself without pins.
-
-        Why: the pins are picked on each mesh anew, so on a refined mesh they are other material
-        points, where a coarse solution is not 0 (Land problem 2, sliding base, level 0 -> 1: up to
-        4.6 mm, the base's radial expansion that the coarse pins turned into a translation).
-        Dropping those values would leave a spike at each pin, and Newton failed from such a guess.
-        The pinned solution is only defined up to this motion, so adding it loses nothing; r is the
-        linearized motion ``a + w x X``: exact for translations, for a rotation by w it adds a strain
-        of order w^2."""
-        full = np.asarray(full, dtype=np.float64).reshape(-1)
-        if not self.pinned_dofs.size:
-            return full
-        fixed = np.setdiff1d(np.setdiff1d(np.arange(self.space.num_dofs), self.free), self.pinned_dofs)
-        motions = _free_motions(_rigid_motions(self.space.nodes), fixed)  # (num_dofs, pins)
-        return full - motions @ np.linalg.solve(motions[self.pinned_dofs], full[self.pinned_dofs])
+        """``full + r`` (num_dofs,) for a full displacement ``full`` (num_dofs,), r the rigid motion
+        that makes it vanish on the `pinned_dofs` (`hyperoc.mechanics.constraints.repin`)."""
+        return constraints.repin(self.space, self.free, self.pinned_dofs, full)
 
     def interpolate(self, fn) -> np.ndarray:
         """Reduced nodal interpolant of ``fn(x: (n, dim)) -> (n, dim)``; Dirichlet values are dropped."""
         return self.restrict(self.space.interpolate(fn))
 
-    def control_values(self, fn, t) -> np.ndarray:
-        """Nodal control values (len(t), n_ctrl) of a callable ``xi(x, t)``, x of shape (n_nodes, dim),
-        returning (n_nodes,) or (n_nodes, components) (a prescribed control as a Python function)."""
-        if self.control is None:
-            raise InputError("this model has no control operator")
-        x = self.control.coordinates(self.space)
-        rows = [np.broadcast_to(np.asarray(fn(x, float(tk)), dtype=np.float64).reshape(x.shape[0], -1),
-                                (x.shape[0], self.control.components)).ravel() for tk in np.atleast_1d(t)]
-        return np.stack(rows)
-
-    # --- traced kernels -------------------------------------------------------------------------
-    def _cell_values(self, u):
-        """The reduced displacement u (n_u,) on each cell's nodes, (nc, nloc, d); 0 on Dirichlet dofs."""
-        ue = jnp.concatenate([u, jnp.zeros(1, u.dtype)])[self._gather]
-        return ue.reshape(ue.shape[0], -1, self.dim)
-
+    # --- traced kernels (`hyperoc.mechanics.kernels`) ----------------------------------------------
     def deformation_gradient(self, u):
         """F = I + grad u at every quadrature point, (nc, nq, d, d)."""
-        return jnp.eye(self.dim) + jnp.einsum("cqaj,cai->cqij", self._dN, self._cell_values(u))
+        ue = kernels.gather(u, self._gather)
+        return kernels.deformation_gradient(ue.reshape(ue.shape[0], -1, self.dim), self._dN)
 
     def _pointwise(self, fn, F):
         """``fn(F, frame)`` at every quadrature point, F (nc, nq, d, d)."""
-        return jax.vmap(lambda G, frames: self._at_points(fn, G, frames))(F, self._frames)
+        return kernels.pointwise(fn, F, self._frames)
 
     def strain_energy(self, u):
         """Pi(u) = int W(E) dx, or with ``volumetric="cell-mean"`` int W_rest(E) dx + sum_e |e| U(theta_e),
@@ -397,45 +232,21 @@ class StateModel:
         unknowns, summed into the dofs. Cells go `_map_cells` chunks at a time, so the intermediates
         reverse mode keeps are one chunk's, not the mesh's (3.6 GB at 145k Taylor-Hood cells)."""
         forces = self._map_cells(lambda xs: jax.grad(self._element_energy)(*xs), self._element_args(u))
-        return jnp.zeros(self.n + 1, forces.dtype).at[self._element_gather].add(forces)[: self.n]
+        return kernels.scatter(forces, self._element_gather, self.n)
 
     def _element_args(self, x):
         """``(x_e (nc, k), dN, w, frames)``: each cell's unknowns (0 on constrained dofs) and quadrature
         data, the per-cell arguments of `_element_energy`."""
-        xe = jnp.concatenate([x, jnp.zeros(1, x.dtype)])[self._element_gather]
-        return xe, self._dN, self._w, self._frames
+        return kernels.gather(x, self._element_gather), self._dN, self._w, self._frames
 
     def _element_energy(self, ue, dN, w, frames):
-        """``sum_q w_q W(F_q)`` of one cell (plus ``|e| U(theta_e)`` with ``volumetric="cell-mean"``),
-        ue (k,) node-major, dN (nq, nloc, d), w (nq,), frames (nq, kf, d) or None (scalar)."""
-        F = self._element_F(ue.reshape(-1, self.dim), dN)
-        energy = jnp.sum(w * self._at_points(self._point_material.energy_of_F, F, frames))
-        if self._bulk is None:
-            return energy
-        vol = jnp.sum(w)
-        return energy + vol * self._bulk(jnp.sum(w * det(F)) / vol)
-
-    @staticmethod
-    def _element_F(ue, dN):
-        """F = I + grad u at the points of one cell, (nq, d, d); ue (nloc, d), dN (nq, nloc, d)."""
-        return jnp.eye(ue.shape[1]) + jnp.einsum("qaj,ai->qij", dN, ue)
-
-    @staticmethod
-    def _at_points(fn, F, frames):
-        """``fn(F_q, frame_q)`` at the points of one cell, F (nq, d, d)."""
-        return jax.vmap(lambda G: fn(G, None))(F) if frames is None else jax.vmap(fn)(F, frames)
-
-    def _cell_mean(self, values):
-        """|e|^-1 int_e values dx per cell, (nc,), for values at the quadrature points (nc, nq)."""
-        return jnp.sum(self._w * values, axis=1) / self._cell_volume
-
-    def cell_mean_J(self, u):
-        """theta_e = |e|^-1 int_e det F dx per cell, (nc,): the dilatation "cell-mean" constrains."""
-        return self._cell_mean(det(self.deformation_gradient(u)))
+        """One cell's `kernels.element_energy` (scalar) of its unknowns ue (k,), node-major; a model
+        with other element unknowns overrides it (`hyperoc.mechanics.mixed`)."""
+        return kernels.element_energy(self._point_material, self._bulk, ue.reshape(-1, self.dim), dN, w, frames)
 
     def volume(self, u):
         """vol(u) = int det(I + grad u) dx (scalar)."""
-        return jnp.sum(self._w * det(self.deformation_gradient(u)))
+        return constraints.volume(self.deformation_gradient(u), self._w)
 
     def volume_gradient(self, u):
         """G(u) = (cof F, grad phi), (n,)."""
@@ -449,128 +260,45 @@ class StateModel:
         columns node-major (``a * dim + i``); the same values as ``jax.hessian`` of the element
         energy, to round-off. With a = 1, b = p this is the element form of ``K_T(u) + p H(u)``.
 
-        Cells are processed ``tangent_chunk_points // nq`` at a time (`_element_tangent` on each).
+        Cells are processed ``tangent_chunk_points // nq`` at a time (`kernels.element_tangent` on each).
         """
-        return self._map_cells(lambda xs: self._element_tangent(xs[0].reshape(-1, self.dim), *xs[1:], a, b),
+        return self._map_cells(lambda xs: kernels.element_tangent(self._point_material, self._bulk,
+                                                                  xs[0].reshape(-1, self.dim), *xs[1:], a, b),
                                self._element_args(u))
 
     def _map_cells(self, kernel, xs):
-        """``kernel`` over the cells (the leading axis of every array in xs), ``tangent_chunk_points // nq``
-        cells at a time: one vmap when they all fit, else a chunked map (bounds the kernel's memory)."""
-        nc, nq = self._w.shape
-        batch = max(1, self.tangent_chunk_points // nq)
-        return jax.vmap(kernel)(xs) if nc <= batch else jax.lax.map(kernel, xs, batch_size=batch)
+        """`kernels.map_cells`, ``tangent_chunk_points // nq`` cells at a time."""
+        return kernels.map_cells(kernel, xs, max(1, self.tangent_chunk_points // self._w.shape[1]))
 
     def _voigt_derivatives(self, e, frame):
-        """``(d2W/de2 (nv, nv), dW/de (nv,))`` at one point, W as a function of the nv = d(d+1)/2
-        independent strains ``e_alpha = E_{I_alpha J_alpha}`` (`_VOIGT`: E = e[sym])."""
-        sym = _VOIGT[self.dim][2]
-        g = jax.grad(lambda e: self._point_material.energy(e[sym], frame))
-        return jax.jacfwd(lambda e: (g(e), g(e)), has_aux=True)(e)
+        """`kernels.voigt_derivatives` of the law at the points: ``(d2W/de2 (nv, nv), dW/de (nv,))``."""
+        return kernels.voigt_derivatives(self._point_material, self.dim, e, frame)
 
-    def _element_tangent(self, ue, dN, w, frames, a, b):
-        """Hessian of ``sum_q w_q (a W(F_q) + b det F_q)`` in the cell's dofs ue (nloc, d): (k, k)
-        (with ``volumetric="cell-mean"`` W is the rest and ``a |e| U(theta)`` is added, below).
-
-        With ``dF = e_i (x) grad N_a`` and ``E = (F^T F - I) / 2`` (W depends on F through E only):
-
-        - material part ``sum_q w_q a B_q^T H_q B_q``, H = d2W/de2 in the nv independent strains,
-          ``B_q[alpha, (a, i)] = (F_iI dN_aJ + F_iJ dN_aI) / 2`` (``(I, J)`` = pair alpha): the
-          change of e under a unit change of dof (a, i);
-        - parts known in closed form, each ``(sum_q w_q dN_a^T M_r dN_b) T_r[i, k]``: the geometric
-          (stress) term ``M_0 = a S``, ``S = dW/dE``, ``T_0 = I``, and the Hessian of det F,
-          ``d2 det F / dF_iJ dF_kL = eps_ik eps_JL`` (2D: ``M_1 = b eps``, ``T_1 = eps``) and
-          ``eps_ikm eps_JLN F_mN`` (3D: ``M_m = b eps_JLN F_mN``, ``T_m = eps_ikm``, m = 0, 1, 2);
-        - cell-mean bulk term: ``a U''(theta) / |e| g g^T`` with ``g = sum_q w_q (cof F_q) dN_q`` the
-          gradient of ``|e| theta``, plus ``a U'(theta)`` added to b in the det F Hessian.
-
-        Shapes: dN (nq, nloc, d) physical shape gradients, w (nq,) weights times |det J|, frames
-        (nq, kf, d) or None; a a scalar, b a scalar or one value per point (nq,) (the Taylor-Hood
-        pressure, `hyperoc.mechanics.mixed`).
-        """
-        d, n = self.dim, ue.shape[0]
-        I, J, sym, half = _VOIGT[d]
-        F = self._element_F(ue, dN)  # (nq, d, d)
-        if self._bulk is not None:
-            b, bulk = self._cell_bulk_tangent(F, dN, w, a, b)
-        e = (0.5 * (jnp.einsum("qkI,qkJ->qIJ", F, F) - jnp.eye(d)))[:, I, J]  # (nq, nv)
-        if frames is None:
-            H, s = jax.vmap(lambda x: self._voigt_derivatives(x, None))(e)
-        else:
-            H, s = jax.vmap(self._voigt_derivatives)(e, frames)
-        # B[q, alpha, a, i]; the contraction over (q, alpha) is one matrix product per cell.
-        FI, FJ = F[:, :, I].transpose(0, 2, 1)[:, :, None, :], F[:, :, J].transpose(0, 2, 1)[:, :, None, :]
-        dNI, dNJ = dN[:, :, I].transpose(0, 2, 1)[..., None], dN[:, :, J].transpose(0, 2, 1)[..., None]
-        B = (0.5 * (FI * dNJ + FJ * dNI)).reshape(len(w), len(I), n * d)
-        K = jnp.einsum("qak,qal->kl", B, jnp.einsum("qab,qbl->qal", (a * w)[:, None, None] * H, B))
-        S = (s * half)[:, sym]  # (nq, d, d): the off-diagonal e_alpha stands for E_IJ and E_JI
-        M = [a * S[:, None]]
-        b = jnp.broadcast_to(b, w.shape)
-        if d == 2:
-            M.append(b[:, None, None, None] * _EPS2)
-        elif d == 3:
-            M.append(jnp.einsum("q,JLN,qmN->qmJL", b, _EPS3, F))
-        M = jnp.concatenate(M, axis=1)  # (nq, r, d, d)
-        G = jnp.einsum("qaJ,qrJb->rab", dN, jnp.einsum("q,qrJL,qbL->qrJb", w, M, dN))
-        K = K.reshape(n, d, n, d) + jnp.einsum("rab,rik->aibk", G, _CLOSED_FORM_T[d])
-        K = K.reshape(n * d, n * d)
-        return K if self._bulk is None else K + bulk
-
-    def _cell_bulk_tangent(self, F, dN, w, a, b):
-        """``(b + a U'(theta), a U''(theta) / |e| g g^T (k, k))`` for one cell: the cell-mean bulk
-        term's share of the det F Hessian's coefficient and its rank-one part."""
-        vol = jnp.sum(w)
-        theta = jnp.sum(w * det(F)) / vol
-        dU = jax.grad(self._bulk)
-        g = jnp.einsum("q,qiJ,qaJ->ai", w, jax.vmap(jax.grad(det))(F), dN).reshape(-1)  # d(|e| theta)/d ue
-        return b + a * dU(theta), (a * jax.grad(dU)(theta) / vol) * jnp.outer(g, g)
-
+    # --- diagnostics (`hyperoc.mechanics.diagnostics`) ---------------------------------------------
     def min_det_F(self, u):
-        return jnp.min(det(self.deformation_gradient(u)))
+        """min det F over the quadrature points (scalar)."""
+        return diagnostics.min_det_F(self.deformation_gradient(u))
 
     def max_grad(self, u):
         """max |grad u| (Frobenius) over quadrature points."""
-        F = self.deformation_gradient(u)
-        return jnp.max(jnp.sqrt(jnp.sum((F - jnp.eye(self.dim)) ** 2, axis=(-2, -1))))
+        return diagnostics.max_grad(self.deformation_gradient(u))
 
-    # --- diagnostics on host ----------------------------------------------------------------------
-    @cached_property
-    def _directions(self) -> np.ndarray:
-        """Unit directions sampling the half sphere (1D: 1; 2D: 12 angles; 3D: 31 Fibonacci points)."""
-        if self.dim == 1:
-            return np.ones((1, 1))
-        if self.dim == 2:
-            a = np.pi * np.arange(12) / 12
-            return np.stack([np.cos(a), np.sin(a)], axis=1)
-        k = np.arange(31) + 0.5
-        z = k / 31
-        phi = np.pi * (1 + 5**0.5) * k
-        r = np.sqrt(1 - z**2)
-        return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
-
-    def _min_acoustic(self, u):
-        """Traced `min_acoustic_eigenvalues` of one state u (n,)."""
-        F = self.deformation_gradient(u)
-        A = self._pointwise(jax.hessian(self.material.energy_of_F), F)  # (nc, nq, d, d, d, d)
-        dirs = jnp.asarray(self._directions)
-        Q = jnp.einsum("cqijkl,nj,nl->cqnik", A, dirs, dirs)  # acoustic tensors
-        return jnp.min(jnp.linalg.eigvalsh(Q))
+    def cell_mean_J(self, u):
+        """theta_e = |e|^-1 int_e det F dx per cell, (nc,): the dilatation "cell-mean" constrains."""
+        return diagnostics.cell_mean(det(self.deformation_gradient(u)), self._w, self._cell_volume)
 
     @cached_property
     def _ellipticity_fn(self):
         # one compiled loop over the states (lax.map: one state's tensors in memory at a time)
-        return jax.jit(lambda U: jax.lax.map(self._min_acoustic, U))
+        return jax.jit(lambda U: jax.lax.map(lambda u: diagnostics.min_acoustic_eigenvalue(
+            self.material.energy_of_F, self.deformation_gradient(u), self._frames), U))
 
     def min_acoustic_eigenvalues(self, U) -> np.ndarray:
-        """Smallest eigenvalue of the acoustic tensor ``Q(n)_ik = dP_iJ/dF_kL n_J n_L`` over quadrature
-        points and sampled unit directions n, for each state of ``U`` (levels, n): (levels,).
-
-        Negative values mean loss of strong ellipticity: the continuum problem is no longer
-        well posed and discrete solutions localize (e.g. Saint Venant-Kirchhoff in strong
-        compression; in 1D exactly ``dP/dF < 0``, i.e. ``u_x < -1 + 1/sqrt(3)``).
-        """
+        """`hyperoc.mechanics.diagnostics.min_acoustic_eigenvalue` of the full law, for each state of
+        ``U`` (levels, n): (levels,). Negative: loss of strong ellipticity."""
         return np.asarray(self._ellipticity_fn(jnp.asarray(U)))
 
+    # --- compiled kernels cached on the model --------------------------------------------------------
     @cached_property
     def jitted(self):
         """Jitted host-callable versions of the scalar functionals and their gradients."""
