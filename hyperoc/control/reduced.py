@@ -336,6 +336,9 @@ class ReducedFunctional:
 
     def __call__(self, m: ControlPoint) -> float:
         value, _ = self._objective_pair
+        if self.gradient_method == "continuous":  # its gradient reads `state`: the value from the same solve
+            sol = self.state(m)
+            return float(value(*(jnp.asarray(a) for a in (sol.y0, sol.y1, sol.p_steps, sol.xi, sol.dt))))
         return float(value(*self._record_arrays(self.record(m))))
 
     def value_and_derivative(self, m: ControlPoint) -> tuple[float, ControlPoint]:
