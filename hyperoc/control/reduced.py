@@ -7,11 +7,13 @@ Riesz representative in the control space (`hyperoc.control.control_space.Contro
 for the paper's cost, H^1(0, 2; L2(omega)) when the objective penalizes ``d xi/dt`` (``beta > 0``),
 so that optimizers see mesh- and step-independent quantities.
 
-With ``checkpoint_every=k`` the value and the gradient never hold the whole trajectory: the forward
-pass keeps every k-th level state, the levels the objective reads and the step multipliers, and the
-adjoint recomputes each segment from its checkpoint (`hyperoc.control.adjoint.Checkpoints`). With
-``checkpoint_snapshots=s`` it follows the binomial schedule of `hyperoc.control.revolve` instead (s snapshots,
-the least number of recomputed steps; `hyperoc.control.adjoint.RevolveRecord`).
+The value and the gradient come from one forward solve recorded under a checkpointing schedule
+(`hyperoc.control.revolve`, `ReducedFunctional.schedule`): every level state by default; with
+``checkpoint_every=k`` they never hold the whole trajectory: the forward pass keeps every k-th level
+state, the levels the objective reads and the step multipliers, and the adjoint recomputes each
+segment from its checkpoint (`hyperoc.control.revolve.EveryK`). With ``checkpoint_snapshots=s`` it
+follows the binomial schedule instead (s snapshots, the least number of recomputed steps;
+`hyperoc.control.revolve.Binomial`).
 """
 
 from __future__ import annotations
@@ -28,9 +30,10 @@ from ..dynamics.stepper import Scheme, StateSolution, TimeStepper
 from ..dynamics.timegrid import TimeTransform
 from ..errors import InputError
 from ..mechanics.model import StateModel
-from .adjoint import Adjoint, Checkpoints, RevolveRecord
+from .adjoint import Adjoint, Record
 from .control_space import ControlSpace, control_space
 from .objectives import Objective, Trajectory
+from .revolve import Binomial, EveryK, Schedule, StoreAll
 
 __all__ = ["ControlPoint", "ReducedFunctional", "LevelStates", "checkpoint_options"]
 
@@ -200,6 +203,16 @@ class ReducedFunctional:
         """Whether the value and the gradient use checkpoints (equidistant or binomial)."""
         return self._checkpoint_every is not None or self._checkpoint_snapshots is not None
 
+    @property
+    def schedule(self) -> Schedule:
+        """The checkpointing schedule of the value and the gradient, from ``checkpoint_every`` and
+        ``checkpoint_snapshots``."""
+        if self._checkpoint_snapshots is not None:
+            return Binomial(self._checkpoint_snapshots)
+        if self._checkpoint_every is not None:
+            return EveryK(self._checkpoint_every)
+        return StoreAll()
+
     def _set_checkpointing(self, every, snapshots) -> None:
         every, snapshots = checkpoint_options(every, snapshots)
         if (every or snapshots) and self.gradient_method != "exact":
@@ -291,57 +304,49 @@ class ReducedFunctional:
     def _checkpointed_objective(self):
         return self._objective_functions(lambda y: LevelStates(self.N + 1, self.objective_levels, y))
 
-    def record(self, m: ControlPoint) -> Checkpoints | RevolveRecord:
-        """Checkpointed forward solve for m (``checkpoint_every`` or ``checkpoint_snapshots`` set; cached
-        for the last point)."""
+    @property
+    def _read_levels(self) -> tuple[int, ...]:
+        """The levels whose states the objective receives: all of them, or with checkpointing those it reads."""
+        return self.objective_levels if self.checkpointed else tuple(range(self.N + 1))
+
+    @property
+    def _objective_pair(self):
+        """The jitted J and its value and partials (`_objective_functions`) on the states at `_read_levels`:
+        whole arrays without checkpointing, `LevelStates` with it."""
+        return self._checkpointed_objective if self.checkpointed else self._objective_and_partials
+
+    def record(self, m: ControlPoint) -> Record:
+        """The forward solve for m under `schedule`, keeping the level states the objective receives (all
+        of them without checkpointing); cached for the last point."""
         self._check(m)
         key = (m.tau, m.xi.tobytes())
         if key != self._record_key:
             grid = self.transform.grid(m.tau)
             loads = self.stepper.external_loads(None, grid)
-            record, count = ((self.adjoint.record_revolve, self.checkpoint_snapshots) if self.checkpoint_snapshots
-                             else (self.adjoint.record, self.checkpoint_every))
-            ck = record(grid, m.xi, loads, self.u0, self.v0, count, self.objective_levels)
+            rec = self.adjoint.record(grid, m.xi, loads, self.u0, self.v0, self.schedule, self._read_levels)
             self.counts["state"] += 1
-            self._record_key, self._record = key, ck
+            self._record_key, self._record = key, rec
         return self._record
 
-    def _checkpointed_arrays(self, ck: Checkpoints | RevolveRecord):
-        levels = self.objective_levels
-        kept = lambda i: jnp.stack([ck.kept[k][i] for k in levels]) if levels else jnp.zeros((0, self.model.n))
-        return kept(0), kept(1), jnp.asarray(ck.p_steps), jnp.asarray(ck.xi), jnp.asarray(ck.grid.dt)
+    def _record_arrays(self, rec: Record):
+        """The arguments ``(y0, y1, p, xi, dt)`` of the objective functions: the states at `_read_levels`,
+        (len, n) each, the step multipliers (N,), the controls (N+1, n_ctrl) and the steps (N,)."""
+        Y0, Y1 = rec.at(self._read_levels)
+        return jnp.asarray(Y0), jnp.asarray(Y1), jnp.asarray(rec.p_steps), jnp.asarray(rec.xi), jnp.asarray(rec.dt)
 
     def __call__(self, m: ControlPoint) -> float:
-        if self.checkpointed:
-            value, _ = self._checkpointed_objective
-            return float(value(*self._checkpointed_arrays(self.record(m))))
-        sol = self.state(m)
-        value, _ = self._objective_and_partials
-        return float(value(*self._arrays(sol)))
-
-    def _arrays(self, sol):
-        return (jnp.asarray(sol.y0), jnp.asarray(sol.y1), jnp.asarray(sol.p_steps), jnp.asarray(sol.xi),
-                jnp.asarray(sol.dt))
+        value, _ = self._objective_pair
+        if self.gradient_method == "continuous":  # its gradient reads `state`: the value from the same solve
+            sol = self.state(m)
+            return float(value(*(jnp.asarray(a) for a in (sol.y0, sol.y1, sol.p_steps, sol.xi, sol.dt))))
+        return float(value(*self._record_arrays(self.record(m))))
 
     def value_and_derivative(self, m: ControlPoint) -> tuple[float, ControlPoint]:
         """J(m) and dJ(m) as a dual vector: ``dJ.dm = sum(d.xi * dm.xi) + d.tau dm.tau``."""
-        if self.checkpointed:
-            ck = self.record(m)
-            _, vg = self._checkpointed_objective
-            J, (gY0, gY1, gP, gXi, gdt) = vg(*self._checkpointed_arrays(ck))
-            g_kept = {k: (gY0[i], gY1[i]) for i, k in enumerate(self.objective_levels)}
-            backward = (self.adjoint.backward_revolve if self.checkpoint_snapshots
-                        else self.adjoint.backward_checkpointed)
-            gXi_state, gdt_state = backward(ck, g_kept, gP)
-        else:
-            sol = self.state(m)
-            _, vg = self._objective_and_partials
-            J, (gY0, gY1, gP, gXi, gdt) = vg(*self._arrays(sol))
-            F = self.stepper.external_loads(None, self.transform.grid(m.tau))
-            V0 = float(sol.volume[0])
-            gXi_state, gdt_state = self.adjoint.backward(jnp.asarray(sol.y0), jnp.asarray(sol.y1),
-                                                         jnp.asarray(sol.p_steps), jnp.asarray(sol.xi), jnp.asarray(F),
-                                                         jnp.asarray(sol.dt), V0, gY0, gY1, gP)
+        rec = self.record(m)
+        _, vg = self._objective_pair
+        J, (gY0, gY1, gP, gXi, gdt) = vg(*self._record_arrays(rec))
+        gXi_state, gdt_state = self.adjoint.backward(rec, (gY0, gY1), gP)
         self.counts["adjoint"] += 1
         dxi = np.asarray(gXi) + gXi_state
         ddt = np.asarray(gdt) + gdt_state

@@ -1,4 +1,20 @@
-"""Binomial checkpointing: the optimal reversal schedule of Griewank (1992) and Griewank & Walther
+"""Checkpointing schedules of the adjoint: what its forward pass keeps and how its reverse pass gets the
+states, for `hyperoc.control.adjoint.Adjoint` (`Adjoint.record`, `Adjoint.backward`).
+
+A schedule gives the bounds of the forward pass's loops and the levels whose states it keeps
+(`Schedule.forward`), and the reverse pass as actions (`Schedule.reverse`) run from those states:
+`Advance`, `Store`, `Restore`, `Free` and `Reverse`, the adjoint of a range of steps. The reverse pass
+starts at level N with the totals of J there; reversing the steps ``a .. b - 1`` needs the states at
+the levels ``a .. b``: the current state at a, the state at b left by the reversal before (at first
+the forward's state at N) and the ones in between, kept or recomputed from the current state.
+
+- `StoreAll`: keeps every level state and reverses all steps in one loop.
+- `EveryK(k)`: keeps the states at ``0, k, 2k, ...`` and reverses the segments between them last to
+  first, each recomputed from its start. Memory ``ceil(N/k) + k + 1`` level states; cost one more
+  forward solve.
+- `Binomial(s)`: the optimal schedule with s snapshots below (Griewank's revolve), one step at a time.
+
+Binomial checkpointing: the optimal reversal schedule of Griewank (1992) and Griewank & Walther
 (2000, ACM TOMS Algorithm 799, "revolve"), as a list of actions.
 
 A forward recursion of N steps ``x_{n+1} = step_n(x_n)`` is reversed (adjoint steps N-1, ..., 0,
@@ -30,11 +46,14 @@ adjoint needs only the displacement part of x_{n+1}).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from math import comb
+from typing import ClassVar, Protocol
 
 from ..errors import InputError
 
-__all__ = ["Advance", "Store", "Restore", "Free", "Reverse", "binomial", "repetitions", "minimal_advances", "schedule"]
+__all__ = ["Advance", "Store", "Restore", "Free", "Reverse", "Schedule", "StoreAll", "EveryK", "Binomial", "binomial",
+           "repetitions", "minimal_advances", "schedule"]
 
 
 @dataclass(frozen=True)
@@ -64,9 +83,11 @@ class Free(_SnapshotAction):
 
 @dataclass(frozen=True)
 class Reverse:
-    """Adjoint of step ``step``: needs the current state at level step and the state at step + 1."""
+    """Adjoint of the steps ``start .. stop - 1``, in one loop: needs the current state at level start, the
+    state at level stop and the states in between."""
 
-    step: int
+    start: int
+    stop: int
 
 
 def binomial(snapshots: int, reps: int) -> int:
@@ -112,7 +133,7 @@ def _reverse_from(a: int, b: int, snapshots: int) -> list:
     """Reversing the steps ``a .. b - 1`` from the current state at level a with ``snapshots`` snapshots
     free: store level a, `_reverse`, free it (a single step is reversed at once, without a snapshot).
     Returns what to do, in order: actions and ``(a, b, snapshots)`` subproblems for `_reverse`."""
-    return [Reverse(a)] if b - a == 1 else [Store(a), (a, b, snapshots), Free(a)]
+    return [Reverse(a, b)] if b - a == 1 else [Store(a), (a, b, snapshots), Free(a)]
 
 
 def _reverse(a: int, b: int, snapshots: int) -> list:
@@ -124,7 +145,7 @@ def _reverse(a: int, b: int, snapshots: int) -> list:
         for n in reversed(range(a, b)):
             out += [Restore(a)] if n < b - 1 else []
             out += [Advance(a, n)] if n > a else []
-            out.append(Reverse(n))
+            out.append(Reverse(n, n + 1))
         return out
     m = a + _split(b - a, snapshots)
     return [Advance(a, m), *_reverse_from(m, b, snapshots - 1), Restore(a), (a, m, snapshots)]
@@ -147,3 +168,75 @@ def schedule(steps: int, snapshots: int) -> tuple:
         else:
             out.append(item)
     return tuple(out)
+
+
+class Schedule(Protocol):
+    """What the adjoint's forward pass keeps and how its reverse pass gets the states.
+
+    compiled : the loops of both passes over a range of steps: the stepper's own loop and the
+        compiled adjoint loop (each a `jax.lax.scan` when the solver is traced), or one jitted step
+        at a time (one compilation whatever the lengths).
+    """
+
+    compiled: ClassVar[bool]
+
+    def forward(self, steps: int) -> tuple[tuple[int, ...], set[int]]:
+        """The bounds ``0 = b_0 < ... < b_J = N`` of the forward pass's loops and the levels it keeps."""
+
+    def reverse(self, steps: int) -> tuple:
+        """The actions of the reverse pass, from the kept states; they reverse every step once, last first."""
+
+
+@dataclass(frozen=True)
+class StoreAll:
+    """Every level state kept; one loop reverses all steps."""
+
+    compiled: ClassVar[bool] = True
+
+    def forward(self, steps: int) -> tuple[tuple[int, ...], set[int]]:
+        return (0, steps), set(range(steps + 1))
+
+    def reverse(self, steps: int) -> tuple:
+        return Restore(0), Reverse(0, steps)
+
+
+@dataclass(frozen=True)
+class EveryK:
+    """The level states at ``0, k, 2k, ...`` kept; the segments between them reversed last to first, each
+    recomputed from its start with the loop of the forward pass (hence the same states)."""
+
+    k: int
+    compiled: ClassVar[bool] = True
+
+    def forward(self, steps: int) -> tuple[tuple[int, ...], set[int]]:
+        bounds = (*range(0, steps, self.k), steps)
+        return bounds, set(bounds[:-1])
+
+    def reverse(self, steps: int) -> tuple:
+        bounds = self.forward(steps)[0]
+        segments = reversed(list(zip(bounds[:-1], bounds[1:])))
+        return tuple(action for a, b in segments for action in (Restore(a), Reverse(a, b)))
+
+
+@dataclass(frozen=True)
+class Binomial:
+    """`schedule` with ``snapshots`` snapshots, one step at a time: the forward pass keeps the snapshots of
+    the schedule's first sweep and the states at N - 1 and N; the reverse pass restores N - 1 and runs
+    the actions from the first `Reverse` on."""
+
+    snapshots: int
+    compiled: ClassVar[bool] = False
+
+    def forward(self, steps: int) -> tuple[tuple[int, ...], set[int]]:
+        return (0, steps), {*_binomial_passes(steps, self.snapshots)[0], steps - 1, steps}
+
+    def reverse(self, steps: int) -> tuple:
+        return Restore(steps - 1), *_binomial_passes(steps, self.snapshots)[1]
+
+
+@lru_cache(maxsize=4)
+def _binomial_passes(steps: int, snapshots: int) -> tuple[frozenset[int], tuple]:
+    """The levels `schedule` stores before its first `Reverse`, and its actions from there on."""
+    actions = schedule(steps, snapshots)
+    start = next(i for i, a in enumerate(actions) if isinstance(a, Reverse))
+    return frozenset(a.level for a in actions[:start] if isinstance(a, Store)), actions[start:]
