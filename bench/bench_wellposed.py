@@ -82,7 +82,7 @@ def variant_run(alpha: float, beta: float, method: str, tau0: float, h: float, d
     sol = J.state(res.point)
     g = res.history["grad_norm"]
     row = [method, tau0, h, dt, res.objective, res.point.tau, res.iterations, res.converged, g[-1] / g[0],
-           float(sol.min_det_F.min()), float(np.abs(res.point.xi).max()), J.counts["state"]]
+           float(sol.min_det_F.min()), float(np.abs(res.point.xi).max()), res.evaluations["state_solves"]]
     print("  ".join(_fmt(v) for v in row), flush=True)
     return row
 
