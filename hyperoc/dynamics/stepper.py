@@ -34,6 +34,7 @@ import numpy as np
 from .. import _jax  # noqa: F401
 from ..errors import InputError, SolverError
 from ..mechanics.model import StateModel
+from ..mechanics.operators import combined_matvec
 from ..solvers.linsolve import make_solver
 from ..solvers.newton import newton
 from .timegrid import TimeGrid
@@ -56,6 +57,10 @@ class Scheme:
     rtol : Newton stops when ``|dy0|_inf <= rtol |y0'|_inf + atol``.
     atol : absolute floor of that test, in displacement units.
     max_iter : Newton iterations per step before the step is declared failed.
+    newton : "auto" (default): chord Newton with a kept factorization (`hyperoc.solvers.newton.newton`'s
+        ``chord``) where the linear solver factors on the host (the sparse solvers but MINRES), full
+        Newton where it is traced (dense, tridiagonal: a factorization there costs about a solve);
+        "full" or "chord" to choose.
     """
 
     theta: float = 0.5
@@ -63,12 +68,15 @@ class Scheme:
     rtol: float = 1e-11
     atol: float = 1e-15
     max_iter: int = 30
+    newton: str = "auto"
 
     def __post_init__(self):
         if not 0.5 <= self.theta <= 1.0:
             raise InputError(f"theta must lie in [1/2, 1], got {self.theta}")
         if self.multiplier not in ("step", "theta"):
             raise InputError(f"multiplier must be 'step' or 'theta', got {self.multiplier!r}")
+        if self.newton not in ("auto", "full", "chord"):
+            raise InputError(f"newton must be 'auto', 'full' or 'chord', got {self.newton!r}")
         if not (0 < self.rtol < 1 and self.atol >= 0 and self.max_iter >= 1):
             raise InputError("Newton options: need 0 < rtol < 1, atol >= 0, max_iter >= 1")
 
@@ -213,6 +221,11 @@ class TimeStepper:
         self._M, self._K, self._B = M, K, B
         self._mass_blocks = jnp.asarray(model.mass_blocks)
         self._lap_blocks = jnp.asarray(model.laplace_blocks)
+        self._inertia_damping = combined_matvec(model.mass, model.laplace)  # (y, a, b) -> a M y + b K y
+        can_chord = getattr(self.solver, "chord", False)
+        if scheme.newton == "chord" and not can_chord:
+            raise InputError("chord Newton needs a sparse solver that factors (lu, lu_reuse, pardiso...)")
+        self.chord = can_chord and scheme.newton != "full"
 
     # --- the step residual: single source of truth for Newton and adjoint -------------------------
     @property
@@ -242,8 +255,8 @@ class TimeStepper:
         (n,), ``A(y0, y1) = kappa K y1 + f_int(y0)``, and ``G_old = dV/dy0 (y0)`` (n,).
         """
         m, th = self.model, self.scheme.theta
-        A_old = m.kappa * (self._K @ y1) + m.internal_force(y0)
-        c = -(self._M @ y1) + dt * (1 - th) * A_old - dt * (th * self.load(xi1, f1) + (1 - th) * self.load(xi0, f0))
+        c = (self._inertia_damping(y1, -1.0, dt * (1 - th) * m.kappa) + dt * (1 - th) * m.internal_force(y0)
+             - dt * (th * self.load(xi1, f1) + (1 - th) * self.load(xi0, f0)))
         return c, m.volume_gradient(y0)
 
     def residual_at(self, x, known, y0, y1, p_prev, dt, V0):
@@ -252,13 +265,12 @@ class TimeStepper:
         c, G_old = known
         y0n, pn = x[:-1], x[-1]
         y1n = self.velocity(y0n, y0, y1, dt)
-        A_new = m.kappa * (self._K @ y1n) + m.internal_force(y0n)
         G_new = m.volume_gradient(y0n)
         if self.scheme.multiplier == "step":
             mult = pn * (th * G_new + (1 - th) * G_old)
         else:
             mult = th * pn * G_new + (1 - th) * p_prev * G_old
-        Fu = self._M @ y1n + dt * th * A_new + dt * mult + c
+        Fu = self._inertia_damping(y1n, 1.0, dt * th * m.kappa) + dt * th * m.internal_force(y0n) + dt * mult + c
         Fc = m.volume(y0n) - V0
         return jnp.concatenate([Fu, Fc[None]])
 
@@ -290,8 +302,9 @@ class TimeStepper:
         # a traced bound rather than a lax.cond, which costs XLA's CPU runtime more per step.
         x, it, status = newton(lambda x: self.residual_at(x, known, y0, y1, p_prev, dt, V0),
                                lambda x: self.jacobian_parts(x, y0, dt),
-                               self.solver, jnp.concatenate([y0, p_prev[None]]),
-                               rtol=sch.rtol, atol=sch.atol, max_iter=jnp.where(failed, 0, sch.max_iter))
+                               self.solver, jnp.concatenate([y0 + dt * y1, p_prev[None]]),
+                               rtol=sch.rtol, atol=sch.atol, max_iter=jnp.where(failed, 0, sch.max_iter),
+                               chord=self.chord)
         mindet, maxgrad = m.min_det_F(x[:-1]), m.max_grad(x[:-1])
         status = jnp.where(failed, 4, jnp.where((status == 0) & ~(mindet > 0), 3, status))
         y0n, pn = x[:-1], x[-1]

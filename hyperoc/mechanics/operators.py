@@ -8,7 +8,9 @@ on the reduced dofs by `hyperoc.fem.assembly.SparsePattern`; load vectors are on
 from __future__ import annotations
 
 import jax
+import jax.numpy as jnp
 import numpy as np
+import scipy.sparse as sp
 from jax.experimental import sparse as jsparse
 
 from .. import _jax  # noqa: F401
@@ -40,8 +42,24 @@ def laplace_blocks(space: VectorSpace) -> np.ndarray:
 
 
 def to_bcoo(mat) -> jsparse.BCOO:
-    """A SciPy sparse matrix as a JAX sparse matrix, for traced matvecs."""
+    """A SciPy sparse matrix as a JAX sparse matrix, for traced matvecs, with its duplicate entries
+    summed (matrices assembled from element blocks hold one entry per element sharing a pair of
+    dofs; a matvec's cost goes with the stored entries)."""
+    mat = sp.csr_matrix(mat, copy=True)
+    mat.sum_duplicates()
     return jsparse.BCOO.from_scipy_sparse(mat.tocoo())
+
+
+def combined_matvec(A, B):
+    """``(y, a, b) -> a A y + b B y`` for two SciPy sparse matrices, traced, as one matvec over the
+    union of their patterns (for the scalars a, b that change from call to call)."""
+    U = (abs(sp.csr_matrix(A)) + abs(sp.csr_matrix(B))).tocsr()
+    U.sort_indices()
+    rows = np.repeat(np.arange(U.shape[0]), np.diff(U.indptr))
+    A_data, B_data = (jnp.asarray(np.asarray(sp.csr_matrix(X)[rows, U.indices]).ravel()) for X in (A, B))
+    index = jnp.asarray(np.stack([rows, U.indices], axis=1))
+    shape = U.shape
+    return lambda y, a, b: jsparse.BCOO((a * A_data + b * B_data, index), shape=shape) @ y
 
 
 def apply_inverse(solve, v):

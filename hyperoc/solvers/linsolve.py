@@ -221,6 +221,7 @@ class SparseSolver:
         self.reuse_rate, self.reuse_max_iter, self.refine_max_iter = reuse_rate, reuse_max_iter, refine_max_iter
         self._order = None  # (q, position, indices, indptr) of the permuted CSC, after the first call
         self._lu = None  # kept factorization ("lu_reuse")
+        self._kept = None  # the chord iteration's factorization (`refresh_solve`)
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hyperoc-superlu")
         self.last_failure = None
         self.reset_stats()
@@ -230,13 +231,16 @@ class SparseSolver:
         if worker is None:
             return
         try:  # free a kept factorization on the thread that built it, then stop that thread
-            worker.submit(setattr, self, "_lu", None)
+            worker.submit(self._release)
         except RuntimeError:  # interpreter exit: the executors are already shut down
             pass
         worker.shutdown(wait=False)  # the submitted release still runs; never joins from the worker itself
 
+    def _release(self):
+        self._lu = self._kept = None
+
     def reset_stats(self):
-        self.stats = {"calls": 0, "factorizations": 0, "iterations": 0, "refactor_after_stall": 0, "failed": 0,
+        self.stats = {"calls": 0, "factorizations": 0, "iterations": 0, "kept_solves": 0, "refactor_after_stall": 0, "failed": 0,
                       "order_s": 0.0, "assembly_s": 0.0, "factor_s": 0.0, "solve_s": 0.0, "host_s": 0.0, "fill": 0,
                       "off_diagonal_pivots": 0, "pivoting_fallbacks": 0}
 
@@ -301,29 +305,32 @@ class SparseSolver:
         """The bordered solve ``(x, q)`` as one array (n + 1,), on the solver's worker thread (class docstring)."""
         return self._worker.submit(self._host_solve, blocks, col, row, r_u, r_c).result()
 
-    def _host_solve(self, blocks, col, row, r_u, r_c):
+    def _host_solve(self, blocks, col, row, r_u, r_c, keep: bool = False):
         t_start = time.perf_counter()
         self.stats["calls"] += 1
         if self._order is None and self.ordering == "nd" and self.method in ("lu", "lu_reuse"):
             self._set_order(nested_dissection(self.pattern))
             self.stats["order_s"] += time.perf_counter() - t_start
         K, q = self._matrix(blocks)
-        rhs = np.stack([np.asarray(r_u, dtype=np.float64), np.asarray(col, dtype=np.float64)], axis=1)
-        if not (np.isfinite(K.data).all() and np.isfinite(rhs).all()):
-            # A Newton iterate outside the energy's domain (inverted elements): no factorization
-            # can help, and PARDISO corrupts its heap on such values (`hyperoc.solvers.pardiso`).
+        rhs = _checked_rhs(np.stack([r_u, col], axis=1))
+        if not np.isfinite(K.data).all():
             raise np.linalg.LinAlgError("the tangent or the residual has non-finite entries (NaN or Inf)")
         if self.method == "minres":
             t0 = time.perf_counter()
             ab = np.stack([self._minres(K, rhs[:, j]) for j in range(2)], axis=1)
             self.stats["solve_s"] += time.perf_counter() - t0
         else:
-            if q is not None:
-                rhs = rhs[q]
-            if not self._reuse or self._lu is None:
+            rhs = rhs if q is None else rhs[q]
+            if keep:
+                self._kept = None  # freed before the new factorization is built
+                lu, ab = self._fresh_solve(K, rhs, q is not None)
+                # first "mmd" call: K in the original numbering, later ones are permuted: not kept
+                if q is not None or self._pardiso:
+                    self._kept = (lu, _unpermuted(ab, q)[:, 1], np.asarray(row, dtype=np.float64))
+            elif not self._reuse or self._lu is None:
                 self._lu, ab = self._fresh_solve(K, rhs, q is not None)
                 if q is None and not self._pardiso:
-                    self._lu = None  # first "mmd" call: K in the original numbering; later ones are permuted
+                    self._lu = None
             else:
                 ab = self._solve_refined(K, rhs, self._lu, max_iter=self.reuse_max_iter, rate=self.reuse_rate)
                 if ab is None:  # the kept factorization is too far from K: refresh it
@@ -332,15 +339,23 @@ class SparseSolver:
                     self._lu, ab = self._fresh_solve(K, rhs, q is not None)
             if not self._reuse:
                 self._lu = None
-            if q is not None:
-                out = np.empty_like(ab)
-                out[q] = ab
-                ab = out
-        a, b = ab[:, 0], ab[:, 1]
-        row = np.asarray(row, dtype=np.float64)
-        qmult = (row @ a - float(r_c)) / (row @ b)
+            ab = _unpermuted(ab, q)
         self.stats["host_s"] += time.perf_counter() - t_start
-        return np.concatenate([a - b * qmult, [qmult]])
+        return _bordered(ab, row, r_c)
+
+    def _host_kept_solve(self, r_u, r_c):
+        """The bordered solve with the whole Jacobian of the last `refresh_solve`: its factorization,
+        ``b = K^-1 col`` and ``row`` (one solve, no refinement: chord Newton)."""
+        t_start = time.perf_counter()
+        self.stats["calls"] += 1
+        lu, b, row = self._kept
+        q = None if self._pardiso else self._order[0]
+        r_u = _checked_rhs(r_u)
+        a = _unpermuted(lu.solve(r_u if q is None else r_u[q]), q)
+        self.stats["kept_solves"] += 1
+        self.stats["solve_s"] += time.perf_counter() - t_start
+        self.stats["host_s"] += time.perf_counter() - t_start
+        return _bordered(np.stack([a, b], axis=1), row, r_c)
 
     def _fresh_solve(self, K, rhs, permuted: bool):
         """Factor K (``permuted``: in the fixed ordering, `_matrix`) and solve with refinement:
@@ -426,23 +441,76 @@ class SparseSolver:
             raise np.linalg.LinAlgError(f"MINRES did not converge (info = {info}, backward error {err:.2e})")
         return x
 
-    def _host_solve_or_nan(self, *args):
+    def _host_solve_or_nan(self, *args, keep: bool = False):
         """`host_solve`, with NaN for a singular matrix (SuperLU), a tangent or residual with NaN or
         Inf entries (an iterate with inverted elements), a refinement that fails (PARDISO) or a MINRES
         failure: JAX leaves an exception raised inside ``jax.pure_callback`` undefined, while NaN
         makes Newton fail, so the caller cuts the load step back or raises `SolverError` naming the
         step. ``stats["failed"]`` counts these, and ``last_failure`` keeps the message."""
+        return self._on_worker_or_nan(self._host_solve, *args, keep=keep)
+
+    def _on_worker_or_nan(self, fn, *args, **kwargs):
         try:
-            return self.host_solve(*args)
+            return self._worker.submit(fn, *args, **kwargs).result()
         except (RuntimeError, np.linalg.LinAlgError) as err:
             self.stats["failed"] += 1
             self.last_failure = str(err)
             return np.full(self.n + 1, np.nan)
 
-    def solve(self, blocks, col, row, r_u, r_c):
-        out = jax.pure_callback(self._host_solve_or_nan, jax.ShapeDtypeStruct((self.n + 1,), jnp.float64),
-                                blocks, col, row, r_u, r_c)
+    def _callback(self, fn, *args):
+        out = jax.pure_callback(fn, jax.ShapeDtypeStruct((self.n + 1,), jnp.float64), *args)
         return out[:-1], out[-1]
+
+    def solve(self, blocks, col, row, r_u, r_c):
+        return self._callback(self._host_solve_or_nan, blocks, col, row, r_u, r_c)
+
+    @property
+    def chord(self) -> bool:
+        """Whether `refresh_solve` / `kept_solve` are available (every method with a factorization)."""
+        return self.method != "minres"
+
+    def refresh_solve(self, blocks, col, row, r_u, r_c):
+        """`solve`, keeping this Jacobian (the factorization of K, ``K^-1 col`` and ``row``) for
+        `kept_solve` (chord Newton, traced)."""
+        return self._callback(lambda *a: self._host_solve_or_nan(*a, keep=True), blocks, col, row, r_u, r_c)
+
+    def kept_solve(self, r_u, r_c):
+        """The bordered solve with the Jacobian of the last `refresh_solve` (traced); NaN if there is
+        none yet, which asks the chord iteration for a refresh (not counted as a failure)."""
+        return self._callback(self._kept_or_nan, r_u, r_c)
+
+    def _kept_or_nan(self, r_u, r_c):
+        if self._kept is None:
+            return np.full(self.n + 1, np.nan)
+        return self._on_worker_or_nan(self._host_kept_solve, r_u, r_c)
+
+
+def _checked_rhs(rhs) -> np.ndarray:
+    """The right-hand sides as a float64 array; ``LinAlgError`` if not finite (an iterate outside the
+    energy's domain: no factorization can help, and PARDISO corrupts its heap on such values,
+    `hyperoc.solvers.pardiso`)."""
+    rhs = np.asarray(rhs, dtype=np.float64)
+    if not np.isfinite(rhs).all():
+        raise np.linalg.LinAlgError("the tangent or the residual has non-finite entries (NaN or Inf)")
+    return rhs
+
+
+def _unpermuted(ab, q):
+    """``ab`` solved in the ordering ``q`` (new -> old index) back in the original numbering."""
+    if q is None:
+        return ab
+    out = np.empty_like(ab)
+    out[q] = ab
+    return out
+
+
+def _bordered(ab, row, r_c) -> np.ndarray:
+    """The bordered solution ``(x, q)`` (n + 1,) from ``a = K^-1 r_u``, ``b = K^-1 col`` (columns of ab):
+    ``q = (row . a - r_c) / (row . b)``, ``x = a - b q``."""
+    a, b = ab[:, 0], ab[:, 1]
+    row = np.asarray(row, dtype=np.float64)
+    qmult = (row @ a - float(r_c)) / (row @ b)
+    return np.concatenate([a - b * qmult, [qmult]])
 
 
 def _upper_triangle_map(pattern) -> tuple:

@@ -1,0 +1,90 @@
+"""Chord Newton on the sparse path (`hyperoc.solvers.newton.newton` with ``chord=True``): the same
+time-stepping solution as full Newton to the stopping test's tolerance, a refresh when the kept
+Jacobian no longer contracts, and its options checked."""
+
+import numpy as np
+import pytest
+
+import hyperoc as ho
+from hyperoc.errors import InputError
+from hyperoc.fem.geometry import annulus
+from hyperoc.solvers.linsolve import SparseSolver
+from hyperoc.solvers.newton import CHORD_RATE
+
+STEPS = 20
+
+
+@pytest.fixture(scope="module")
+def model():
+    mesh = annulus(0.5, 1.0, structured=True, n_radial=3, n_theta=16)
+    control = ho.BodyForce(ho.Region("sector", r_range=(0.5, 0.7), theta_range=(-np.pi, np.pi)))
+    return ho.StateModel(mesh, ho.SaintVenantKirchhoff(0.05, 0.05), kappa=2e-3, control=control)
+
+
+def push(model, grid):
+    """A body force on the inner ring, ramped smoothly from rest (a large motion over the steps)."""
+    return 0.2 * np.sin(np.pi * grid.t / 2)[:, None] ** 2 * np.ones((1, model.control.size))
+
+
+def solve(model, newton, solver=None, dt=0.05):
+    grid = ho.uniform_grid(T=STEPS * dt, dt=dt)
+    st = ho.TimeStepper(model, ho.Scheme(newton=newton), solver or SparseSolver(model, "lu"))
+    return st, st.run(grid, push(model, grid), diagnose=False)
+
+
+@pytest.fixture(scope="module")
+def full(model):
+    return solve(model, "full")[1]
+
+
+@pytest.fixture(scope="module")
+def chord(model):
+    return solve(model, "auto")
+
+
+def test_chord_newton_is_the_default_on_host_solvers_and_full_newton_on_traced_ones(model, chord):
+    st, _ = chord
+    assert st.chord
+    assert not ho.TimeStepper(model, ho.Scheme(), "dense").chord
+    assert not ho.TimeStepper(model, ho.Scheme(), SparseSolver(model, "minres")).chord
+
+
+def test_chord_solution_matches_full_newton_within_the_stopping_tolerance(full, chord):
+    """Each step stops with at most ``rtol |u|`` left (the rate bound of the stopping test); the
+    energy-stable scheme carries a step's error on without growth, so after N steps the two
+    solutions differ by at most ``N rtol max|u|`` (pressure: relative to its own scale, with the
+    reaction's sensitivity to u absorbed in a factor 100)."""
+    _, sol = chord
+    rtol = ho.Scheme().rtol
+    scale = np.max(np.abs(full.y0))
+    assert np.max(np.abs(sol.y0 - full.y0)) <= STEPS * rtol * scale
+    assert np.max(np.abs(sol.pressure - full.pressure)) <= 100 * STEPS * rtol * np.max(np.abs(full.pressure))
+    assert sol.volume_drift() <= 1e-12
+
+
+def test_chord_newton_factors_far_less_often_than_full_newton(full, chord):
+    st, sol = chord
+    assert st.solver.stats["factorizations"] <= STEPS // 4
+    assert st.solver.stats["kept_solves"] >= np.sum(sol.newton_iterations) - st.solver.stats["factorizations"]
+    assert st.solver.stats["failed"] == 0  # the first iteration's missing factorization is no failure
+
+
+def test_a_kept_jacobian_that_does_not_contract_is_refreshed(model, full):
+    """A factorization kept from steps 100 times longer (a mass term 100 times smaller) contracts by
+    about 1 - 1/100 > CHORD_RATE on the short steps: the iteration refreshes it and converges to the
+    same solution."""
+    solver = SparseSolver(model, "lu")
+    rest = ho.uniform_grid(T=5.0, dt=5.0)
+    ho.TimeStepper(model, ho.Scheme(), solver).run(rest, 0 * push(model, rest), diagnose=False)  # keeps K(dt = 5)
+    solver.reset_stats()
+    st, sol = solve(model, "auto", solver=solver)
+    assert solver.stats["factorizations"] >= 1
+    assert np.max(np.abs(sol.y0 - full.y0)) <= STEPS * ho.Scheme().rtol * np.max(np.abs(full.y0))
+    assert CHORD_RATE < 1 - 1 / 100
+
+
+def test_chord_on_a_traced_solver_or_an_unknown_strategy_is_an_input_error(model):
+    with pytest.raises(InputError, match="chord"):
+        ho.TimeStepper(model, ho.Scheme(newton="chord"), "dense")
+    with pytest.raises(InputError, match="newton"):
+        ho.Scheme(newton="quasi")
