@@ -178,8 +178,8 @@ class SparseSolver:
         (``MMD_AT_PLUS_A``), taken from the first factorization, kept for comparison
         (``python bench/bench_ordering.py``).
 
-    ``stats`` accumulates ``calls``, ``factorizations``, ``iterations`` (refinement or Krylov)
-    and the host seconds ``order_s`` (nested dissection), ``assembly_s`` (blocks -> matrix),
+    ``stats`` accumulates ``calls``, ``factorizations``, ``iterations`` (refinement or Krylov),
+    ``kept_solves`` (chord Newton's solves with a kept Jacobian: `kept_solve`) and the host seconds ``order_s`` (nested dissection), ``assembly_s`` (blocks -> matrix),
     ``factor_s``, ``solve_s`` and ``host_s`` (whole ``host_solve``); ``fill`` is the number of
     entries SuperLU stores for L and U in the last factorization (``SuperLU.nnz``: supernodal, the
     zeros inside supernodes included; PARDISO: the entries of L) and ``off_diagonal_pivots`` the pivots
@@ -240,9 +240,9 @@ class SparseSolver:
         self._lu = self._kept = None
 
     def reset_stats(self):
-        self.stats = {"calls": 0, "factorizations": 0, "iterations": 0, "kept_solves": 0, "refactor_after_stall": 0, "failed": 0,
-                      "order_s": 0.0, "assembly_s": 0.0, "factor_s": 0.0, "solve_s": 0.0, "host_s": 0.0, "fill": 0,
-                      "off_diagonal_pivots": 0, "pivoting_fallbacks": 0}
+        self.stats = {"calls": 0, "factorizations": 0, "iterations": 0, "kept_solves": 0, "refactor_after_stall": 0,
+                      "failed": 0, "order_s": 0.0, "assembly_s": 0.0, "factor_s": 0.0, "solve_s": 0.0, "host_s": 0.0,
+                      "fill": 0, "off_diagonal_pivots": 0, "pivoting_fallbacks": 0}
 
     # --- structure ----------------------------------------------------------------------------
     def _factor(self, K, thresh, permuted: bool):

@@ -103,16 +103,18 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
     displacements, the others a pressure field (Taylor-Hood); the monitor then gets the two
     parts' residuals and increments apart.
 
-    ``chord``: modified Newton with a kept factorization (a solver with ``refresh_solve`` and
-    ``kept_solve``: `hyperoc.solvers.linsolve.SparseSolver`). An iteration solves with the
-    whole Jacobian (tangent K_0 and border) of an earlier iterate, of this solve or of an earlier
-    one (a time step starts from the previous step's); the step is taken whole if it decreases ``|r|^2`` (sufficient decrease 1e-4), and is
-    otherwise rejected. The tangent is assembled and factored again (``refresh_solve``, a full
-    Newton iteration with the line search above) when a step was rejected, when the kept solve
-    failed (no factorization yet, or a singular one) or when the contraction rate
-    ``theta = |du_k|_inf / |du_{k-1}|_inf`` exceeds `CHORD_RATE`. The stopping test is the same;
-    since the iteration contracts by ``theta <= CHORD_RATE`` the error left after a converged
-    increment du is at most ``theta / (1 - theta) |du| <= |du|``.
+    ``chord``: chord (modified) Newton with a kept Jacobian, for a solver with ``refresh_solve``
+    and ``kept_solve`` (`hyperoc.solvers.linsolve.SparseSolver`). An iteration solves with the
+    whole Jacobian (the factored tangent K_0 and the border) of an earlier iterate, of this solve
+    or of an earlier one (a time step starts from the previous step's), and takes the step whole
+    if it decreases ``|r|^2`` (sufficient decrease 1e-4); otherwise the step is rejected. The
+    Jacobian is assembled and factored again (``refresh_solve``: a full Newton iteration with the
+    line search above) after a rejected step, when the kept solve failed (no factorization yet, or
+    a singular one) or when the contraction rate ``theta = |du_k|_inf / |du_{k-1}|_inf`` exceeds
+    `CHORD_RATE`. A linearly converging iteration leaves an error of about
+    ``theta / (1 - theta) |dx|`` after the update dx, so the stopping test above is made on that
+    (on ``|dx|`` itself while theta is unknown or above `CHORD_RATE`), for the multiplier too:
+    ``|dp| <= rtol |p + dp| + atol``, p being a reaction far more sensitive than u to what is left.
     """
     merit = lambda r: jnp.sum(r * r)
     if chord:
@@ -184,82 +186,6 @@ def _chord_newton(residual, jacobian_parts, solver, x0, *, rtol, atol, max_iter,
             return (~(merit(r1) <= (1 - 1e-4 * alpha) * m0)) & (alpha > 2.0**-12)
 
         return lambda ls: (ls[0] / 2, residual(x + ls[0] / 2 * dx)), keep_shrinking
-
-    def body(state):
-        # r = residual(x) is carried: the line search evaluates it at the point it accepts, which
-        # is the next iterate, so each iteration evaluates the residual once (plus backtracking).
-        x, r, it, _, _ = state
-        blocks, col, row = jacobian_parts(x)
-        du, dp = solver.solve(blocks, col, row, -r[:-1], -r[-1])
-        dx = jnp.concatenate([du, dp[None]])
-        m0 = merit(r)
-
-        def shrink(ls):
-            alpha, _ = ls
-            return alpha / 2, residual(x + alpha / 2 * dx)
-
-        def keep_shrinking(ls):
-            alpha, r1 = ls
-            return (~(merit(r1) <= (1 - 1e-4 * alpha) * m0)) & (alpha > 2.0**-12)
-
-        # A failed linear solve returns NaN, whose max is not NaN in XLA's reduction (-inf on CPU):
-        # test for it first, so that it is neither "converged" nor backtracked on 12 times.
-        solved = jnp.all(jnp.isfinite(dx))
-        # An increment below the tolerance is taken whole: its merit is at round-off level and
-        # backtracking on it would only stall.
-        converged = solved & _small(x[:-1], du, n_u, rtol, atol)
-        r_full = residual(x + dx)
-        if line_search:
-            take_whole = converged | ~solved
-            alpha, r1 = jax.lax.while_loop(lambda ls: ~take_whole & keep_shrinking(ls), shrink, (1.0, r_full))
-        else:
-            alpha, r1 = 1.0, r_full
-        x_new = x + alpha * dx
-        if monitor is not None:
-            res, inc, *field = _parts(r[:-1], du, solved, n_u)
-            monitor(it + 1, res, jnp.abs(r[-1]), inc, alpha, converged, *field)
-        # A residual that is NaN even at the smallest step (e.g. log det F of an inverted element
-        # all along the Newton direction) is a failure now, not one iteration later; after a
-        # converged step the residual is not used, and not tested.
-        finite = jnp.all(jnp.isfinite(x_new)) & (converged | jnp.isfinite(merit(r1)))
-        status = jnp.where(~finite, 2, jnp.where(converged, 0, 1))
-        return x_new, r1, it + 1, status, finite
-
-    def cond(state):
-        _, _, it, status, finite = state
-        return (status == 1) & (it < max_iter) & finite
-
-    x, _, it, status, _ = jax.lax.while_loop(cond, body, (x0, residual(x0), 0, 1, True))
-    return x, it, status
-
-
-def _chord_newton(residual, jacobian_parts, solver, x0, *, rtol, atol, max_iter, monitor, n_u):
-    """`newton` with ``chord=True`` (its docstring); returns ``(x, iterations, status)``."""
-    merit = lambda r: jnp.sum(r * r)
-
-    def fresh(x, r):
-        blocks, col, row = jacobian_parts(x)
-        return solver.refresh_solve(blocks, col, row, -r[:-1], -r[-1])
-
-    def kept(x, r):
-        return solver.kept_solve(-r[:-1], -r[-1])
-
-    def shrink(x, dx, m0):
-        def keep_shrinking(ls):
-            alpha, r1 = ls
-            return (~(merit(r1) <= (1 - 1e-4 * alpha) * m0)) & (alpha > 2.0**-12)
-
-        return lambda ls: (ls[0] / 2, residual(x + ls[0] / 2 * dx)), keep_shrinking
-
-    def broyden(dx, S, k):
-        """The good-Broyden step from the kept solve ``dx = -H_0 r`` and the k full steps ``S[:k]``
-        taken since H_0 (Kelley's compact form: ``H_k = (I + sum_j ...) H_0`` never formed)."""
-        def fold(j, z):
-            return z + S[j + 1] * (S[j] @ z) / (S[j] @ S[j])
-
-        z = jax.lax.fori_loop(0, jnp.maximum(k - 1, 0), fold, dx)
-        last = S[jnp.maximum(k - 1, 0)]
-        return jnp.where(k > 0, z / (1 - (last @ z) / jnp.where(k > 0, last @ last, 1.0)), z)
 
     def body(state):
         x, r, it, _, _, refresh, previous = state
