@@ -301,9 +301,10 @@ class SparseSolver:
         return K, q
 
     # --- solves -------------------------------------------------------------------------------
-    def host_solve(self, blocks, col, row, r_u, r_c):
-        """The bordered solve ``(x, q)`` as one array (n + 1,), on the solver's worker thread (class docstring)."""
-        return self._worker.submit(self._host_solve, blocks, col, row, r_u, r_c).result()
+    def host_solve(self, blocks, col, row, r_u, r_c, keep: bool = False):
+        """The bordered solve ``(x, q)`` as one array (n + 1,), on the solver's worker thread (class
+        docstring); ``keep``: keep this Jacobian for `kept_solve`."""
+        return self._worker.submit(self._host_solve, blocks, col, row, r_u, r_c, keep).result()
 
     def _host_solve(self, blocks, col, row, r_u, r_c, keep: bool = False):
         t_start = time.perf_counter()
@@ -447,11 +448,11 @@ class SparseSolver:
         failure: JAX leaves an exception raised inside ``jax.pure_callback`` undefined, while NaN
         makes Newton fail, so the caller cuts the load step back or raises `SolverError` naming the
         step. ``stats["failed"]`` counts these, and ``last_failure`` keeps the message."""
-        return self._on_worker_or_nan(self._host_solve, *args, keep=keep)
+        return self._or_nan(lambda: self.host_solve(*args, keep=True) if keep else self.host_solve(*args))
 
-    def _on_worker_or_nan(self, fn, *args, **kwargs):
+    def _or_nan(self, solve):
         try:
-            return self._worker.submit(fn, *args, **kwargs).result()
+            return solve()
         except (RuntimeError, np.linalg.LinAlgError) as err:
             self.stats["failed"] += 1
             self.last_failure = str(err)
@@ -482,7 +483,7 @@ class SparseSolver:
     def _kept_or_nan(self, r_u, r_c):
         if self._kept is None:
             return np.full(self.n + 1, np.nan)
-        return self._on_worker_or_nan(self._host_kept_solve, r_u, r_c)
+        return self._or_nan(lambda: self._worker.submit(self._host_kept_solve, r_u, r_c).result())
 
 
 def _checked_rhs(rhs) -> np.ndarray:
