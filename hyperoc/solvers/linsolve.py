@@ -181,9 +181,10 @@ class SparseSolver:
     ``stats`` accumulates ``calls``, ``factorizations``, ``iterations`` (refinement or Krylov),
     ``kept_solves`` (chord Newton's solves with a kept Jacobian: `kept_solve`) and the host
     seconds ``order_s`` (nested dissection), ``assembly_s`` (blocks -> matrix), ``factor_s``,
-    ``solve_s`` and ``host_s`` (whole ``host_solve``); ``fill`` is the number of entries SuperLU stores for L and U in the last factorization (``SuperLU.nnz``: supernodal, the
-    zeros inside supernodes included; PARDISO: the entries of L) and ``off_diagonal_pivots`` the pivots
-    it took off the diagonal (``perm_r != perm_c``; PARDISO: the perturbed pivots); ``failed`` counts
+    ``solve_s`` and ``host_s`` (whole ``host_solve``); ``fill`` is the number of entries SuperLU
+    stores for L and U in the last factorization (``SuperLU.nnz``: supernodal, the zeros inside
+    supernodes included; PARDISO: the entries of L) and ``off_diagonal_pivots`` the pivots it took
+    off the diagonal (``perm_r != perm_c``; PARDISO: the perturbed pivots); ``failed`` counts
     traced solves that returned NaN (singular K, MINRES failure, a stalled PARDISO refinement;
     ``last_failure`` holds the message).
 
