@@ -12,14 +12,15 @@ Variants, each the whole solve after an untimed first step (JIT compilation, the
   before chord Newton);
 - ``full/lu_reuse``: full Newton, each tangent solved by refinement with a kept factorization;
 - ``chord/lu``: chord Newton (the default on the sparse path): the whole Jacobian of an earlier
-  iterate, refreshed when the contraction rate exceeds 1/2 (`hyperoc.solvers.newton.CHORD_RATE`).
+  iterate, refreshed when the contraction rate exceeds 1/2 (`hyperoc.solvers.newton.CHORD_RATE`);
+- ``chord/pardiso``: the same with MKL PARDISO's ``L D L^T`` (needs ``pip install mkl``).
 
 Per variant: wall and CPU seconds, Newton iterations, factorizations, and per Newton iteration the
 split between assembly (blocks -> matrix), factorization and solves (host) and the JAX part
 (element kernels, residuals, line search, callbacks); ``p rel. diff`` is
 ``max_t |p - p_base| / max_t |p_base|`` against the baseline's pressure.
 
-    python bench/bench_sparse_path.py                 # P1, 750 steps, every variant
+    taskset -c 0 python bench/bench_sparse_path.py    # P1, 750 steps, every variant, one core
     python bench/bench_sparse_path.py --degree 2 --steps 150
 
 Writes ``bench/results/bench_sparse_path_p<degree>.json``.
@@ -35,7 +36,8 @@ import numpy as np
 import hyperoc as ho
 from hyperoc.fem.geometry import annulus
 
-VARIANTS = {"full/lu": ("full", "lu"), "full/lu_reuse": ("full", "lu_reuse"), "chord/lu": ("auto", "lu")}
+VARIANTS = {"full/lu": ("full", "lu"), "full/lu_reuse": ("full", "lu_reuse"), "chord/lu": ("auto", "lu"),
+            "chord/pardiso": ("auto", "pardiso")}
 
 
 def case(degree: int):
@@ -90,7 +92,7 @@ def main():
     from results import command_line, table, write_results
 
     write_results(f"bench_sparse_path_p{args.degree}", command_line(), [table(
-        f"2D annulus P{args.degree}, {model.n} free dofs, {args.steps} steps of dt = 0.02: state solve per Newton variant",
+        f"2D annulus P{args.degree}, {model.n} free dofs, {args.steps} steps of dt = 0.02: state solve per variant",
         columns, rows,
         f"Baseline: {names[0]} in the same run. Per-iteration split: host assembly, factorization and solves "
         "(SparseSolver.stats), JAX = wall minus host (element kernels, residuals, callbacks).")])

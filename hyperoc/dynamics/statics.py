@@ -139,6 +139,7 @@ def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, co
         monitor = (lambda *values: jax.debug.callback(report, s, *values)) if monitored else None
         x, it, status = newton(lambda x: residual(x, fk, Vk, s), lambda x: jacobian_parts(x, fk, s), lin, x0,
                                rtol=scheme.rtol, atol=scheme.atol, max_iter=scheme.max_iter, line_search=line_search,
+                               chord=scheme.newton == "chord",
                                monitor=monitor, n_u=getattr(model, "n_u", None))
         return x, it, status, model.min_det_F(displacement(x))
 

@@ -57,10 +57,11 @@ class Scheme:
     rtol : Newton stops when ``|dy0|_inf <= rtol |y0'|_inf + atol``.
     atol : absolute floor of that test, in displacement units.
     max_iter : Newton iterations per step before the step is declared failed.
-    newton : "auto" (default): chord Newton with a kept factorization (`hyperoc.solvers.newton.newton`'s
-        ``chord``) where the linear solver factors on the host (the sparse solvers but MINRES), full
-        Newton where it is traced (dense, tridiagonal: a factorization there costs about a solve);
-        "full" or "chord" to choose.
+    newton : "auto" (default): in time stepping, chord Newton with a kept factorization
+        (`hyperoc.solvers.newton.newton`'s ``chord``) where the linear solver factors on the host
+        (the sparse solvers but MINRES), full Newton where it is traced (dense, tridiagonal: a
+        factorization there costs about a solve); in static solves full Newton (a load step changes
+        the tangent too much for a kept one to pay). "full" or "chord" to choose.
     """
 
     theta: float = 0.5

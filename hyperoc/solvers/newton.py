@@ -119,7 +119,7 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
     merit = lambda r: jnp.sum(r * r)
     if chord:
         return _chord_newton(residual, jacobian_parts, solver, x0, rtol=rtol, atol=atol, max_iter=max_iter,
-                             monitor=monitor, n_u=n_u)
+                             line_search=line_search, monitor=monitor, n_u=n_u)
 
     def body(state):
         # r = residual(x) is carried: the line search evaluates it at the point it accepts, which
@@ -169,7 +169,7 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
     return x, it, status
 
 
-def _chord_newton(residual, jacobian_parts, solver, x0, *, rtol, atol, max_iter, monitor, n_u):
+def _chord_newton(residual, jacobian_parts, solver, x0, *, rtol, atol, max_iter, line_search, monitor, n_u):
     """`newton` with ``chord=True`` (its docstring); returns ``(x, iterations, status)``."""
     merit = lambda r: jnp.sum(r * r)
 
@@ -202,8 +202,8 @@ def _chord_newton(residual, jacobian_parts, solver, x0, *, rtol, atol, max_iter,
                      & (left * jnp.abs(dp) <= rtol * jnp.abs(x[-1] + dp) + atol))
         r_full = residual(x + dx)
         step, keep_shrinking = shrink(x, dx, m0)
-        # A fresh (full Newton) step backtracks; a chord step is taken whole or rejected.
-        search = refresh & ~converged & solved
+        # A fresh (full Newton) step backtracks (with ``line_search``); a chord step is taken whole or rejected.
+        search = refresh & ~converged & solved & line_search
         alpha, r1 = jax.lax.while_loop(lambda ls: search & keep_shrinking(ls), step, (1.0, r_full))
         decreased = merit(r1) <= (1 - 1e-4 * alpha) * m0
         accepted = solved & (converged | decreased | refresh)
