@@ -105,7 +105,7 @@ def case_2d():
     """Annulus r in (0.5, 1), 16 x 152 structured cells, P2; outer circle clamped; active stress on a sector."""
     mesh = annulus(0.5, 1.0, structured=True, n_radial=16, n_theta=152)
     control = ho.ActiveStress(ho.Region("sector", r_range=(0.5, 1.0), theta_range=(-0.8, 0.8)))
-    model = ho.StateModel(mesh, ho.NeoHookean(1.0, 5.0), degree=2, kappa=0.01, control=control)
+    model = ho.StateModel(mesh, ho.NeoHookean(1.0, 5.0), degree=2, damping=0.01, control=control)
     T, dt, steps = 10.0, 0.02, 500
     profile = lambda t: 0.2 * np.sin(np.pi * t / 2) ** 2  # smooth, starts at rest
     return model, T, dt, steps, lambda t: profile(t)[:, None] * np.ones((1, model.control.size))
@@ -115,7 +115,7 @@ def case_3d(h=0.063):
     """Thick spherical shell r in (0.5, 1), Gmsh h = 0.063, P1; outer sphere clamped; body force on the cap z > 0.6."""
     mesh = thick_shell(0.5, 1.0, h=h)
     control = ho.BodyForce(ho.Region("box", lower=(-1.0, -1.0, 0.6), upper=(1.0, 1.0, 1.0)))
-    model = ho.StateModel(mesh, ho.NeoHookean(1.0, 5.0), degree=1, kappa=0.01, control=control)
+    model = ho.StateModel(mesh, ho.NeoHookean(1.0, 5.0), degree=1, damping=0.01, control=control)
     T, dt, steps = 2.0, 0.01, 200
     direction = np.tile([0.0, 0.0, -1.0], model.control.size // 3)  # push the cap inwards
 

@@ -27,7 +27,7 @@ from hyperoc.fem.geometry import annulus
 n_theta, degree, solver, steps = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3], int(sys.argv[4])
 mesh = annulus(0.5, 1.0, structured=True, n_radial=max(2, n_theta // 8), n_theta=n_theta)
 region = ho.Region("sector", r_range=(0.5, 1.0), theta_range=(-0.8, 0.8))
-model = ho.StateModel(mesh, ho.NeoHookean(1.0, 5.0), degree=degree, kappa=0.01,
+model = ho.StateModel(mesh, ho.NeoHookean(1.0, 5.0), degree=degree, damping=0.01,
                       control=ho.ActiveStress(region))
 grid = ho.uniform_grid(T=0.02 * steps, dt=0.02)
 xi = 0.2 * np.sin(np.pi * grid.t / 2)[:, None] ** 2 * np.ones((1, model.control.size))

@@ -19,11 +19,11 @@ alternating the variants (same compiled code, ``J.checkpoint_every`` / ``J.check
 switched; best of three rounds).
 
 Cases:
-  1d  the paper's 1D experiment (SVK, P1, h = 0.01, kappa 2e-4, body force on [0.75, 1], phi1 =
+  1d  the paper's 1D experiment (SVK, P1, h = 0.01, damping 2e-4, body force on [0.75, 1], phi1 =
       p(tau), alpha 2e-3) on a long grid T = 15, dt = 0.005 (3000 steps), tridiagonal solver
       (one compiled lax.scan per segment length); ``--n1d 1000`` repeats it with h = 0.001.
   lv  idealized left ventricle (Land et al. 2015 geometry, ``hyperoc.fem.geometry.ventricle(h)``),
-      Guccione (C = 2 kPa, bf 8, bt 2, bfs 4, volumetric kappa 100 kPa), rule-based fibres
+      Guccione (C = 2 kPa, bf 8, bt 2, bfs 4, bulk modulus 100 kPa), rule-based fibres
       (+60 / -60 deg), active stress along the fibres on the whole wall, phi1 = pressure rise
       (p(tau + eps) - p(tau)) / eps with eps = 1 ms, alpha 5e-4; P1, T = 8 ms, dt = 0.5 ms (16
       steps), sparse LU (jitted step driven from Python); xi = -5 sin(pi t / T) kPa. Units mm, ms, kPa.
@@ -63,7 +63,7 @@ NOTES = ("all (None): every level state stored (the baseline); every k: every k-
 def build_1d(n: int):
     import hyperoc as ho
 
-    model = ho.StateModel(ho.interval(n), ho.SaintVenantKirchhoff(mu=0.05, lam=0.05), kappa=2e-4,
+    model = ho.StateModel(ho.interval(n), ho.SaintVenantKirchhoff(mu=0.05, lam=0.05), damping=2e-4,
                           control=ho.BodyForce(ho.Region("box", lower=(0.75,), upper=(1.0,))))
     transform = ho.TimeTransform.for_step(15.0, 0.005, 7.5)
     objective = ho.Objective(running=(ho.ControlCost(2e-3),), at_tau=ho.PressureAt())
@@ -79,7 +79,8 @@ def build_lv(h: float):
 
     mesh = ventricle(h)
     frames = rule_based_fibres(mesh, helix_endo=60.0, helix_epi=-60.0)
-    model = ho.StateModel(mesh, ho.Guccione(C=2.0, bf=8.0, bt=2.0, bfs=4.0, kappa=100.0), kappa=1.0, density=1.0,
+    model = ho.StateModel(mesh, ho.Guccione(C=2.0, bf=8.0, bt=2.0, bfs=4.0, bulk_modulus=100.0), damping=1.0,
+                          density=1.0,
                           control=ho.ActiveStress(ho.Region(), fibres=frames.fibre), frames=frames)
     s = LV_STEPS
     transform = ho.TimeTransform.for_step(s["T"], s["dt"], s["tau"], s["eps"])

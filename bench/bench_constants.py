@@ -1,7 +1,7 @@
 """Closed-over constants in the jitted kernels: passed to XLA as arguments (JAX with
 ``JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS=1``, which `hyperoc._jax` sets when hyperoc is imported
 before JAX) or embedded in the program as literals (JAX's default),
-on Land problem 2 (idealized LV, curved P2, kappa = 1000 kPa, clamped base) on a nested sequence
+on Land problem 2 (idealized LV, curved P2, bulk modulus 1000 kPa, clamped base) on a nested sequence
 of meshes.
 
 Each (level, mode) runs in a fresh subprocess with the variable set, since JAX reads it on import
@@ -45,7 +45,7 @@ def child(h0: float, level: int) -> dict:
     from hyperoc.dynamics.stepper import Scheme
     from hyperoc.solvers.linsolve import make_solver
 
-    model, follower = ventricle_problem(h0, kappa=1000.0, refinements=level)
+    model, follower = ventricle_problem(h0, bulk_modulus=1000.0, refinements=level)
     lin = make_solver(model, "auto")
     solve, _ = _compiled_solve(model, lin, Scheme(), (follower,), False, False)
     x0, fk = jnp.zeros(model.n + 1), jnp.zeros(model.n)
@@ -88,7 +88,7 @@ def main():
         return
     from results import Table, command_line, write_results
 
-    runs = Table(f"Land problem 2 (curved P2 LV, h0 = {args.h0:g} mm, kappa = 1000 kPa): the Newton solve's "
+    runs = Table(f"Land problem 2 (curved P2 LV, h0 = {args.h0:g} mm, bulk modulus 1000 kPa): the Newton solve's "
                  "compilation and the force and tangent kernels, each (level, mode) in a fresh process",
                  ["level", "dofs", "constants", "compile solve (s)", "1st eval (s)", "later eval (s)",
                   "peak RSS (MB)", "constant-folding alarms"],

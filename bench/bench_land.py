@@ -11,31 +11,31 @@ sequence of uniform refinements (`hyperoc.fem.mesh.refine`, h halved per level, 
 the exact ellipsoids), the setting in which the observed order and the Richardson limit mean
 something (computed with h = h0 / 2^k; the "h" column stays the largest edge); Gmsh meshes of
 decreasing size are unrelated to each other. Both:
-Guccione with the volumetric penalty ``kappa`` (kPa), no global volume constraint, follower pressure, full
+Guccione with the volumetric penalty of bulk modulus k (kPa), no global volume constraint, follower pressure, full
 Newton steps with load stepping (halving on failure).
 ``--volumetric cell-mean``: the penalty on each cell's mean J (mixed P2-P0 formulation, condensed;
-`hyperoc.mechanics.model.StateModel`), which does not lock as kappa grows. ``--isochoric``: Guccione's Q on
+`hyperoc.mechanics.model.StateModel`), which does not lock as k grows. ``--isochoric``: Guccione's Q on
 the isochoric strain (`hyperoc.mechanics.materials.Guccione`), which problem 2 needs with ``cell-mean``.
 
-For each kappa the values converge as h -> 0 to the compressible solution with that bulk modulus; as
-kappa -> infinity that solution tends to the incompressible benchmark at O(1/kappa). The script prints
-one Markdown table per (problem, kappa) with successive differences, the observed order and the
-Richardson limit from the last three levels, and a first-order extrapolation in 1/kappa from the two
-largest kappa at the finest level.
+For each k the values converge as h -> 0 to the compressible solution with that bulk modulus; as
+k -> infinity that solution tends to the incompressible benchmark at O(1/k). The script prints
+one Markdown table per (problem, k) with successive differences, the observed order and the
+Richardson limit from the last three levels, and a first-order extrapolation in 1/k from the two
+largest k at the finest level.
 
     nice python bench/bench_land.py --json results/land.json            # default study
-    nice python bench/bench_land.py --problems 2 --kappas 1000 --base sliding --json results/land-slide.json
-    nice python bench/bench_land.py --problems 2 --kappas 1000 --lv-sizes 6 --lv-refinements 0,1,2 --json results/land-nested.json
+    nice python bench/bench_land.py --problems 2 --bulk-moduli 1000 --base sliding --json results/land-slide.json
+    nice python bench/bench_land.py --problems 2 --bulk-moduli 1000 --lv-sizes 6 --lv-refinements 0,1,2 --json results/land-nested.json
     nice python bench/bench_land.py --problems 1 --json results/land-beam.json   # one problem
-    python bench/bench_land.py --beam-levels 1,2 --lv-sizes 4 --kappas 1000   # quick look
-    nice python bench/bench_land.py --problems 1 --kappas 1000,100000 --volumetric cell-mean --json results/land-beam-p0.json
-    nice python bench/bench_land.py --problems 2 --kappas 10000,100000 --lv-sizes 6 --lv-refinements 0,1 --lv-steps 80 --cutbacks 80 --volumetric cell-mean --isochoric
-    nice python bench/bench_land.py --problems 3 --kappas inf --lv-sizes 6 --lv-refinements 0,1,2 --volumetric taylor-hood --isochoric
-    nice python bench/bench_land.py --problems 3 --kappas inf --lv-sizes 6 --lv-refinements 0,1,2 --volumetric taylor-hood --isochoric --solver lu_reuse --taper 5
-    nice taskset -c 0,1 python bench/bench_land.py --problems 2 --kappas inf --lv-sizes 6 --lv-refinements 0,1,2,3 --lv-steps 20 --cutbacks 40 --volumetric taylor-hood --isochoric --solver pardiso --nested-start --json results/land-p2-L3.json  # level 3: out of memory in one process
+    python bench/bench_land.py --beam-levels 1,2 --lv-sizes 4 --bulk-moduli 1000   # quick look
+    nice python bench/bench_land.py --problems 1 --bulk-moduli 1000,100000 --volumetric cell-mean --json results/land-beam-p0.json
+    nice python bench/bench_land.py --problems 2 --bulk-moduli 10000,100000 --lv-sizes 6 --lv-refinements 0,1 --lv-steps 80 --cutbacks 80 --volumetric cell-mean --isochoric
+    nice python bench/bench_land.py --problems 3 --bulk-moduli inf --lv-sizes 6 --lv-refinements 0,1,2 --volumetric taylor-hood --isochoric
+    nice python bench/bench_land.py --problems 3 --bulk-moduli inf --lv-sizes 6 --lv-refinements 0,1,2 --volumetric taylor-hood --isochoric --solver lu_reuse --taper 5
+    nice taskset -c 0,1 python bench/bench_land.py --problems 2 --bulk-moduli inf --lv-sizes 6 --lv-refinements 0,1,2,3 --lv-steps 20 --cutbacks 40 --volumetric taylor-hood --isochoric --solver pardiso --nested-start --json results/land-p2-L3.json  # level 3: out of memory in one process
     # the same in two processes: levels 0-2 save their states, level 3 starts from level 2's
-    nice taskset -c 0,1 python bench/bench_land.py --problems 2 --kappas inf --lv-sizes 6 --lv-refinements 0,1,2 --lv-steps 20 --cutbacks 40 --volumetric taylor-hood --isochoric --solver pardiso --nested-start --save-states results/states --json results/land-p2-L012.json
-    nice taskset -c 0,1 python bench/bench_land.py --problems 2 --kappas inf --lv-sizes 6 --lv-refinements 3 --lv-steps 20 --cutbacks 40 --volumetric taylor-hood --isochoric --solver pardiso --nested-start --coarse-state results/states/p2-h6-kappainf-clamped-L2.npz --json results/land-p2-L3.json
+    nice taskset -c 0,1 python bench/bench_land.py --problems 2 --bulk-moduli inf --lv-sizes 6 --lv-refinements 0,1,2 --lv-steps 20 --cutbacks 40 --volumetric taylor-hood --isochoric --solver pardiso --nested-start --save-states results/states --json results/land-p2-L012.json
+    nice taskset -c 0,1 python bench/bench_land.py --problems 2 --bulk-moduli inf --lv-sizes 6 --lv-refinements 3 --lv-steps 20 --cutbacks 40 --volumetric taylor-hood --isochoric --solver pardiso --nested-start --coarse-state results/states/p2-h6-bulkinf-clamped-L2.npz --json results/land-p2-L3.json
     python bench/bench_land.py --render results/land-*.json                 # tables of saved runs
 
 Seconds are wall time per solve, JIT compilation included.
@@ -86,7 +86,7 @@ def _order(h, z) -> tuple[float, float]:
 
 def _table(title: str, rows: list[dict], level_key: str, value_keys: list[str]) -> str:
     """Markdown table: per value, the difference to the previous level, and from the last three
-    levels the observed order and the Richardson-extrapolated limit (h -> 0 at this kappa)."""
+    levels the observed order and the Richardson-extrapolated limit (h -> 0 at this bulk modulus)."""
     unit = lambda k: "mm^3" if k.startswith("V_") else "mm"
     head = f"| {level_key} | h (mm) | dofs | " + " | ".join(f"{k} ({unit(k)}) | diff | order | extrap."
                                                            for k in value_keys)
@@ -137,7 +137,7 @@ def _table_dict(title: str, rows: list[dict], level_key: str, value_keys: list[s
 def _published(problem: int, rows: list[dict], value_keys: list[str]) -> str:
     """The distance of the finest level and of the Richardson limit to the published value
     (`hyperoc.cardiac.land.PUBLISHED`), for the benchmark as posed only (base clamped, tension not
-    tapered; a finite kappa adds its own O(1/kappa) distance); "" otherwise."""
+    tapered; a finite bulk modulus k adds its own O(1/k) distance); "" otherwise."""
     params = rows[-1]["params"]
     if params.get("base", "clamped") != "clamped" or params.get("taper"):
         return ""
@@ -150,8 +150,9 @@ def _published(problem: int, rows: list[dict], value_keys: list[str]) -> str:
             cell += f", limit {lim - ref:+.4f}" if math.isfinite(lim) else ", no limit"
         cells.append(cell)
     return ("\n\nPublished (S. Pezzuto's FEniCS submission to Land et al. 2015; `hyperoc.cardiac.land.PUBLISHED`), "
-            f"distance to it: {'; '.join(cells)}" + ("" if params["kappa"] == math.inf else
-                                                      f" (kappa = {params['kappa']:g} kPa, not incompressible)"))
+            f"distance to it: {'; '.join(cells)}"
+            + ("" if params["bulk_modulus"] == math.inf else
+               f" (bulk modulus {params['bulk_modulus']:g} kPa, not incompressible)"))
 
 
 def _values(rows: list[dict], key: str) -> list[float]:
@@ -171,11 +172,11 @@ def _scale(row: dict) -> float:
     return params["mesh_size"] / 2 ** params["refinements"] if params.get("nested") else row["h"]
 
 
-def _extrapolate(by_kappa: dict, key: str) -> str:
-    """``z_inf ~ z(k2) + (z(k2) - z(k1)) k1 / (k2 - k1)`` (linear in 1/kappa) from the two largest kappa."""
-    k1, k2 = sorted(by_kappa)[-2:]
-    z1, z2 = by_kappa[k1], by_kappa[k2]
-    return (f"{key}: kappa {k1:g} -> {z1:.5f}, {k2:g} -> {z2:.5f}, linear in 1/kappa -> "
+def _extrapolate(by_bulk_modulus: dict, key: str) -> str:
+    """``z_inf ~ z(k2) + (z(k2) - z(k1)) k1 / (k2 - k1)`` (linear in 1/k) from the two largest bulk moduli k."""
+    k1, k2 = sorted(by_bulk_modulus)[-2:]
+    z1, z2 = by_bulk_modulus[k1], by_bulk_modulus[k2]
+    return (f"{key}: bulk modulus {k1:g} -> {z1:.5f}, {k2:g} -> {z2:.5f}, linear in 1/k -> "
             f"{z2 + (z2 - z1) * k1 / (k2 - k1):.5f}")
 
 
@@ -220,21 +221,21 @@ def render(paths: list[str]):
                                            (3, "Problem 3 (contraction)", "mesh_size", LV_KEYS)):
         mine = [r for r in rows if r["params"]["problem"] == problem]
         label = (lambda r: _formulation(r["params"])) if problem == 1 else (lambda r: ", " + _variant(r["params"]))
-        for kappa, variant in sorted({(r["params"]["kappa"], label(r)) for r in mine}):
-            group = sorted((r for r in mine if (r["params"]["kappa"], label(r)) == (kappa, variant)),
+        for bulk_modulus, variant in sorted({(r["params"]["bulk_modulus"], label(r)) for r in mine}):
+            group = sorted((r for r in mine if (r["params"]["bulk_modulus"], label(r)) == (bulk_modulus, variant)),
                            key=lambda r: -r["h"])
             key = level_key if problem == 1 else _level_key(group[0]["params"])
-            print(_table(f"{name}, P2{variant}, kappa = {kappa:g} kPa", group, key, keys)
+            print(_table(f"{name}, P2{variant}, bulk modulus {bulk_modulus:g} kPa", group, key, keys)
                   + _published(problem, group, keys) + "\n")
 
 
-def solved_or_reported(run, level, kappa: float, failures: list):
-    """``run(level, kappa)``, or None after noting a `SolverError` (the solve's step and cause) in
+def solved_or_reported(run, level, bulk_modulus: float, failures: list):
+    """``run(level, bulk_modulus)``, or None after noting a `SolverError` (the solve's step and cause) in
     ``failures``: one failed level does not lose the others."""
     try:
-        return run(level, kappa)
+        return run(level, bulk_modulus)
     except SolverError as exc:
-        failures.append(f"level {level}, kappa {kappa:g} kPa: {exc}")
+        failures.append(f"level {level}, bulk modulus {bulk_modulus:g} kPa: {exc}")
         print(f"FAILED: {failures[-1]}", flush=True)
         return None
 
@@ -246,7 +247,7 @@ def main():
     ap.add_argument("--lv-sizes", default="4,3,2", help="ventricle target edge lengths (mm)")
     ap.add_argument("--lv-refinements", default=None,
                     help="uniform refinement levels of each ventricle size, e.g. 0,1,2: nested sequences")
-    ap.add_argument("--kappas", default="1000,10000", help="penalty bulk moduli kappa (kPa)")
+    ap.add_argument("--bulk-moduli", default="1000,10000", help="bulk moduli of the penalty (kPa)")
     ap.add_argument("--beam-steps", type=int, default=10)
     ap.add_argument("--lv-steps", type=int, default=20)
     ap.add_argument("--cutbacks", type=int, default=8,
@@ -256,7 +257,7 @@ def main():
     ap.add_argument("--volumetric", default="pointwise", choices=FORMULATIONS,
                     help="the penalty at every quadrature point, on each cell's mean J (mixed P2-P0, "
                          "hyperoc.mechanics.model.StateModel), or a continuous P1 pressure (Taylor-Hood, "
-                         "hyperoc.mechanics.mixed.TaylorHoodModel; there kappa may be inf: incompressible)")
+                         "hyperoc.mechanics.mixed.TaylorHoodModel; there the bulk modulus may be inf: incompressible)")
     ap.add_argument("--isochoric", action="store_true",
                     help="Guccione's Q on the isochoric strain (J^(-2/3) C - I) / 2 "
                          "(hyperoc.mechanics.materials.Guccione)")
@@ -274,7 +275,7 @@ def main():
                          "from there")
     ap.add_argument("--save-states", default=None, metavar="DIR",
                     help="write each ventricle level's solution to "
-                         "DIR/p<problem>-h<h0>-kappa<kappa>-<base>-L<level>.npz "
+                         "DIR/p<problem>-h<h0>-bulk<bulk_modulus>-<base>-L<level>.npz "
                          "(hyperoc.cardiac.land.save_state)")
     ap.add_argument("--coarse-state", default=None, metavar="NPZ",
                     help="a --save-states file of the level below the first of --lv-refinements: that level starts "
@@ -290,7 +291,7 @@ def main():
     if args.render:
         render(args.render)
         return
-    kappas = _floats(args.kappas)
+    bulk_moduli = _floats(args.bulk_moduli)
     if args.save_states:
         Path(args.save_states).mkdir(parents=True, exist_ok=True)
     results = []
@@ -310,28 +311,29 @@ def main():
     lv_sequences = [[(h, 0)] for h in _floats(args.lv_sizes)] if args.lv_refinements is None else \
         [[(h, int(k)) for k in _floats(args.lv_refinements)] for h in _floats(args.lv_sizes)]
     monitor = NewtonLog(sys.stderr) if args.newton_log else None
-    solved = {}  # (problem, h, kappa, refinements) -> the last level's BenchmarkResult, for --nested-start
+    solved = {}  # (problem, h, bulk_modulus, refinements) -> the last level's BenchmarkResult, for --nested-start
 
-    def lv_solve(problem, level, kappa):
+    def lv_solve(problem, level, bulk_modulus):
         h, k = level
-        coarse = solved.pop((problem, h, kappa, k - 1), None)
+        coarse = solved.pop((problem, h, bulk_modulus, k - 1), None)
         if coarse is None and args.coarse_state and args.nested_start:
             coarse = load_state(args.coarse_state)
-        res = ventricle_apex(h, kappa=kappa, steps=args.lv_steps, cutbacks=args.cutbacks, curved=not args.faceted,
-                             base=args.base, refinements=k, solver=args.solver, volumetric=args.volumetric,
-                             isochoric=args.isochoric, predictor=args.predictor, problem=problem,
+        res = ventricle_apex(h, bulk_modulus=bulk_modulus, steps=args.lv_steps, cutbacks=args.cutbacks,
+                             curved=not args.faceted, base=args.base, refinements=k, solver=args.solver,
+                             volumetric=args.volumetric, isochoric=args.isochoric, predictor=args.predictor,
+                             problem=problem,
                              taper=args.taper if problem == 3 else 0.0, coarse=coarse, monitor=monitor)
         if args.nested_start:
-            solved[(problem, h, kappa, k)] = res
+            solved[(problem, h, bulk_modulus, k)] = res
         if args.save_states:
-            save_state(res, Path(args.save_states) / f"p{problem}-h{h:g}-kappa{kappa:g}-{args.base}-L{k}.npz")
+            save_state(res, Path(args.save_states) / f"p{problem}-h{h:g}-bulk{bulk_modulus:g}-{args.base}-L{k}.npz")
         return record(res, nested=args.lv_refinements is not None, solver=args.solver)
 
     lv_run = lambda problem: functools.partial(lv_solve, problem)
     lv_levels = lv_sequences if args.lv_refinements is not None else [sum(lv_sequences, [])]
     for number, name, sequences, run, level_key, keys in (
         (1, "Problem 1 (beam)", [[int(v) for v in _floats(args.beam_levels)]],
-         lambda lv, k: record(beam_deflection(lv, kappa=k, steps=args.beam_steps, cutbacks=args.cutbacks,
+         lambda lv, k: record(beam_deflection(lv, bulk_modulus=k, steps=args.beam_steps, cutbacks=args.cutbacks,
                                               volumetric=args.volumetric, isochoric=args.isochoric,
                                               predictor=args.predictor, monitor=monitor)), "n", ["z_tip"]),
         (2, "Problem 2 (ventricle)", lv_levels, lv_run(2), None, LV_KEYS),
@@ -340,18 +342,17 @@ def main():
         if number not in problems:
             continue
         finest = {}
-        for kappa in kappas:
+        for bulk_modulus in bulk_moduli:
             for levels in sequences:
-                rows = [row for row in (solved_or_reported(run, lv, kappa, failures) for lv in levels) if row]
+                rows = [row for row in (solved_or_reported(run, lv, bulk_modulus, failures) for lv in levels) if row]
                 if not rows:
                     continue
                 variant = f", {_variant(rows[0]['params'])}" if number > 1 else _formulation(rows[0]["params"])
                 key = level_key or _level_key(rows[0]["params"])
-                tables.append(_table(f"{name}, P2{variant}, kappa = {kappa:g} kPa", rows, key, keys)
-                              + _published(number, rows, keys))
-                structured.append(_table_dict(f"{name}, P2{variant}, kappa = {kappa:g} kPa", rows, key, keys,
-                                              _published(number, rows, keys).strip()))
-                finest[kappa] = rows[-1]["values"]
+                title = f"{name}, P2{variant}, bulk modulus {bulk_modulus:g} kPa"
+                tables.append(_table(title, rows, key, keys) + _published(number, rows, keys))
+                structured.append(_table_dict(title, rows, key, keys, _published(number, rows, keys).strip()))
+                finest[bulk_modulus] = rows[-1]["values"]
         if len(finest) >= 2:
             extrap += [f"{name}, finest level: " + _extrapolate({k: v[key] for k, v in finest.items()}, key)
                        for key in keys]
@@ -361,8 +362,8 @@ def main():
     if args.json:
         os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
         with open(args.json, "w") as fh:
-            json.dump({"results": results, "tables": tables, "kappa_extrapolation": extrap, "failures": failures},
-                      fh, indent=1)
+            json.dump({"results": results, "tables": tables, "bulk_modulus_extrapolation": extrap,
+                       "failures": failures}, fh, indent=1)
     if structured and args.results:
         from results import command_line, write_results
 

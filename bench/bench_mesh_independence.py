@@ -1,7 +1,7 @@
 """Iterations of Algorithm 1 (Barzilai-Borwein) and L-BFGS-B to reach ||G|| <= 1e-6 ||G0|| under h and dt refinement.
 
 Well-posed 1D case with an interior, nondegenerate optimum in (xi, tau), `hyperoc.control.problems.vibrating_bar`:
-neo-Hookean (mu = lambda = 0.05), kappa = 1e-2, body-force control on omega = [0.25, 0.5], initial
+neo-Hookean (mu = lambda = 0.05), damping kappa = 1e-2, body-force control on omega = [0.25, 0.5], initial
 velocity v0(x) = 0.05 sin(pi x) (compatible with the volume constraint: v0(1) = 0),
 ControlCost(alpha = 10), phi1 = p(tau), T = 4, start (xi = 0, tau = T/2).
 The free vibration makes p(t) peak near t = 1.3 (period ~5.2), so the optimal tau is interior; with

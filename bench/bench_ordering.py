@@ -1,7 +1,7 @@
 """Fill-reducing ordering of the sparse LU (`hyperoc.solvers.linsolve.SparseSolver`, ``ordering=``): METIS
 nested dissection (``"nd"``, the default) against SuperLU's minimum degree on ``K + K^T``
 (``"mmd"``), on the step matrix of Land problem 2 (idealized LV, Guccione with
-kappa = 1000 kPa, curved P2, clamped base) on a nested sequence of meshes.
+bulk modulus 1000 kPa, curved P2, clamped base) on a nested sequence of meshes.
 
 The matrix is the tangent at rest plus the follower-pressure stiffness at the full 10 kPa, the matrix
 of the first Newton iteration of `hyperoc.cardiac.land.ventricle_apex`. For each level and ordering the script
@@ -59,14 +59,14 @@ def main():
     ap.add_argument("--levels", default="0,1", help="uniform refinements, comma separated")
     args = ap.parse_args()
     runs = Table(f"Sparse LU of the first Newton matrix of Land problem 2 (curved P2 LV, h0 = {args.h0:g} mm, "
-                 "kappa = 1000 kPa, clamped base) with each ordering",
+                 "bulk modulus 1000 kPa, clamped base) with each ordering",
                  ["level", "dofs", "nnz(K)", "ordering", "order (s)", "1st factor (s)", "refactor (s)",
                   "stored L+U entries", "backward error"],
                  "nd: METIS nested dissection (the default); mmd: SuperLU's minimum degree on K + K^T.")
     ratios = Table("Nested dissection against minimum degree, same process",
                    ["level", "dofs", "refactor time nd / mmd", "fill nd / mmd"])
     for level in (int(v) for v in args.levels.split(",")):
-        model, follower = ventricle_problem(args.h0, kappa=1000.0, refinements=level)
+        model, follower = ventricle_problem(args.h0, bulk_modulus=1000.0, refinements=level)
         blocks = step_blocks(model, follower)
         rows = {o: measure(model, blocks, o) for o in ("mmd", "nd")}
         for o, r in rows.items():

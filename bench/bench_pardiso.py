@@ -1,7 +1,7 @@
 """One factorization of the Taylor-Hood saddle point with SuperLU (`SparseSolver` ``"lu"``: L and U, METIS
 nested dissection, diagonal pivots) and with MKL PARDISO (``"pardiso"``: symmetric indefinite L D L^T of
 one triangle, `hyperoc.solvers.pardiso`), per nested level of the idealized LV (h0 = 6 mm, Land problem 2,
-P2-P1 at kappa = inf, isochoric Guccione, clamped base): the first Newton matrix (`bench_ordering.step_blocks`).
+P2-P1 at bulk modulus inf, isochoric Guccione, clamped base): the first Newton matrix (`bench_ordering.step_blocks`).
 
 Each (level, method) runs in a fresh subprocess, so its peak resident set (``ru_maxrss``) is its own:
 printed are the unknowns, the seconds of the first factorization (with PARDISO's METIS analysis) and of a
@@ -41,7 +41,7 @@ def child(level: int, method: str) -> dict:
     from bench_ordering import measure, step_blocks
     from hyperoc.cardiac.land import ventricle_problem
 
-    model, follower = ventricle_problem(6.0, kappa=math.inf, volumetric="taylor-hood", isochoric=True,
+    model, follower = ventricle_problem(6.0, bulk_modulus=math.inf, volumetric="taylor-hood", isochoric=True,
                                         refinements=level)
     blocks = step_blocks(model, follower)
     before = rss_gb()
@@ -69,8 +69,8 @@ def main():
                                  text=True, check=True).stdout
             rows.append(json.loads(out.strip().splitlines()[-1]))
             print(json.dumps(rows[-1]), flush=True)
-    runs = Table(f"One factorization of the Taylor-Hood saddle point (Land problem 2, h0 = 6 mm nested, kappa = inf), "
-                 f"{rows[0]['cores']} core(s)",
+    runs = Table("One factorization of the Taylor-Hood saddle point (Land problem 2, h0 = 6 mm nested, "
+                 f"bulk modulus inf), {rows[0]['cores']} core(s)",
                  ["level", "unknowns", "nnz(K)", "method", "1st factor (s)", "refactor (s)", "factor entries (M)",
                   "backward error", "RSS before (GB)", "peak RSS (GB)"],
                  "lu: SuperLU (L and U, nested dissection, diagonal pivots); pardiso: MKL PARDISO's symmetric "

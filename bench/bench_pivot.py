@@ -6,8 +6,8 @@ refinement falls short), on the first Newton matrix of Land problem 2 (`bench_or
 tangent at rest plus the follower stiffness at 10 kPa; idealized LV, curved P2, clamped base, nested
 meshes of h0 = 6) in two formulations:
 
-- ``pointwise``: P2 displacement, Guccione with the penalty kappa = 1000 kPa (positive definite at rest);
-- ``taylor-hood``: P2-P1 (`hyperoc.mechanics.mixed.TaylorHoodModel`), isochoric Guccione at kappa = inf, whose
+- ``pointwise``: P2 displacement, Guccione with the penalty's bulk modulus 1000 kPa (positive definite at rest);
+- ``taylor-hood``: P2-P1 (`hyperoc.mechanics.mixed.TaylorHoodModel`), isochoric Guccione at bulk modulus inf, whose
   pressure block is zero: a saddle point.
 
 For each it prints the factorization times, the stored L + U entries, the off-diagonal pivots and the
@@ -36,12 +36,12 @@ from hyperoc.solvers.linsolve import SparseSolver
 from results import Table, command_line, write_results
 
 THRESHOLDS = (0.1, 0.0)  # threshold partial pivoting; diagonal pivots (the default)
-FORMULATIONS = {"pointwise": {"kappa": 1000.0},
-                "taylor-hood": {"kappa": math.inf, "volumetric": "taylor-hood", "isochoric": True}}
+FORMULATIONS = {"pointwise": {"bulk_modulus": 1000.0},
+                "taylor-hood": {"bulk_modulus": math.inf, "volumetric": "taylor-hood", "isochoric": True}}
 
 
 def whole_solve(level: int, h0: float, thresh: float) -> dict:
-    """Problem 2, Taylor-Hood at kappa = inf, isochoric, clamped: the solve with ``pivot_thresh``."""
+    """Problem 2, Taylor-Hood at bulk modulus inf, isochoric, clamped: the solve with ``pivot_thresh``."""
     model, follower = ventricle_problem(h0, refinements=level, **FORMULATIONS["taylor-hood"])
     solver = SparseSolver(model, "lu", pivot_thresh=thresh)
     t0 = time.perf_counter()
@@ -78,8 +78,8 @@ def main():
                  "clamped base) with each pivot threshold",
                  ["level", "formulation", "dofs", "pivot_thresh", "1st factor (s)", "refactor (s)",
                   "stored L+U entries", "off-diagonal pivots", "fallbacks", "backward error"],
-                 "pointwise: P2 displacement, Guccione with kappa = 1000 kPa; taylor-hood: P2-P1, isochoric "
-                 "Guccione at kappa = inf (a saddle point with a zero pressure block).")
+                 "pointwise: P2 displacement, Guccione with bulk modulus 1000 kPa; taylor-hood: P2-P1, isochoric "
+                 "Guccione at bulk modulus inf (a saddle point with a zero pressure block).")
     ratios = Table("Diagonal pivots (threshold 0) against threshold 0.1, same process",
                    ["level", "formulation", "dofs", "refactor time 0 / 0.1", "fill 0 / 0.1"])
     for level in (int(v) for v in args.levels.split(",")):

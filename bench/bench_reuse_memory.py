@@ -1,7 +1,7 @@
 """Memory and time of the sparse direct solvers over a whole quasi-static solve (`SparseSolver`
 methods, default ``"lu"`` against ``"lu_reuse"``: SuperLU with and without a kept factorization;
 ``--methods lu_reuse,pardiso_reuse``: SuperLU's LU against MKL PARDISO's symmetric LDL^T): Land problem
-2, Taylor-Hood P2-P1 at kappa = inf, isochoric Guccione, clamped base, nested level ``--level`` of h0 = 6 mm.
+2, Taylor-Hood P2-P1 at bulk modulus inf, isochoric Guccione, clamped base, nested level ``--level`` of h0 = 6 mm.
 
 Each method runs in a fresh subprocess (memory is not returned between runs); the child wraps the
 solver's ``host_solve`` to record the resident set size (``VmRSS``) after every call. Printed per
@@ -45,7 +45,8 @@ def child(method: str, level: int, steps: int) -> dict:
     from hyperoc.dynamics.statics import solve_static
     from hyperoc.solvers.linsolve import SparseSolver
 
-    model, load = ventricle_problem(6.0, kappa=math.inf, volumetric="taylor-hood", isochoric=True, refinements=level)
+    model, load = ventricle_problem(6.0, bulk_modulus=math.inf, volumetric="taylor-hood", isochoric=True,
+                                    refinements=level)
     lin = SparseSolver(model, method)
     solve, trace = lin.host_solve, []
 

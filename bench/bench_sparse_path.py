@@ -43,7 +43,7 @@ VARIANTS = {"full/lu": ("full", "lu"), "full/lu_reuse": ("full", "lu_reuse"), "c
 def case(degree: int):
     mesh = annulus(0.5, 1.0, structured=True, n_radial=40, n_theta=128)
     control = ho.BodyForce(ho.Region("sector", r_range=(0.5, 0.6), theta_range=(-np.pi, np.pi)))
-    return ho.StateModel(mesh, ho.SaintVenantKirchhoff(0.05, 0.05), degree=degree, kappa=2e-4, control=control)
+    return ho.StateModel(mesh, ho.SaintVenantKirchhoff(0.05, 0.05), degree=degree, damping=2e-4, control=control)
 
 
 def run(model, grid, xi, newton: str, solver: str) -> dict:

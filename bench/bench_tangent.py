@@ -101,7 +101,7 @@ def build(name):
     mesh_key, degree, material, frames_fn = CASES[name]
     mesh = mesh_of(*mesh_key)
     frames = None if frames_fn is None else frames_fn(mesh)
-    return {cls: cls(mesh, material, degree=degree, kappa=0.01, frames=frames)
+    return {cls: cls(mesh, material, degree=degree, damping=0.01, frames=frames)
             for cls in (HessianTangentModel, ho.StateModel)}
 
 

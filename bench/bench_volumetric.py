@@ -1,7 +1,7 @@
 """What the cell-mean bulk term costs: `StateModel` ``volumetric="cell-mean"`` (mixed P2-P0,
 condensed) against ``"pointwise"`` (the baseline), same process, interleaved.
 
-Per mesh (Land problem 2: idealized LV, curved P2, Guccione, kappa = 1000 kPa, nested levels of
+Per mesh (Land problem 2: idealized LV, curved P2, Guccione, bulk modulus 1000 kPa, nested levels of
 h0 = 6 mm), both models are built and the jitted internal force and element tangents evaluated at
 the same smooth displacement: first call (trace + compile + run) and the best of ``--reps`` later
 calls, alternating the two formulations. Printed: seconds and the ratio cell-mean / pointwise.
@@ -40,7 +40,7 @@ def timed(fn, u) -> float:
 
 
 def level_row(h0: float, level: int, reps: int) -> dict:
-    built = {m: kernels(ventricle_problem(h0, kappa=1000.0, refinements=level, volumetric=m)[0]) for m in MODES}
+    built = {m: kernels(ventricle_problem(h0, bulk_modulus=1000.0, refinements=level, volumetric=m)[0]) for m in MODES}
     first = {m: timed(*built[m]) for m in MODES}
     later = {m: float("inf") for m in MODES}
     for _ in range(reps):
@@ -57,7 +57,7 @@ def main():
     ap.add_argument("--reps", type=int, default=5)
     args = ap.parse_args()
     out = Table(f"Internal force and element tangents, Land problem 2 (curved P2 LV, h0 = {args.h0:g} mm, "
-                f"kappa = 1000 kPa): first call and best of {args.reps} later calls",
+                f"bulk modulus 1000 kPa): first call and best of {args.reps} later calls",
                 ["level", "dofs", "1st call pointwise (s)", "1st call cell-mean (s)", "later pointwise (s)",
                  "later cell-mean (s)", "later cell-mean / pointwise"],
                 "The first call includes tracing and XLA compilation. Same sparsity in both formulations, so "

@@ -1,7 +1,7 @@
 """Is the paper's 1D problem well posed? The end point of Algorithm 1 under refinement, with and without
 the cost ``beta/2 ||d xi/dt||^2`` (controls H^1 in time).
 
-Setup: the paper's Table tab-param (SVK mu = lambda = 0.05, kappa = 2e-4, alpha = 2e-3, T = 15,
+Setup: the paper's Table tab-param (SVK mu = lambda = 0.05, damping kappa = 2e-4, alpha = 2e-3, T = 15,
 omega = [0.75, 1], phi1 = p(tau), P1), start (xi, tau) = (0, 7.5), Algorithm 1 (``method = "bb"``) to a
 relative gradient norm of 1e-6 or ``--max-iter`` iterations.
 

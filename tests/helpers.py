@@ -32,11 +32,11 @@ from hyperoc.control.verification import random_directions
 
 
 @cache
-def bar(cells: int, kappa: float = 2e-3, omega: tuple = (0.75, 1.0),
+def bar(cells: int, damping: float = 2e-3, omega: tuple = (0.75, 1.0),
         material=SaintVenantKirchhoff(0.05, 0.05)) -> StateModel:
-    """The paper's 1D bar on [0, 1] (``cells`` P1 cells, damping ``kappa``, Saint Venant-Kirchhoff
+    """The paper's 1D bar on [0, 1] (``cells`` P1 cells, damping ``damping``, Saint Venant-Kirchhoff
     mu = lambda = 0.05 unless another material is given) with a body-force control on ``omega``."""
-    return StateModel(interval(cells), material, kappa=kappa,
+    return StateModel(interval(cells), material, damping=damping,
                       control=BodyForce(Region("box", lower=omega[:1], upper=omega[1:])))
 
 
@@ -60,7 +60,7 @@ def _checkpointing_problem(kind: str) -> ReducedFunctional:
         return ReducedFunctional(bar(20), TimeTransform.for_step(1.75, 0.25, 0.75, 0.25),
                                  Objective(at_tau=PressureRise(0.25), terminal=(LevelReads(),)))
     if kind == "sparse-3d":  # sparse LU: every path runs the jitted step from Python
-        model = StateModel(box(1, dirichlet="left"), SaintVenantKirchhoff(1.0, 1.0), kappa=0.05,
+        model = StateModel(box(1, dirichlet="left"), SaintVenantKirchhoff(1.0, 1.0), damping=0.05,
                            control=BodyForce(Region("box", lower=(0.5, 0.0, 0.0), upper=(1.0, 1.0, 1.0))))
         return ReducedFunctional(model, TimeTransform.for_step(0.7, 0.1, 0.3), Objective(at_tau=PressureAt()),
                                  solver="lu")
@@ -94,7 +94,7 @@ lambda = 0.05
 [dynamics]
 T = 2.0
 dt = {dt}
-kappa = 2e-3
+damping = 2e-3
 [control]
 kind = "body_force"
 region = {{ kind = "box", lower = [{lower}], upper = [1.0] }}{control}

@@ -190,7 +190,7 @@ def test_fibre_tension_needs_fibres_and_a_finite_value():
 
 @pytest.fixture(scope="module")
 def problem3():
-    return contraction_problem(6.0, kappa=math.inf, volumetric="taylor-hood", isochoric=True)
+    return contraction_problem(6.0, bulk_modulus=math.inf, volumetric="taylor-hood", isochoric=True)
 
 
 def test_contraction_problem_is_land_problem_3(problem3):

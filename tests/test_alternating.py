@@ -1,6 +1,6 @@
 """No alternating (period 2 dt) mode in the pressure with the step multiplier.
 
-The paper's 1D case (SVK mu = lam = 0.05, kappa = 2e-4, h = 0.01, dt = 0.02, body force on
+The paper's 1D case (SVK mu = lam = 0.05, damping kappa = 2e-4, h = 0.01, dt = 0.02, body force on
 [0.75, 1]). The spatial profile of the control is ``b(x) = sin(pi (x - 0.75) / 0.5)^2``, with
 ``b(1) = 1``: a load at x = 1 is felt at once by the reaction p (an optimizer puts load there).
 
@@ -74,7 +74,7 @@ def second_difference(p, stride=1):
 
 @lru_cache(maxsize=None)
 def model():
-    return StateModel(interval(100), SaintVenantKirchhoff(mu=0.05, lam=0.05), degree=1, kappa=2e-4,
+    return StateModel(interval(100), SaintVenantKirchhoff(mu=0.05, lam=0.05), degree=1, damping=2e-4,
                       control=BodyForce(Region("box", lower=(0.75,), upper=(1.0,))))
 
 
@@ -111,7 +111,7 @@ def consistent_pressure(sol, xi):
     np.testing.assert_allclose(np.asarray(m.jitted["volume_gradient"](jnp.asarray(sol.y0[-1]))), G, atol=1e-14)
     MinvG = lu.solve(G)
     R = np.array([np.asarray(m.jitted["internal_force"](jnp.asarray(y))) for y in sol.y0])
-    rhs = (m.control.load @ xi.T).T - m.kappa * (m.laplace @ sol.y1.T).T - R
+    rhs = (m.control.load @ xi.T).T - m.damping * (m.laplace @ sol.y1.T).T - R
     return (lu.solve(rhs.T).T @ G) / (G @ MinvG)
 
 
@@ -207,7 +207,7 @@ def test_theta_multiplier_starts_from_the_consistent_pressure_without_oscillatio
     R0 = np.asarray(m.jitted["internal_force"](jnp.asarray(u0)))
     e = np.zeros(m.n)
     e[-1] = 1.0
-    p0 = lu.solve(m.control.load @ xi[0] - m.kappa * (m.laplace @ v0) - R0)[-1] / lu.solve(e)[-1]
+    p0 = lu.solve(m.control.load @ xi[0] - m.damping * (m.laplace @ v0) - R0)[-1] / lu.solve(e)[-1]
     assert abs(p0) > 1e-4
     assert sol.pressure[0] == pytest.approx(p0, rel=1e-12)
     # no oscillation from the start: p_n is the consistent value at every level (1D identity), so

@@ -62,7 +62,7 @@ def envelope(t):
 @lru_cache(maxsize=None)
 def mesh_case(cells):
     """Model and stepper of a mesh (one compiled time loop per mesh, shared by both profiles)."""
-    model = StateModel(interval(cells), SaintVenantKirchhoff(mu=MU, lam=LAM), degree=1, kappa=KAPPA,
+    model = StateModel(interval(cells), SaintVenantKirchhoff(mu=MU, lam=LAM), degree=1, damping=KAPPA,
                        control=BodyForce(Region("box", lower=(0.75,), upper=(1.0,))))
     return model, TimeStepper(model, Scheme(theta=0.5))
 

@@ -37,11 +37,11 @@ from hyperoc.mechanics.materials import (
 from test_materials import rotation  # a proper rotation; its rows serve as an orthonormal frame
 
 MATERIALS = {
-    "guccione-p1": Guccione(),  # Land et al. 2015 problems 1/3, kappa = 1000 kPa
-    "guccione-p2": Guccione(C=10.0, bf=1.0, bt=1.0, bfs=1.0, kappa=50.0),
-    "guccione-isochoric": Guccione(kappa=50.0, isochoric=True),
-    "holzapfel-ogden": HolzapfelOgden(),  # the 2009 fit, kappa = 1000 kPa
-    "holzapfel-ogden-soft-bulk": HolzapfelOgden(kappa=5.0),
+    "guccione-p1": Guccione(),  # Land et al. 2015 problems 1/3, bulk modulus 1000 kPa
+    "guccione-p2": Guccione(C=10.0, bf=1.0, bt=1.0, bfs=1.0, bulk_modulus=50.0),
+    "guccione-isochoric": Guccione(bulk_modulus=50.0, isochoric=True),
+    "holzapfel-ogden": HolzapfelOgden(),  # the 2009 fit, bulk modulus 1000 kPa
+    "holzapfel-ogden-soft-bulk": HolzapfelOgden(bulk_modulus=5.0),
 }
 
 
@@ -154,15 +154,15 @@ def test_holzapfel_ogden_reference_tangent_is_the_slack_limit():
 
 @pytest.mark.parametrize("d", [2, 3])
 def test_guccione_energy_is_the_component_formula(d):
-    """W = C/2 (exp(Q) - 1) + kappa/4 (J^2 - 1 - 2 ln J) with Q in the frame components E_ab = a.E b
+    """W = C/2 (exp(Q) - 1) + bulk_modulus/4 (J^2 - 1 - 2 ln J) with Q in the frame components E_ab = a.E b
     (the code uses the projector form P = I - f f^T)."""
-    material = Guccione(C=2.0, bf=8.0, bt=2.0, bfs=4.0, kappa=30.0)
+    material = Guccione(C=2.0, bf=8.0, bt=2.0, bfs=4.0, bulk_modulus=30.0)
     F, frame = sample_points(d)["generic"]
     E = 0.5 * (F.T @ F - np.eye(d))
     Eh = frame @ E @ frame.T  # components in (f, s[, n])
     Q = material.bf * Eh[0, 0] ** 2 + material.bt * np.sum(Eh[1:, 1:] ** 2) + 2 * material.bfs * np.sum(Eh[0, 1:] ** 2)
     J = np.linalg.det(F)
-    expected = 0.5 * material.C * np.expm1(Q) + material.kappa / 4 * (J**2 - 1 - 2 * np.log(J))
+    expected = 0.5 * material.C * np.expm1(Q) + material.bulk_modulus / 4 * (J**2 - 1 - 2 * np.log(J))
     assert W(material, F, frame) == pytest.approx(expected, rel=1e-13)
 
 
@@ -170,14 +170,14 @@ def test_guccione_energy_is_the_component_formula(d):
 def test_isochoric_guccione_is_the_law_on_the_isochoric_strain(d):
     """``isochoric=True``: W = C/2 (exp(Q(Ebar)) - 1) + U(J), Ebar = (J^(-2/d) C - I)/2. It equals the
     plain law at J = 1, and without U it does not see a dilatation: W(s F) = W(F)."""
-    plain, iso = Guccione(kappa=30.0), Guccione(kappa=30.0, isochoric=True)
+    plain, iso = Guccione(bulk_modulus=30.0), Guccione(bulk_modulus=30.0, isochoric=True)
     F, frame = sample_points(d)["generic"]
     J = np.linalg.det(F)
     unimodular = F / J ** (1.0 / d)
     assert W(iso, unimodular, frame) == pytest.approx(W(plain, unimodular, frame), rel=1e-13)
-    U = lambda J: iso.kappa / 4 * (J**2 - 1 - 2 * np.log(J))
+    U = lambda J: iso.bulk_modulus / 4 * (J**2 - 1 - 2 * np.log(J))
     assert W(iso, F, frame) == pytest.approx(W(plain, unimodular, frame) + U(J), rel=1e-13)
-    rest = Guccione(kappa=0.0, isochoric=True)
+    rest = Guccione(bulk_modulus=0.0, isochoric=True)
     assert W(rest, 1.3 * F, frame) == pytest.approx(W(rest, F, frame), rel=1e-13)
 
 
@@ -188,12 +188,12 @@ def _uniaxial_stress(material, stretches):
 
 
 def test_guccione_without_bulk_term_loses_ellipticity_in_compression_unless_isochoric():
-    """Land problem 2's law with kappa = 0 (the rest a cell-mean bulk term leaves pointwise): on the full
+    """Land problem 2's law with bulk_modulus = 0 (the rest a cell-mean bulk term leaves pointwise): on the full
     strain, the uniaxial stress P(lambda) = C exp(Q) lambda (lambda^2 - 1)/2 peaks where
     3 lambda^2 - 1 + lambda^2 (lambda^2 - 1)^2 = 0, lambda = 0.534 (a compression that the law no longer
     resists); on the isochoric strain it increases for every lambda in (0, 1] and its W grows without
     bound as lambda -> 0 (the transverse Ebar_22 ~ lambda^(-2/3) / 2)."""
-    p2 = dict(C=10.0, bf=1.0, bt=1.0, bfs=1.0, kappa=0.0)
+    p2 = dict(C=10.0, bf=1.0, bt=1.0, bfs=1.0, bulk_modulus=0.0)
     stretches = np.linspace(0.05, 1.0, 400)
     plain = _uniaxial_stress(Guccione(**p2), stretches)
     iso = _uniaxial_stress(Guccione(**p2, isochoric=True), stretches)
@@ -208,7 +208,7 @@ def test_guccione_without_bulk_term_loses_ellipticity_in_compression_unless_isoc
 
 @pytest.mark.parametrize("label", ["generic", "fibre-tension", "fibre-slack"])
 def test_holzapfel_ogden_energy_is_the_documented_formula(label):
-    m = HolzapfelOgden(kappa=30.0)
+    m = HolzapfelOgden(bulk_modulus=30.0)
     F, frame = sample_points(3)[label]
     C, J = F.T @ F, np.linalg.det(F)
     f, s = frame[0], frame[1]
@@ -217,7 +217,7 @@ def test_holzapfel_ogden_energy_is_the_documented_formula(label):
                 + m.af / (2 * m.bf) * np.expm1(m.bf * pos(f @ C @ f - 1) ** 2)
                 + m.as_ / (2 * m.bs) * np.expm1(m.bs * pos(s @ C @ s - 1) ** 2)
                 + m.afs / (2 * m.bfs) * np.expm1(m.bfs * (f @ C @ s) ** 2)
-                + m.kappa / 4 * (J**2 - 1 - 2 * np.log(J)))
+                + m.bulk_modulus / 4 * (J**2 - 1 - 2 * np.log(J)))
     assert W(m, F, frame) == pytest.approx(expected, rel=1e-13)
 
 
@@ -258,13 +258,13 @@ def test_fibre_direction_is_stiffer(d):
     """Uniaxial stretch lambda = 1.1 along a, F = I + (lambda - 1) a (x) a: the same J = lambda either way,
     so Guccione's energies differ only in Q = b E_aa^2 with b = bf (along f) or bt (across):
     exactly W = C/2 expm1(b E^2) + U(J), and the fibre direction carries more energy and normal
-    stress (the volumetric part, the same in both, dominates the stress at kappa = 1000 kPa).
+    stress (the volumetric part, the same in both, dominates the stress at bulk modulus 1000 kPa).
     Holzapfel-Ogden: f (af = 18.5 kPa) > s (as = 2.5 kPa) in energy and stress."""
     lam, frame = 1.1, rotation(d, 21)
     E, J = (lam**2 - 1) / 2, lam
     along = lambda a: np.eye(d) + (lam - 1) * np.outer(a, a)
     g = MATERIALS["guccione-p1"]
-    U = g.kappa / 4 * (J**2 - 1 - 2 * np.log(J))
+    U = g.bulk_modulus / 4 * (J**2 - 1 - 2 * np.log(J))
     Wf, Ws = W(g, along(frame[0]), frame), W(g, along(frame[1]), frame)
     assert Wf == pytest.approx(0.5 * g.C * np.expm1(g.bf * E**2) + U, rel=1e-12)
     assert Ws == pytest.approx(0.5 * g.C * np.expm1(g.bt * E**2) + U, rel=1e-12)
@@ -292,7 +292,7 @@ def test_holzapfel_ogden_fibres_bear_no_compression():
     ({"law": "guccione", "bf": -8.0}, "bf"),
     ({"law": "guccione", "bt": 0.0}, "bt"),
     ({"law": "guccione", "bfs": float("nan")}, "bfs"),
-    ({"law": "guccione", "kappa": -1.0}, "kappa"),
+    ({"law": "guccione", "bulk_modulus": -1.0}, "bulk_modulus"),
     ({"law": "guccione", "C": float("inf")}, "C"),
     ({"law": "guccione", "mu": 1.0}, "unknown"),
     ({"law": "holzapfel-ogden", "a": 0.0}, "a"),
@@ -300,7 +300,7 @@ def test_holzapfel_ogden_fibres_bear_no_compression():
     ({"law": "holzapfel-ogden", "af": -1.0}, "af"),
     ({"law": "holzapfel-ogden", "as": -0.5}, "as"),
     ({"law": "holzapfel-ogden", "bfs": 0.0}, "bfs"),
-    ({"law": "holzapfel-ogden", "kappa": 0.0}, "kappa"),
+    ({"law": "holzapfel-ogden", "bulk_modulus": 0.0}, "bulk_modulus"),
     ({"law": "holzapfel-ogden", "bs": "big"}, "bs"),
     ({"law": "guccione", "isochoric": 1}, "isochoric"),
     ({"law": "guccione", "isochoric": "yes"}, "isochoric"),
@@ -313,8 +313,8 @@ def test_bad_parameters_raise_input_error_naming_the_parameter(cfg, word):
 def test_direct_construction_is_validated():
     with pytest.raises(InputError, match="Guccione: C must be"):
         Guccione(C=-1.0).validate()
-    with pytest.raises(InputError, match="Holzapfel-Ogden: kappa must be"):
-        HolzapfelOgden(kappa=-3.0).validate()
+    with pytest.raises(InputError, match="Holzapfel-Ogden: bulk_modulus must be"):
+        HolzapfelOgden(bulk_modulus=-3.0).validate()
 
 
 def test_missing_frame_is_an_input_error():
@@ -328,8 +328,8 @@ def test_config_builds_the_laws():
     assert (material_from_config({"law": "Guccione", "C": 10, "bf": 1, "bt": 1, "bfs": 1})
             == Guccione(C=10.0, bf=1.0, bt=1.0, bfs=1.0))
     assert material_from_config({"law": "guccione", "isochoric": True}) == Guccione(isochoric=True)
-    ho = material_from_config({"law": "holzapfel-ogden", "as": 2.0, "kappa": 500})
-    assert ho == HolzapfelOgden(as_=2.0, kappa=500.0)
+    ho = material_from_config({"law": "holzapfel-ogden", "as": 2.0, "bulk_modulus": 500})
+    assert ho == HolzapfelOgden(as_=2.0, bulk_modulus=500.0)
 
 
 def test_library_finite_difference_check_takes_a_frame():

@@ -18,7 +18,7 @@ STEPS = 20
 def model():
     mesh = annulus(0.5, 1.0, structured=True, n_radial=3, n_theta=16)
     control = ho.BodyForce(ho.Region("sector", r_range=(0.5, 0.7), theta_range=(-np.pi, np.pi)))
-    return ho.StateModel(mesh, ho.SaintVenantKirchhoff(0.05, 0.05), kappa=2e-3, control=control)
+    return ho.StateModel(mesh, ho.SaintVenantKirchhoff(0.05, 0.05), damping=2e-3, control=control)
 
 
 def push(model, grid):

@@ -17,7 +17,7 @@ from hyperoc.control.continuous_adjoint import continuous_gradient
 
 
 def _deviation(dt, at_tau, eps, cells):
-    model = bar(cells, kappa=1e-2, omega=(0.5, 1.0))
+    model = bar(cells, damping=1e-2, omega=(0.5, 1.0))
     J = ReducedFunctional(model, TimeTransform.for_step(4.0, dt, 2.0, eps), Objective(at_tau=at_tau))
     s = J.transform.s_levels()
     x = model.control.coordinates(model.space)[:, 0]

@@ -58,7 +58,7 @@ def balance_terms(sol, xi, n):
     np.testing.assert_allclose(dy, dt[:, None] * w, rtol=1e-9, atol=1e-12 * np.abs(y0).max())
     load = (m.control.load @ (0.5 * (xi[1 : n + 1] + xi[:n])).T).T
     work = dt * np.einsum("ni,ni->n", w, load)
-    diss = dt * m.kappa * np.einsum("ni,ni->n", w, (m.laplace @ w.T).T)
+    diss = dt * m.damping * np.einsum("ni,ni->n", w, (m.laplace @ w.T).T)
     G = np.array([np.asarray(m.jitted["volume_gradient"](jnp.asarray(y))) for y in y0])
     mult = sol.p_steps[:n] * np.einsum("ni,ni->n", dy, 0.5 * (G[1:] + G[:-1]))
     return np.diff(E), work, diss, mult, E
@@ -85,8 +85,8 @@ def _smooth_control_study(model, bump, T, A, steps):
 
 @lru_cache(maxsize=None)
 def damped_1d():
-    """The paper's bar with kappa = 1e-2 and a strong smooth control (min det F ~ 0.91)."""
-    model = StateModel(interval(100), SaintVenantKirchhoff(mu=0.05, lam=0.05), degree=1, kappa=1e-2,
+    """The paper's bar with damping kappa = 1e-2 and a strong smooth control (min det F ~ 0.91)."""
+    model = StateModel(interval(100), SaintVenantKirchhoff(mu=0.05, lam=0.05), degree=1, damping=1e-2,
                        control=BodyForce(Region("box", lower=(0.75,), upper=(1.0,))))
     x = model.control.coordinates(model.space)[:, 0]
     bump = np.sin(np.pi * (x - 0.75) / 0.25) ** 2
@@ -98,7 +98,7 @@ def damped_1d():
 def damped_2d():
     """Structured annulus, active stress: here G depends on u (the multiplier term is not trivial)."""
     mesh = annulus(0.5, 1.0, structured=True, n_radial=2, n_theta=16)
-    model = StateModel(mesh, SaintVenantKirchhoff(mu=0.05, lam=0.05), degree=1, kappa=1e-2,
+    model = StateModel(mesh, SaintVenantKirchhoff(mu=0.05, lam=0.05), degree=1, damping=1e-2,
                        control=ActiveStress(Region()))
     x = model.control.coordinates(model.space)
     r, ang = np.hypot(x[:, 0], x[:, 1]), np.arctan2(x[:, 1], x[:, 0])
@@ -147,9 +147,9 @@ def test_energy_mismatch_is_the_strain_energy_trapezoid_error():
 
 @lru_cache(maxsize=None)
 def free_vibration_1d():
-    """kappa = 0, smooth control on [0, 1], free vibration on [1, 3]. Mesh h = 1/50 so that every
+    """No damping (kappa = 0), smooth control on [0, 1], free vibration on [1, 3]. Mesh h = 1/50 so that every
     mode of the mesh is resolved by the finest dt (c dt / h <= 0.25) and the rate is asymptotic."""
-    model = StateModel(interval(50), SaintVenantKirchhoff(mu=0.05, lam=0.05), degree=1, kappa=0.0,
+    model = StateModel(interval(50), SaintVenantKirchhoff(mu=0.05, lam=0.05), degree=1, damping=0.0,
                        control=BodyForce(Region("box", lower=(0.75,), upper=(1.0,))))
     x = model.control.coordinates(model.space)[:, 0]
     bump = np.sin(np.pi * (x - 0.75) / 0.25) ** 2

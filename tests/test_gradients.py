@@ -58,7 +58,7 @@ def test_taylor_1d(phi1, eps):
 @pytest.mark.parametrize("degree", [1, 2])
 def test_taylor_2d_annulus(degree):
     mesh = annulus(0.5, 1.0, structured=True, n_radial=2, n_theta=12)
-    model = StateModel(mesh, NeoHookean(1.0, 2.0), degree=degree, kappa=0.05,
+    model = StateModel(mesh, NeoHookean(1.0, 2.0), degree=degree, damping=0.05,
                        control=ActiveStress(Region("sector", r_range=(0.5, 1.0), theta_range=(-1.0, 1.0))))
     J = ReducedFunctional(model, TimeTransform.for_step(1.0, 0.05, 0.5, 0.1), Objective(at_tau=PressureRise(0.1)))
     _assert_rates(J, _point(J, 0.5, 0.5))
@@ -67,7 +67,7 @@ def test_taylor_2d_annulus(degree):
 @pytest.mark.slow
 def test_taylor_3d_box():
     mesh = box(2, dirichlet="left")
-    model = StateModel(mesh, SaintVenantKirchhoff(1.0, 1.0), kappa=0.05,
+    model = StateModel(mesh, SaintVenantKirchhoff(1.0, 1.0), damping=0.05,
                        control=BodyForce(Region("box", lower=(0.5, 0.0, 0.0), upper=(1.0, 1.0, 1.0))))
     J = ReducedFunctional(model, TimeTransform.for_step(0.6, 0.05, 0.3), Objective(at_tau=PressureAt()))
     _assert_rates(J, _point(J, 0.3, 0.5))
@@ -91,7 +91,7 @@ def test_wrong_gradient_is_detected():
 def test_taylor_2d_annulus_cell_mean():
     """The bulk term on each cell's mean J (mixed P2-P0, `StateModel` volumetric): still exact."""
     mesh = annulus(0.5, 1.0, structured=True, n_radial=2, n_theta=12)
-    model = StateModel(mesh, NeoHookean(1.0, 50.0), degree=2, kappa=0.05, volumetric="cell-mean",
+    model = StateModel(mesh, NeoHookean(1.0, 50.0), degree=2, damping=0.05, volumetric="cell-mean",
                        control=ActiveStress(Region("sector", r_range=(0.5, 1.0), theta_range=(-1.0, 1.0))))
     J = ReducedFunctional(model, TimeTransform.for_step(1.0, 0.05, 0.5, 0.1), Objective(at_tau=PressureRise(0.1)))
     _assert_rates(J, _point(J, 0.5, 0.5))

@@ -6,13 +6,13 @@
   the same pressure on the lid closing the cavity at the base, with the opposite sign: ``-p A_lid e_z``
   (the closed surface wall + lid has zero total area vector), A_lid = area of the polygon spanned by
   the rim of the endocardial surface (exact for the faceted surface).
-- Coarse beam solve (n = 1, P2, kappa = 500 C): the tip must move up (the pressure acts on the
+- Coarse beam solve (n = 1, P2, bulk modulus 500 C): the tip must move up (the pressure acts on the
   bottom face), and by less than linear Timoshenko beam theory for the same small-strain moduli: the
   conforming displacement FE model is stiffer than the continuum, the follower pressure turns with the
   rotating bottom face, the arc-length-preserving bending shortens the vertical travel, and Guccione's
   exp(Q) stiffens with strain, all of which lower the deflection. Small-strain moduli of
-  ``C/2 Q + kappa/2 (tr eps)^2``: along the fibres (uniaxial stress) ``E = C bf + kappa C bt /
-  (C bt + 2 kappa)``, transverse shear ``G = C bfs / 2``; deflection ``q L^4 / (8 E I) + q L^2 /
+  ``C/2 Q + K/2 (tr eps)^2`` (K the bulk modulus): along the fibres (uniaxial stress)
+  ``E = C bf + K C bt / (C bt + 2 K)``, transverse shear ``G = C bfs / 2``; deflection ``q L^4 / (8 E I) + q L^2 /
   (2 k G A)`` with q = p b, I = b t^3 / 12, A = b t, k = 5/6.
 """
 
@@ -31,7 +31,7 @@ from hyperoc.cardiac.land import (
 )
 from hyperoc.errors import InputError
 
-KAPPA = 1000.0  # kPa, = 500 C for the beam
+BULK_MODULUS = 1000.0  # kPa, = 500 C for the beam
 
 
 def resultant(fol, n):
@@ -39,9 +39,9 @@ def resultant(fol, n):
 
 
 def test_beam_setup_is_land_problem_1():
-    model, fol = beam_problem(1, kappa=KAPPA)
+    model, fol = beam_problem(1, bulk_modulus=BULK_MODULUS)
     mat = model.material
-    assert (mat.C, mat.bf, mat.bt, mat.bfs, mat.kappa) == (2.0, 8.0, 2.0, 4.0, KAPPA)
+    assert (mat.C, mat.bf, mat.bt, mat.bfs, mat.bulk_modulus) == (2.0, 8.0, 2.0, 4.0, BULK_MODULUS)
     fibres = np.unique(np.asarray(model._frames)[..., 0, :].reshape(-1, 3), axis=0)  # frame row 0 = f
     np.testing.assert_array_equal(fibres, [[1.0, 0.0, 0.0]])
     clamped = np.setdiff1d(np.arange(model.space.num_dofs), model.free) // 3
@@ -54,7 +54,7 @@ def test_beam_setup_is_land_problem_1():
 
 
 def test_ventricle_pressure_resultant_is_the_lid_force():
-    model, fol = ventricle_problem(6.0, kappa=KAPPA, degree=1)
+    model, fol = ventricle_problem(6.0, bulk_modulus=BULK_MODULUS, degree=1)
     mesh = model.mesh
     endo = mesh.boundary("endocardium")
     edges = np.sort(np.concatenate([endo[:, [i, j]] for i, j in ((0, 1), (1, 2), (0, 2))]), axis=1)
@@ -71,9 +71,9 @@ def test_ventricle_pressure_resultant_is_the_lid_force():
 
 @pytest.mark.slow
 def test_coarse_beam_deflects_up_by_less_than_linear_beam_theory():
-    res = beam_deflection(1, kappa=KAPPA, steps=4)
+    res = beam_deflection(1, bulk_modulus=BULK_MODULUS, steps=4)
     C, bf, bt, bfs, p = (BEAM[k] for k in ("C", "bf", "bt", "bfs", "pressure"))
-    E = C * bf + KAPPA * C * bt / (C * bt + 2 * KAPPA)
+    E = C * bf + BULK_MODULUS * C * bt / (C * bt + 2 * BULK_MODULUS)
     G = C * bfs / 2
     q, L, b, t = p * 1.0, 10.0, 1.0, 1.0
     linear = q * L**4 / (8 * E * b * t**3 / 12) + q * L**2 / (2 * 5 / 6 * G * b * t)

@@ -106,7 +106,7 @@ def linear_crank_nicolson(M, K, KL, G0, loads, dt, kappa, theta=0.5):
 @pytest.fixture(scope="module")
 def setting():
     mesh = rectangle(8)
-    model = StateModel(mesh, SaintVenantKirchhoff(MU, LAM), degree=1, kappa=KAPPA,
+    model = StateModel(mesh, SaintVenantKirchhoff(MU, LAM), degree=1, damping=KAPPA,
                        control=BodyForce(Region("box", lower=LOWER, upper=UPPER)))
     grid = uniform_grid(1.0, 0.05)
     ctrl = model.control

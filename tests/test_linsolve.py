@@ -13,7 +13,7 @@ assembled from element blocks and solved on the host (SuperLU / MINRES) from ins
 - A singular K does not raise inside ``jax.pure_callback`` (JAX leaves an exception there undefined;
   it hung the traced Newton loop when the process had one CPU): the solve returns NaN, which makes
   Newton fail with the step named, and the solver counts and keeps the failure.
-- On an indefinite saddle point (Taylor-Hood at kappa = inf: a zero pressure block) the default
+- On an indefinite saddle point (Taylor-Hood at bulk_modulus = inf: a zero pressure block) the default
   diagonal pivots and refinement reach the solver's normwise backward error ``rtol`` on the
   bordered system, so the solution agrees with a dense solve to the forward-error bound
   ``2 cond_inf(A) rtol`` (relative, inf-norm).
@@ -38,7 +38,7 @@ from hyperoc.solvers.linsolve import DenseSolver, SparseSolver, TridiagonalSolve
 
 @pytest.fixture(scope="module")
 def model():
-    return StateModel(box(2, dirichlet="left"), SaintVenantKirchhoff(1.0, 1.0), kappa=0.05)
+    return StateModel(box(2, dirichlet="left"), SaintVenantKirchhoff(1.0, 1.0), damping=0.05)
 
 
 def spd_blocks(model, seed=0):
@@ -142,9 +142,9 @@ def test_unknown_ordering_is_an_input_error(model):
 
 
 def taylor_hood_saddle_point():
-    """A Taylor-Hood model at kappa = inf and its tangent blocks at a perturbed state (indefinite, with a
+    """A Taylor-Hood model at bulk_modulus = inf and its tangent blocks at a perturbed state (indefinite, with a
     zero pressure block)."""
-    model = TaylorHoodModel(box(2, dirichlet="left"), Guccione(kappa=0.0), bulk_modulus=np.inf,
+    model = TaylorHoodModel(box(2, dirichlet="left"), Guccione(bulk_modulus=0.0), bulk_modulus=np.inf,
                             frames=lambda x: np.broadcast_to(np.eye(3), x.shape[:-1] + (3, 3)))
     rng = np.random.default_rng(2)
     x0 = jnp.asarray(model.unknowns(0.02 * rng.standard_normal(model.n_u), rng.standard_normal(model.n_p)))

@@ -1,4 +1,5 @@
-"""Taylor-Hood P2-P1 (`hyperoc.mechanics.mixed.TaylorHoodModel`): ``L(u, p) = int W_rest + p (J - 1) - p^2/(2 kappa)``.
+"""Taylor-Hood P2-P1 (`hyperoc.mechanics.mixed.TaylorHoodModel`): ``L(u, p) = int W_rest + p (J - 1) - p^2/(2 k)``
+with k the bulk modulus.
 
 What is checked:
 
@@ -6,11 +7,11 @@ What is checked:
 - patch test: uniaxial tension of an incompressible neo-Hookean cube. The exact solution (an affine
   displacement, a constant pressure) lies in P2 x P1, so the discrete solution is exact up to
   Newton's stopping test, and its pressure is the analytical one;
-- at ``kappa = inf`` the deformed volume equals the reference volume (the constraint tested with the
+- at ``k = inf`` the deformed volume equals the reference volume (the constraint tested with the
   P1 hats, which sum to 1);
-- no locking on the Land beam: raising kappa from 1e3 to inf moves the tip by at most the bound of
+- no locking on the Land beam: raising k from 1e3 to inf moves the tip by at most the bound of
   `tests/test_volumetric.py` (``max(mu) / 1e3`` relative);
-- Land problem 2 at kappa = inf on the coarsest ventricle: Guccione on the full strain folds (det F -> 0
+- Land problem 2 at bulk modulus inf on the coarsest ventricle: Guccione on the full strain folds (det F -> 0
   before half the load, as with the cell-mean form); on the isochoric strain the full load is reached;
 - bad arguments are `InputError`.
 """
@@ -41,7 +42,8 @@ def _fixed_frame(dim):
 @pytest.mark.parametrize("mesh,material,bulk", [
     pytest.param(rectangle(2), ho.NeoHookean(1.0, 40.0), None, id="neo-Hookean-2d", marks=pytest.mark.slow),
     pytest.param(box(1), ho.Guccione(isochoric=True), None, id="Guccione-isochoric-3d", marks=pytest.mark.slow),
-    pytest.param(box(1), ho.Guccione(kappa=0.0), math.inf, id="Guccione-incompressible-3d", marks=pytest.mark.slow),
+    pytest.param(box(1), ho.Guccione(bulk_modulus=0.0), math.inf, id="Guccione-incompressible-3d",
+                 marks=pytest.mark.slow),
 ])
 def test_tangent_is_the_hessian_of_the_lagrangian(mesh, material, bulk):
     model = TaylorHoodModel(mesh, material, bulk_modulus=bulk, frames=_fixed_frame(mesh.dim), dirichlet=None,
@@ -104,9 +106,9 @@ def test_newton_monitor_reports_the_pressure_field_apart():
 @pytest.mark.slow
 def test_incompressible_beam_keeps_its_volume_and_does_not_lock():
     moduli = BEAM["C"] * max(BEAM["bf"], BEAM["bt"], BEAM["bfs"])  # kPa, the largest small-strain modulus
-    res = {kappa: beam_deflection(1, kappa=kappa, volumetric="taylor-hood") for kappa in (1e3, math.inf)}
-    z = {kappa: r.values["z_tip"] for kappa, r in res.items()}
-    print(f"\nTaylor-Hood beam n = 1: z_tip {z[1e3]:.5f} (kappa 1e3), {z[math.inf]:.5f} (inf)")
+    res = {k: beam_deflection(1, bulk_modulus=k, volumetric="taylor-hood") for k in (1e3, math.inf)}
+    z = {k: r.values["z_tip"] for k, r in res.items()}
+    print(f"\nTaylor-Hood beam n = 1: z_tip {z[1e3]:.5f} (bulk modulus 1e3), {z[math.inf]:.5f} (inf)")
     assert abs(z[math.inf] - z[1e3]) <= moduli / 1e3 * abs(z[math.inf])
     # Newton's last increment is <= rtol |x| (1e-11) and the constraint residual after it is of its square:
     # what is left is the round-off of the quadrature sums.
@@ -116,20 +118,20 @@ def test_incompressible_beam_keeps_its_volume_and_does_not_lock():
 
 @pytest.fixture(scope="module")
 def incompressible_ventricle():
-    """Land problem 2, h = 6 mm (1706 unknowns), kappa = inf, Guccione on the isochoric strain."""
-    return ventricle_apex(6.0, kappa=math.inf, volumetric="taylor-hood", isochoric=True, steps=20)
+    """Land problem 2, h = 6 mm (1706 unknowns), bulk modulus inf, Guccione on the isochoric strain."""
+    return ventricle_apex(6.0, bulk_modulus=math.inf, volumetric="taylor-hood", isochoric=True, steps=20)
 
 
 @pytest.mark.slow
 def test_incompressible_ventricle_needs_the_isochoric_law(incompressible_ventricle):
-    """Land problem 2, h = 6 mm (1706 unknowns), kappa = inf: with Q on the full strain J folds to 0
+    """Land problem 2, h = 6 mm (1706 unknowns), bulk modulus inf: with Q on the full strain J folds to 0
     between the vertices although every hat-weighted mean of J - 1 vanishes; on the isochoric strain the
     10 kPa are reached with det F > 0 and the apex pushed down (z = -17 mm at rest; ~9 mm in the benchmark)."""
     with pytest.raises(SolverError) as failure:
-        ventricle_apex(6.0, kappa=math.inf, volumetric="taylor-hood", steps=20, cutbacks=8)
+        ventricle_apex(6.0, bulk_modulus=math.inf, volumetric="taylor-hood", steps=20, cutbacks=8)
     assert failure.value.time < 0.5
     res = incompressible_ventricle
-    print(f"\nTaylor-Hood, isochoric, kappa = inf: z_endo {res.values['z_endo']:.5f}, min det F {res.min_det_F:.3f}")
+    print(f"\nTaylor-Hood, isochoric, k = inf: z_endo {res.values['z_endo']:.5f}, min det F {res.min_det_F:.3f}")
     assert res.min_det_F > 0
     assert res.values["z_endo"] < VENTRICLE["endo_apex"][2] - 5.0
     assert set(PUBLISHED[2]) == set(res.values)  # bench_land.py compares every reported value
@@ -142,12 +144,12 @@ def test_ventricle_restarted_from_its_own_solution_needs_no_load_stepping(incomp
     once (one iteration: the step it computes is below the stopping test) with the same values (1e-9,
     `tests/test_static.py`); a coarse result on an unrelated mesh is an InputError."""
     res = incompressible_ventricle
-    again = ventricle_apex(6.0, kappa=math.inf, volumetric="taylor-hood", isochoric=True, steps=20, coarse=res)
+    again = ventricle_apex(6.0, bulk_modulus=math.inf, volumetric="taylor-hood", isochoric=True, steps=20, coarse=res)
     assert again.params["start"] == "prolonged" and again.newton_iterations.tolist() == [1]
     for key, value in res.values.items():
         assert again.values[key] == pytest.approx(value, rel=1e-9)
     with pytest.raises(InputError):
-        ventricle_apex(9.0, kappa=math.inf, volumetric="taylor-hood", isochoric=True, coarse=res)
+        ventricle_apex(9.0, bulk_modulus=math.inf, volumetric="taylor-hood", isochoric=True, coarse=res)
 
 
 @pytest.mark.slow

@@ -19,7 +19,7 @@ lambda = 0.05
 [dynamics]
 T = 2.0
 dt = 0.1
-kappa = 2e-3
+damping = 2e-3
 [control]
 kind = "body_force"
 region = { kind = "box", lower = [0.25], upper = [0.5] }

@@ -16,7 +16,7 @@ from hyperoc.mechanics.model import StateModel
 
 def _bar(at_tau, running=()):
     """A short, coarse version of the paper's bar (SVK, omega = [0.75, 1]) with the given terms."""
-    model = StateModel(interval(10), SaintVenantKirchhoff(0.05, 0.05), kappa=2e-3,
+    model = StateModel(interval(10), SaintVenantKirchhoff(0.05, 0.05), damping=2e-3,
                        control=BodyForce(Region("box", lower=(0.75,), upper=(1.0,))))
     eps = getattr(at_tau, "eps", 0.0)
     transform = TimeTransform.for_step(3.0, 0.1, 1.5, eps)

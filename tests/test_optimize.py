@@ -356,7 +356,7 @@ def test_lbfgsb_with_a_p2_control_on_a_curved_annulus():
     from hyperoc import ActiveStress, PressureRise, annulus
 
     mesh = annulus(0.5, 1.0, structured=True, n_radial=2, n_theta=12)
-    model = StateModel(mesh, NeoHookean(1.0, 2.0), degree=2, kappa=0.05,
+    model = StateModel(mesh, NeoHookean(1.0, 2.0), degree=2, damping=0.05,
                        control=ActiveStress(Region("sector", r_range=(0.5, 1.0), theta_range=(-1.0, 1.0))))
     J = ReducedFunctional(model, TimeTransform.for_step(1.0, 0.05, 0.5, 0.1),
                           Objective(running=(ControlCost(1e-2),), at_tau=PressureRise(0.1)))

@@ -7,8 +7,8 @@
     survives the excursion and says so in ``warnings``, or the solver raises `SolverError` naming
     the step and the cause.
 (b) A control strong enough to invert elements raises `SolverError` naming the first failing step.
-(c) The paper's 1D parameters (kappa = 2e-4, h = 0.01, dt = 0.02) with a strong resonant control
-    steepen waves into fronts at mesh scale, which is reported; kappa = 2e-2 smooths them.
+(c) The paper's 1D parameters (damping kappa = 2e-4, h = 0.01, dt = 0.02) with a strong resonant control
+    steepen waves into fronts at mesh scale, which is reported; damping kappa = 2e-2 smooths them.
 
 The thresholds used by hand below (the convexity limit, the mesh-scale ratio) are recomputed from
 the solution, independently of `hyperoc.dynamics.stepper.detect_regimes`.
@@ -37,9 +37,9 @@ DT = 0.02
 ELLIPTICITY = re.compile(r"loss of (strong ellipticity|convexity) from t = ([0-9.eE+-]+)")
 
 
-def paper_stepper(kappa):
+def paper_stepper(damping):
     """Paper Table tab-param: SVK mu = lambda = 0.05, h = 0.01, body force on omega = [0.75, 1]."""
-    model = StateModel(interval(100), SaintVenantKirchhoff(0.05, 0.05), kappa=kappa,
+    model = StateModel(interval(100), SaintVenantKirchhoff(0.05, 0.05), damping=damping,
                        control=BodyForce(Region("box", lower=(0.75,), upper=(1.0,))))
     return TimeStepper(model, Scheme())
 
@@ -134,7 +134,7 @@ def test_inverting_control_raises_solver_error_naming_the_step_2d():
     detF at step 4 (t = 0.25). The 1D counterpart is the snap-through case of (a)."""
     mesh = geometry.annulus(0.5, 1.0, structured=True, n_radial=4, n_theta=32)
     control = ActiveStress(Region("sector", r_range=(0.5, 1.0), theta_range=(0.0, math.pi / 2)))
-    model = StateModel(mesh, SaintVenantKirchhoff(1.0, 1.0), kappa=0.05, control=control)
+    model = StateModel(mesh, SaintVenantKirchhoff(1.0, 1.0), damping=0.05, control=control)
     stepper = TimeStepper(model, Scheme(), solver="lu")  # host loop: one compiled step for all grids
     grid = uniform_grid(1.0, 0.05)
     xi = np.outer(10.0 * np.minimum(grid.t / 0.5, 1.0), np.ones(model.control.size))
@@ -171,8 +171,8 @@ def front_ratio(sol):
 
 def test_fronts_at_mesh_scale_reported_with_paper_damping_not_with_large_damping(paper_1d):
     """Resonant control xi = 0.05 sin(2 pi t / 3) on omega, smooth in time (no start-up kink),
-    T = 15: with kappa = 2e-4 the nonlinear waves steepen into a front late in the run (measured
-    ratio ~1.0 at t ~ 12); with kappa = 2e-2 the profile stays smooth (ratio ~0.24)."""
+    T = 15: with damping kappa = 2e-4 the nonlinear waves steepen into a front late in the run (measured
+    ratio ~1.0 at t ~ 12); with damping kappa = 2e-2 the profile stays smooth (ratio ~0.24)."""
     grid = uniform_grid(15.0, DT)
     xi = np.outer(0.05 * np.sin(2 * np.pi * grid.t / 3.0), np.ones(paper_1d.model.control.size))
     weak = paper_1d.run(grid, xi)
@@ -180,7 +180,7 @@ def test_fronts_at_mesh_scale_reported_with_paper_damping_not_with_large_damping
 
     r_weak, t_weak = front_ratio(weak)
     r_strong, _ = front_ratio(strong)
-    print(f"\nfront ratio kappa=2e-4: {r_weak:.2f} at t = {t_weak:.2f}; kappa=2e-2: {r_strong:.2f}")
+    print(f"\nfront ratio damping=2e-4: {r_weak:.2f} at t = {t_weak:.2f}; damping=2e-2: {r_strong:.2f}")
     assert r_weak > 0.75 and t_weak > 5.0  # a steepened front, well after the start
     assert r_strong < 0.35
     fronts = [w for w in weak.warnings if "front at mesh scale" in w]

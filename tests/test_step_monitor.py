@@ -30,7 +30,7 @@ EPS = np.finfo(float).eps
 @pytest.fixture(scope="module")
 def bar_1d():
     """SVK bar, body force on [0.5, 1], tridiagonal (traced) solver."""
-    model = StateModel(interval(50), SaintVenantKirchhoff(0.05, 0.05), kappa=2e-3,
+    model = StateModel(interval(50), SaintVenantKirchhoff(0.05, 0.05), damping=2e-3,
                        control=BodyForce(Region("box", lower=(0.5,), upper=(1.0,))))
     stepper = TimeStepper(model, Scheme())
     assert stepper.solver.traced
@@ -90,7 +90,7 @@ def test_monitor_with_host_solver_and_progress_bar_2d():
     Newton to round-off, so 1e-10 relative is a wide margin), while det F varies by more."""
     mesh = geometry.annulus(0.5, 1.0, structured=True, n_radial=4, n_theta=32)
     control = ActiveStress(Region("sector", r_range=(0.5, 1.0), theta_range=(0.0, math.pi / 2)))
-    model = StateModel(mesh, SaintVenantKirchhoff(1.0, 1.0), kappa=0.05, control=control)
+    model = StateModel(mesh, SaintVenantKirchhoff(1.0, 1.0), damping=0.05, control=control)
     stepper = TimeStepper(model, Scheme(), solver="lu")
     grid = uniform_grid(0.5, 0.05)
     xi = np.outer(0.5 * np.sin(np.pi * grid.t / 0.5), np.ones(model.control.size))

@@ -13,7 +13,7 @@ Tolerance: an entry is a sum of at most nq d^4 = 27 * 81 ~ 2200 products (P2 tet
 points) taken in different orders by the two routes. Float64 rounds each product and partial sum
 by <= eps = 2.2e-16 relative, so the difference is bounded by ~ 2200 eps ~ 5e-13 times the sum of
 the absolute terms, and is typically ~ sqrt(2200) eps ~ 1e-14 of it; measured <= 6e-15 of
-max |K| on these cases (Guccione's volumetric penalty, kappa = 500 C, dominates max |K|).
+max |K| on these cases (Guccione's volumetric penalty, bulk modulus 500 C, dominates max |K|).
 1e-13 max |K| therefore only admits rounding: a wrong or missing term (a sign in the det F
 Hessian, a factor 1/2 on the off-diagonal strains) shows up at O(1e-2) or larger.
 """

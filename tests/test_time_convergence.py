@@ -54,14 +54,14 @@ def padded_levels(t, num_steps):
     return np.concatenate([t, t[-1] + (t[-1] - t[-2]) * np.arange(1, extra + 1)])
 
 
-# ---- 1D: the paper's bar, SVK mu = lam = 0.05, kappa = 1e-2 (smooth), body force on [0.75, 1] ----
+# ---- 1D: the paper's bar, SVK mu = lam = 0.05, damping kappa = 1e-2 (smooth), body force on [0.75, 1] ----
 T1 = 4.0
 A1 = 0.05  # min det F ~ 0.96: genuinely nonlinear, no fronts
 
 
 @lru_cache(maxsize=None)
 def model_1d():
-    return StateModel(interval(100), SaintVenantKirchhoff(mu=0.05, lam=0.05), degree=1, kappa=1e-2,
+    return StateModel(interval(100), SaintVenantKirchhoff(mu=0.05, lam=0.05), degree=1, damping=1e-2,
                       control=BodyForce(Region("box", lower=(0.75,), upper=(1.0,))))
 
 
@@ -101,7 +101,7 @@ A2 = 0.01
 @lru_cache(maxsize=None)
 def model_2d():
     mesh = annulus(0.5, 1.0, structured=True, n_radial=2, n_theta=16)
-    return StateModel(mesh, SaintVenantKirchhoff(mu=0.05, lam=0.05), degree=1, kappa=1e-2,
+    return StateModel(mesh, SaintVenantKirchhoff(mu=0.05, lam=0.05), degree=1, damping=1e-2,
                       control=ActiveStress(Region()))
 
 

@@ -18,7 +18,9 @@ SMALL_1D = small_1d_toml()
 
 # --set overrides of SMALL_1D -> a fragment of the one-line message
 BAD_SETTINGS = [
-    ("dynamics.kappa=nan", "kappa must be a finite number"),
+    ("dynamics.damping=nan", "damping must be a finite number"),
+    ("dynamics.kappa=2e-4", "[dynamics] kappa is now called damping"),
+    ("material.kappa=100", "[material] kappa is now called bulk_modulus"),
     ("dynamics.density=inf", "density must be a finite number"),
     ("dynamics.density=0", "density must be > 0"),
     ("objective.alpha=nan", "alpha must be a finite number"),
@@ -196,13 +198,13 @@ def test_bad_paths_and_options_exit_2(tmp_path, capsys, args, fragment):
 
 def test_bad_input_in_a_real_process(tmp_path):
     """The console entry point: one line, exit 2, nothing written, and no JAX import needed for it."""
-    cfg = _write(tmp_path / "c.toml", SMALL_1D.replace("kappa = 2e-3", "kappa = nan"))
+    cfg = _write(tmp_path / "c.toml", SMALL_1D.replace("damping = 2e-3", "damping = nan"))
     code = ("import sys; from hyperoc.app.cli import main; rc = main(sys.argv[1:]); "
             "assert 'jax' not in sys.modules; sys.exit(rc)")
     proc = subprocess.run([sys.executable, "-c", code, "simulate", str(cfg), "--out", str(tmp_path / "o")],
                           capture_output=True, text=True)
     assert proc.returncode == 2, proc.stderr
-    assert proc.stderr.splitlines() == ["hyperoc: error: config: [dynamics] kappa must be a finite number, got nan"]
+    assert proc.stderr.splitlines() == ["hyperoc: error: config: [dynamics] damping must be a finite number, got nan"]
     assert not (tmp_path / "o").exists()
 
 

@@ -66,10 +66,10 @@ def smooth_pulse(grid, n_ctrl, amplitude, rng_seed=0):
 
 
 def test_volume_and_end_displacement_conserved_1d_paper_parameters():
-    """1D, paper Table tab-param: SVK mu = lambda = 0.05, kappa = 2e-4, omega = [0.75, 1], h = 0.01,
+    """1D, paper Table tab-param: SVK mu = lambda = 0.05, damping kappa = 2e-4, omega = [0.75, 1], h = 0.01,
     dt = 0.02. In 1D det F = 1 + u_x, so the constraint is u(1, t) = u(1, 0) = 0 exactly."""
     mesh = interval(100)
-    model = StateModel(mesh, SaintVenantKirchhoff(0.05, 0.05), kappa=2e-4,
+    model = StateModel(mesh, SaintVenantKirchhoff(0.05, 0.05), damping=2e-4,
                        control=BodyForce(Region("box", lower=(0.75,), upper=(1.0,))))
     grid = uniform_grid(3.0, 0.02)
     xi = smooth_pulse(grid, model.control.size, 0.02)
@@ -86,7 +86,7 @@ def test_volume_and_end_displacement_conserved_1d_paper_parameters():
 def test_volume_conserved_2d_annulus_active_stress(degree, n_radial, n_theta):
     mesh = geometry.annulus(0.5, 1.0, structured=True, n_radial=n_radial, n_theta=n_theta)
     control = ActiveStress(Region("sector", r_range=(0.5, 1.0), theta_range=(0.0, math.pi / 2)))
-    model = StateModel(mesh, SaintVenantKirchhoff(1.0, 1.0), degree=degree, kappa=0.05, control=control)
+    model = StateModel(mesh, SaintVenantKirchhoff(1.0, 1.0), degree=degree, damping=0.05, control=control)
     grid = uniform_grid(1.0, 0.05)
     xi = smooth_pulse(grid, model.control.size, 0.2)
     run_and_check(model, grid, xi, min_spread=1e-2)
@@ -96,7 +96,7 @@ def test_volume_conserved_2d_annulus_active_stress(degree, n_radial, n_theta):
 def test_volume_conserved_3d_box_body_force():
     mesh = box(3)
     control = BodyForce(Region("box", lower=(0.3, 0.0, 0.0), upper=(1.0, 1.0, 1.0)))
-    model = StateModel(mesh, SaintVenantKirchhoff(1.0, 1.0), degree=1, kappa=0.05, control=control)
+    model = StateModel(mesh, SaintVenantKirchhoff(1.0, 1.0), degree=1, damping=0.05, control=control)
     grid = uniform_grid(1.0, 0.1)
     xi = smooth_pulse(grid, model.control.size, 0.5)
     run_and_check(model, grid, xi, min_spread=1e-2)

@@ -6,11 +6,11 @@ formulation with a pressure constant per cell, condensed. What is checked:
 - consistency: under a homogeneous deformation J is constant, so ``theta_e = J`` and the energy and
   force are those of the pointwise formulation, to round-off;
 - no locking (Land et al. problem 1, the Guccione beam, on the coarsest mesh): for a formulation
-  that is stable in the incompressible limit the discrete solution depends on kappa only through
-  the physical compressibility, ``z(kappa) = z(inf) + O(mu / kappa)`` with mu the law's small-strain
-  moduli (Guccione: C bf, C bt, C bfs, at most 16 kPa here). Raising kappa from 1e3 to 1e5 kPa may
+  that is stable in the incompressible limit the discrete solution depends on the bulk modulus k only
+  through the physical compressibility, ``z(k) = z(inf) + O(mu / k)`` with mu the law's small-strain
+  moduli (Guccione: C bf, C bt, C bfs, at most 16 kPa here). Raising k from 1e3 to 1e5 kPa may
   then move the tip by at most ``max(mu) / 1e3`` relative. The pointwise formulation locks: its
-  beam stiffens with kappa far beyond that bound;
+  beam stiffens with k far beyond that bound;
 - Land problem 2 (the ventricle inflated to 10 kPa, coarsest mesh): with Guccione on the full strain
   a cell folds inside while keeping its mean J (det F -> 0 at about 0.36 of the load);
   with Guccione on the isochoric strain (`Guccione(isochoric=True)`, the Simo-Taylor-Pister split)
@@ -71,9 +71,9 @@ def test_cell_mean_beam_does_not_lock():
     bound = moduli / 1e3
     change = {}
     for volumetric in ("pointwise", "cell-mean"):
-        z = [beam_deflection(1, kappa=kappa, volumetric=volumetric).values["z_tip"] for kappa in (1e3, 1e5)]
+        z = [beam_deflection(1, bulk_modulus=k, volumetric=volumetric).values["z_tip"] for k in (1e3, 1e5)]
         change[volumetric] = abs(z[1] - z[0]) / abs(z[0])
-        print(f"\n{volumetric}: z_tip {z[0]:.5f} (kappa 1e3), {z[1]:.5f} (1e5): relative change "
+        print(f"\n{volumetric}: z_tip {z[0]:.5f} (bulk modulus 1e3), {z[1]:.5f} (1e5): relative change "
               f"{change[volumetric]:.2e}, bound {bound:.2e}")
     assert change["cell-mean"] <= bound
     assert change["pointwise"] > bound  # the locking the mixed form removes
@@ -81,7 +81,7 @@ def test_cell_mean_beam_does_not_lock():
 
 @pytest.mark.slow
 def test_cell_mean_ventricle_needs_the_isochoric_law():
-    """Land problem 2, h = 6 mm (1602 dofs), kappa = 1000 kPa. Full strain: a cell folds and the solve
+    """Land problem 2, h = 6 mm (1602 dofs), bulk modulus 1000 kPa. Full strain: a cell folds and the solve
     stops before 0.4 of the load (20 increments, halved up to 8 times). Isochoric strain: 10 kPa is
     reached with det F > 0 at every quadrature point and the apex pushed down (z = -17 mm at rest)."""
     with pytest.raises(SolverError) as failure:

@@ -164,7 +164,7 @@ class Config:
         if frames is None and isinstance(material, (Guccione, HolzapfelOgden)):
             raise InputError(f"config: [material] law {self['material']['law']!r} needs fibres: "
                              "add [fibres] kind = 'rule_based'")
-        return StateModel(mesh, material, degree=self["mesh"]["degree"], kappa=float(d["kappa"]),
+        return StateModel(mesh, material, degree=self["mesh"]["degree"], damping=float(d["damping"]),
                           density=float(d["density"]), control=self.control_operator(frames), traction=traction,
                           neumann="gamma_n", frames=frames, volumetric=self["material"]["volumetric"],
                           **self._dirichlet(mesh.dim))

@@ -186,7 +186,8 @@ class Material(Section):
     as_: Optional[Number] = Field(None, alias="as", description="Holzapfel-Ogden: sheet modulus")
     bs: Optional[Number] = Field(None, description="Holzapfel-Ogden: sheet exponent")
     afs: Optional[Number] = Field(None, description="Holzapfel-Ogden: fibre-sheet modulus")
-    kappa: Optional[Number] = Field(None, description="Guccione, Holzapfel-Ogden: volumetric penalty (kPa)")
+    bulk_modulus: Optional[Number] = Field(
+        None, description="Guccione, Holzapfel-Ogden: small-strain bulk modulus of the volumetric penalty (kPa)")
     isochoric: Optional[bool] = Field(None, description="Guccione: Q on the isochoric strain (needed with cell-mean)")
     volumetric: Literal["pointwise", "cell-mean"] = Field(
         "pointwise", description="bulk term per quadrature point, or on each cell's mean J (condensed mixed u-p)")
@@ -225,7 +226,7 @@ class Dynamics(Section):
 
     T: Positive = Field(15.0, description="final time; T / dt must be a whole number")
     dt: Positive = Field(0.02, description="time step")
-    kappa: NonNegative = Field(2e-4, description="viscous damping")
+    damping: NonNegative = Field(2e-4, description="viscous damping kappa (the paper's M y'' + kappa K y' + ...)")
     density: Positive = Field(1.0, description="mass density")
     theta: Annotated[float, Field(allow_inf_nan=False, ge=0.5, le=1.0)] = Field(
         0.5, description="theta scheme: 1/2 Crank-Nicolson, 1 implicit Euler")
@@ -409,11 +410,24 @@ def validate_sections(data: dict) -> dict:
     section with their defaults; the first violation of the schema raises `InputError`."""
     if not isinstance(data, dict):
         raise InputError("config: expected a table of sections")
+    _reject_renamed(data)
     try:
         schema = ConfigSchema.model_validate(data)
     except ValidationError as err:
         raise InputError(_message(err.errors()[0])) from None
     return {name: getattr(schema, name).values() for name in SECTIONS}
+
+
+#: ``(section, old key) -> new key``: keys renamed since 0.1.0, reported by their new name
+RENAMED = {("dynamics", "kappa"): "damping", ("material", "kappa"): "bulk_modulus"}
+
+
+def _reject_renamed(data: dict) -> None:
+    """`InputError` naming the new key if ``data`` uses a key of `RENAMED` (a config written for 0.1.0)."""
+    for (section, old), new in RENAMED.items():
+        table = data.get(section)
+        if isinstance(table, dict) and old in table:
+            raise InputError(f"config: [{section}] {old} is now called {new}")
 
 
 _TYPE_WORDS = {"int": "an integer", "float": "a number", "bool": "true or false", "string": "a string",

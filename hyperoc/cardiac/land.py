@@ -25,14 +25,14 @@ Reported: the same apex positions.
 
 What is solved and what it converges to. The benchmark material is incompressible; here it is
 the compressible Guccione law of `hyperoc.mechanics.materials.Guccione` with the volumetric penalty
-``kappa/4 (J^2 - 1 - 2 ln J)`` (``kappa`` = small-strain bulk modulus, kPa) and *no* global volume
-constraint (``solve_static(..., constrained=False)``). For a fixed ``kappa`` the P2 solutions
-converge as h -> 0 to the solution ``u_kappa`` of that compressible problem; ``u_kappa`` tends to
-the incompressible solution as ``kappa -> infinity``, at first order in ``1 / kappa`` (the volume
-change is ``O(p / kappa)``). Pure-displacement elements lock as ``kappa / C`` grows (P1 severely,
-P2 mildly), so a study must vary both h and kappa; ``bench/bench_land.py`` does. With
-``volumetric="taylor-hood"`` (`hyperoc.mechanics.mixed.TaylorHoodModel`: a continuous P1 pressure, inf-sup
-stable, no locking) kappa may be ``math.inf``, and the values converge to the incompressible benchmark
+``bulk_modulus/4 (J^2 - 1 - 2 ln J)`` (``bulk_modulus`` = small-strain bulk modulus k, kPa) and *no*
+global volume constraint (``solve_static(..., constrained=False)``). For a fixed k the P2 solutions
+converge as h -> 0 to the solution ``u_k`` of that compressible problem; ``u_k`` tends to the
+incompressible solution as ``k -> infinity``, at first order in ``1 / k`` (the volume change is
+``O(p / k)``). Pure-displacement elements lock as ``k / C`` grows (P1 severely, P2 mildly), so a
+study must vary both h and k; ``bench/bench_land.py`` does. With ``volumetric="taylor-hood"``
+(`hyperoc.mechanics.mixed.TaylorHoodModel`: a continuous P1 pressure, inf-sup stable, no locking) k may
+be ``math.inf``, and the values converge to the incompressible benchmark
 itself; problem 2 then needs ``isochoric=True`` (on the full strain the law folds between the vertices).
 """
 
@@ -119,9 +119,9 @@ class BenchmarkResult:
 FORMULATIONS = VOLUMETRIC + ("taylor-hood",)
 
 
-def _model(mesh: Mesh, params: dict, kappa: float, isochoric: bool, volumetric: str, degree: int,
+def _model(mesh: Mesh, params: dict, bulk_modulus: float, isochoric: bool, volumetric: str, degree: int,
            frames=None, **kwargs) -> StateModel:
-    """The Guccione model of a benchmark: ``params`` the moduli, ``kappa`` the bulk modulus (kPa; with
+    """The Guccione model of a benchmark: ``params`` the moduli, ``bulk_modulus`` the bulk modulus (kPa; with
     ``"taylor-hood"`` also ``math.inf``: incompressible), ``volumetric`` one of `FORMULATIONS`,
     ``frames`` the fibre field (default: fibres along x)."""
     if volumetric not in FORMULATIONS:
@@ -130,10 +130,10 @@ def _model(mesh: Mesh, params: dict, kappa: float, isochoric: bool, volumetric: 
     if mixed and degree != 2:
         raise InputError(f"the Taylor-Hood formulation is P2-P1: degree must be 2, got {degree}")
     material = Guccione(C=params["C"], bf=params["bf"], bt=params["bt"], bfs=params["bfs"],
-                        kappa=0.0 if mixed and math.isinf(kappa) else kappa, isochoric=isochoric)
+                        bulk_modulus=0.0 if mixed and math.isinf(bulk_modulus) else bulk_modulus, isochoric=isochoric)
     frames = _fibres_along_x if frames is None else frames
     if mixed:
-        return TaylorHoodModel(mesh, material, bulk_modulus=kappa, frames=frames, **kwargs)
+        return TaylorHoodModel(mesh, material, bulk_modulus=bulk_modulus, frames=frames, **kwargs)
     return StateModel(mesh, material, degree=degree, frames=frames, volumetric=volumetric, **kwargs)
 
 
@@ -154,12 +154,12 @@ def beam_mesh(n: int) -> Mesh:
     return mesh.with_boundary("z_bottom", mesh.boundary("front"))
 
 
-def beam_problem(n: int, *, kappa: float, degree: int = 2, volumetric: str = "pointwise",
+def beam_problem(n: int, *, bulk_modulus: float, degree: int = 2, volumetric: str = "pointwise",
                  isochoric: bool = False) -> tuple[StateModel, FollowerPressure]:
     """Problem 1 on `beam_mesh` (n): the model and its follower pressure on the bottom face
     (``volumetric``: how the penalty enters, `StateModel`; ``isochoric``: `Guccione` on the isochoric
-    strain; ``"taylor-hood"``: `hyperoc.mechanics.mixed.TaylorHoodModel`, kappa may then be ``math.inf``)."""
-    model = _model(beam_mesh(n), BEAM, kappa, isochoric, volumetric, degree)
+    strain; ``"taylor-hood"``: `hyperoc.mechanics.mixed.TaylorHoodModel`, bulk_modulus may then be ``math.inf``)."""
+    model = _model(beam_mesh(n), BEAM, bulk_modulus, isochoric, volumetric, degree)
     return model, FollowerPressure(model, "z_bottom", BEAM["pressure"])
 
 
@@ -170,7 +170,7 @@ BASE_CONDITIONS = {
 }
 
 
-def ventricle_problem(h: float, *, kappa: float, degree: int = 2, curved: bool = True,
+def ventricle_problem(h: float, *, bulk_modulus: float, degree: int = 2, curved: bool = True,
                       base: str = "clamped", refinements: int = 0, volumetric: str = "pointwise",
                       isochoric: bool = False) -> tuple[StateModel, FollowerPressure]:
     """Problem 2 on `hyperoc.fem.geometry.ventricle` (h, mm; ``curved``: isoparametric P2 on the exact
@@ -182,11 +182,11 @@ def ventricle_problem(h: float, *, kappa: float, degree: int = 2, curved: bool =
     pressure on the cavity has no net in-plane force or moment about z). With ``bf = bt = bfs = 1``
     the Guccione law is isotropic (``Q = tr(E^2)``): the constant frame it is given does not matter.
     ``volumetric``, ``isochoric``: as in `beam_problem`."""
-    model = _ventricle_model(h, VENTRICLE, None, kappa, degree, curved, base, refinements, volumetric, isochoric)
+    model = _ventricle_model(h, VENTRICLE, None, bulk_modulus, degree, curved, base, refinements, volumetric, isochoric)
     return model, FollowerPressure(model, "endocardium", VENTRICLE["pressure"])
 
 
-def contraction_problem(h: float, *, kappa: float, degree: int = 2, curved: bool = True,
+def contraction_problem(h: float, *, bulk_modulus: float, degree: int = 2, curved: bool = True,
                         base: str = "clamped", refinements: int = 0, volumetric: str = "pointwise",
                         isochoric: bool = False,
                         taper: float = 0.0) -> tuple[StateModel, tuple[FollowerPressure, FibreTension]]:
@@ -196,17 +196,18 @@ def contraction_problem(h: float, *, kappa: float, degree: int = 2, curved: bool
     benchmark but a variant, the tension tapered to zero on the long axis (`hyperoc.mechanics.active.axis_taper`),
     where the fibres are singular."""
     fibres = prolate_fibres(helix_endo=CONTRACTION["helix"][0], helix_epi=CONTRACTION["helix"][1])
-    model = _ventricle_model(h, CONTRACTION, fibres, kappa, degree, curved, base, refinements, volumetric, isochoric)
+    model = _ventricle_model(h, CONTRACTION, fibres, bulk_modulus, degree, curved, base, refinements, volumetric,
+                             isochoric)
     profile = axis_taper(taper) if taper else None
     return model, (FollowerPressure(model, "endocardium", CONTRACTION["pressure"]),
                    FibreTension(model, CONTRACTION["tension"], profile))
 
 
-def _ventricle_model(h, params, frames, kappa, degree, curved, base, refinements, volumetric, isochoric):
+def _ventricle_model(h, params, frames, bulk_modulus, degree, curved, base, refinements, volumetric, isochoric):
     """The Guccione model (`_model`) on `hyperoc.fem.geometry.ventricle` with the base condition ``base``."""
     if base not in BASE_CONDITIONS:
         raise InputError(f"ventricle base must be one of {sorted(BASE_CONDITIONS)}, got {base!r}")
-    return _model(ventricle(h, curved=curved, refinements=refinements), params, kappa, isochoric, volumetric,
+    return _model(ventricle(h, curved=curved, refinements=refinements), params, bulk_modulus, isochoric, volumetric,
                   degree, frames, **BASE_CONDITIONS[base])
 
 
@@ -245,18 +246,19 @@ def _solve(model, follower, steps, cutbacks, solver, points: dict, params: dict,
                            sol.rejected_iterations, model, sol.u)
 
 
-def beam_deflection(n: int, *, kappa: float = 1000.0, degree: int = 2, steps: int = 10, cutbacks: int = 8,
+def beam_deflection(n: int, *, bulk_modulus: float = 1000.0, degree: int = 2, steps: int = 10, cutbacks: int = 8,
                     solver="auto", volumetric: str = "pointwise", isochoric: bool = False,
                     predictor: str = "previous", monitor=None) -> BenchmarkResult:
     """Problem 1: ``values["z_tip"]`` = z of the deformed point (10, 0.5, 1) (mm; 1 at rest).
     ``monitor``: `solve_static`'s (e.g. ``hyperoc.solvers.newton.NewtonLog(sys.stderr)``)."""
-    model, load = beam_problem(n, kappa=kappa, degree=degree, volumetric=volumetric, isochoric=isochoric)
+    model, load = beam_problem(n, bulk_modulus=bulk_modulus, degree=degree, volumetric=volumetric, isochoric=isochoric)
     return _solve(model, load, steps, cutbacks, solver, {"z_tip": BEAM["point"]},
-                  {"problem": 1, "n": n, "kappa": kappa, "degree": degree, "steps": steps, "cutbacks": cutbacks,
-                   "volumetric": volumetric, "isochoric": isochoric, "predictor": predictor}, monitor=monitor)
+                  {"problem": 1, "n": n, "bulk_modulus": bulk_modulus, "degree": degree, "steps": steps,
+                   "cutbacks": cutbacks, "volumetric": volumetric, "isochoric": isochoric, "predictor": predictor},
+                  monitor=monitor)
 
 
-def ventricle_apex(h: float, *, kappa: float = 1000.0, degree: int = 2, steps: int = 10, cutbacks: int = 8,
+def ventricle_apex(h: float, *, bulk_modulus: float = 1000.0, degree: int = 2, steps: int = 10, cutbacks: int = 8,
                    solver="auto", curved: bool = True, base: str = "clamped", refinements: int = 0,
                    volumetric: str = "pointwise", isochoric: bool = False, predictor: str = "previous",
                    problem: int = 2, taper: float = 0.0, coarse: BenchmarkResult | None = None,
@@ -275,12 +277,12 @@ def ventricle_apex(h: float, *, kappa: float = 1000.0, degree: int = 2, steps: i
         raise InputError(f"ventricle_apex: the ventricle problems are 2 and 3, got {problem!r}")
     if taper and problem != 3:
         raise InputError("ventricle_apex: taper (of the active tension) applies to problem 3 only")
-    model, load = _ventricle_setup(problem, h, kappa=kappa, degree=degree, curved=curved, base=base,
+    model, load = _ventricle_setup(problem, h, bulk_modulus=bulk_modulus, degree=degree, curved=curved, base=base,
                                    refinements=refinements, volumetric=volumetric, isochoric=isochoric, taper=taper)
     cavity = lambda model, u: {"V_cavity": float(cavity_volume(model.space, model.expand(u)[None])[0])}
     return _solve(model, load, steps, cutbacks, solver,
                   {"z_endo": VENTRICLE["endo_apex"], "z_epi": VENTRICLE["epi_apex"]},
-                  {"problem": problem, "mesh_size": h, "kappa": kappa, "degree": degree, "steps": steps,
+                  {"problem": problem, "mesh_size": h, "bulk_modulus": bulk_modulus, "degree": degree, "steps": steps,
                    "cutbacks": cutbacks, "curved": curved, "base": base, "refinements": refinements,
                    "volumetric": volumetric, "isochoric": isochoric, "predictor": predictor,
                    **({"taper": taper} if taper else {})}, cavity, coarse, monitor)
@@ -313,7 +315,7 @@ def load_state(path) -> BenchmarkResult:
         u, values, params = data["u"], json.loads(str(data["values"])), json.loads(str(data["params"]))
     except (OSError, KeyError, ValueError) as err:
         raise InputError(f"load_state: {path} is not a state written by save_state ({err})") from err
-    keys = ("kappa", "degree", "curved", "base", "refinements", "volumetric", "isochoric")
+    keys = ("bulk_modulus", "degree", "curved", "base", "refinements", "volumetric", "isochoric")
     model, _ = _ventricle_setup(params["problem"], params["mesh_size"], taper=params.get("taper", 0.0),
                                 **{k: params[k] for k in keys})
     if model.n != u.size:

@@ -1,7 +1,8 @@
 """The paper's optimize-then-discretize gradient, kept for comparison with the exact one.
 
 Semi-discrete (FE in space) state: ``y0' = y1``, ``M y1' = B xi + f - kappa K y1 - R(y0) - p G(y0)``,
-``vol(y0) = V0``. Its continuous adjoint (the paper's adjoint system and optimality conditions):
+``vol(y0) = V0``, with the damping kappa = ``model.damping``. Its continuous adjoint (the paper's adjoint
+system and optimality conditions):
 
     M zeta1' = -zeta0 + kappa K zeta1 - c_y1,   zeta0' = (K_T + p H) zeta1 - pi G - c_y0,   G^T zeta1 = 0,
 
@@ -84,7 +85,7 @@ def continuous_gradient(J: ReducedFunctional, m: ControlPoint) -> ControlPoint:
             h = dt[n]
             y0 = jnp.asarray(sol.y0[n])
             KpH = np.asarray(tangent(y0, 1.0, p_lev[n]))  # element form of K_T + p H
-            blocks = model.mass_blocks / h + model.kappa * model.laplace_blocks + h * KpH
+            blocks = model.mass_blocks / h + model.damping * model.laplace_blocks + h * KpH
             G = np.asarray(vol_grad(y0))
             sol_u = solver.host_solve(blocks, -h * G, G, w1 / h + zeta0, 0.0)
             zeta1, pi = sol_u[:-1], sol_u[-1]
@@ -116,7 +117,7 @@ def _project_terminal(model, y0, w1):
 
 def _hamiltonian(model, sol, f, zeta0, zeta1, k, alpha, force, vol_grad) -> float:
     y0, y1, xi = sol.y0[k], sol.y1[k], sol.xi[k]
-    rhs = (model.control.load @ xi + f[k] - model.kappa * (model.laplace @ y1)
+    rhs = (model.control.load @ xi + f[k] - model.damping * (model.laplace @ y1)
            - np.asarray(force(jnp.asarray(y0))) - sol.pressure[k] * np.asarray(vol_grad(jnp.asarray(y0))))
     c = -0.5 * alpha * xi @ (model.control.mass @ xi)
     return float(c + zeta0 @ y1 + zeta1 @ rhs)

@@ -4,7 +4,7 @@ Constrained (default): find ``(u, p)`` with
 
     R(u) + p G(u) = B xi + f + sum_j f_j(u),      vol(u) = V,
 
-the same residual and Newton as a time step with ``M = 0`` and ``kappa = 0``; ``V`` defaults to
+the same residual and Newton as a time step with ``M = 0`` and no damping; ``V`` defaults to
 the reference volume. ``f_j(u)`` are loads that depend on the state: follower pressures
 (`hyperoc.mechanics.follower.FollowerPressure`), which act on the deformed boundary, and active fibre tension
 (`hyperoc.mechanics.active.FibreTension`); their stiffness ``-df_j/du`` enters the Newton tangent.
@@ -26,9 +26,9 @@ as is the target volume; each step starts from the previous equilibrium. With ``
 failed increment is halved and retried (adaptive load stepping).
 
 Newton globalization. `hyperoc.solvers.newton.newton` backtracks on ``|r|^2``. For nearly incompressible
-laws (penalty ``kappa >> C``) that merit is badly suited: a Newton step of size ``|du|`` leaves a
-volumetric residual ``~ kappa |grad du|^2`` that can exceed the residual it corrects by orders of
-magnitude although the next iterate is much closer to the solution (Land problem 1: ``kappa / C =
+laws (``bulk_modulus >> C``) that merit is badly suited: a Newton step of size ``|du|`` leaves a
+volumetric residual ``~ bulk_modulus |grad du|^2`` that can exceed the residual it corrects by orders of
+magnitude although the next iterate is much closer to the solution (Land problem 1: ``bulk_modulus / C =
 500``, |r| grows 2000x after the first step, after which Newton converges quadratically), so the
 backtracking stalls at its smallest step. ``line_search=False`` takes full Newton steps instead
 (`hyperoc.solvers.newton.newton(..., line_search=False)`), as is common in cardiac mechanics codes with load stepping.

@@ -7,10 +7,10 @@ First-order system ``y0 = u``, ``y1 = u_t``; step ``n -> n+1`` of size ``dt``:
                  = dt [theta L(xi') + (1 - theta) L(xi)]
     vol(y0') = V0
 
-with ``A(y0, y1) = kappa K y1 + R(y0)``, ``L(xi) = B xi + g``. The unknown of a step is
-``x = (y0', p')``; ``y1'`` follows from the first line. ``p'`` is the step's multiplier, a
-second-order approximation of p at the mid-step; pressures at time levels are interpolated
-from the two adjacent steps (second order on non-uniform grids too).
+with ``A(y0, y1) = kappa K y1 + R(y0)`` (damping kappa = ``StateModel.damping``), ``L(xi) = B xi + g``.
+The unknown of a step is ``x = (y0', p')``; ``y1'`` follows from the first line. ``p'`` is the
+step's multiplier, a second-order approximation of p at the mid-step; pressures at time levels are
+interpolated from the two adjacent steps (second order on non-uniform grids too).
 
 ``multiplier="theta"`` weights the multiplier as ``theta p' G' + (1 - theta) p G`` (the paper's
 and GetFEM's choice), with ``p`` at t = 0 from the consistent initial acceleration. It is kept for
@@ -256,7 +256,7 @@ class TimeStepper:
         (n,), ``A(y0, y1) = kappa K y1 + f_int(y0)``, and ``G_old = dV/dy0 (y0)`` (n,).
         """
         m, th = self.model, self.scheme.theta
-        c = (self._inertia_damping(y1, -1.0, dt * (1 - th) * m.kappa) + dt * (1 - th) * m.internal_force(y0)
+        c = (self._inertia_damping(y1, -1.0, dt * (1 - th) * m.damping) + dt * (1 - th) * m.internal_force(y0)
              - dt * (th * self.load(xi1, f1) + (1 - th) * self.load(xi0, f0)))
         return c, m.volume_gradient(y0)
 
@@ -271,7 +271,7 @@ class TimeStepper:
             mult = pn * (th * G_new + (1 - th) * G_old)
         else:
             mult = th * pn * G_new + (1 - th) * p_prev * G_old
-        Fu = self._inertia_damping(y1n, 1.0, dt * th * m.kappa) + dt * th * m.internal_force(y0n) + dt * mult + c
+        Fu = self._inertia_damping(y1n, 1.0, dt * th * m.damping) + dt * th * m.internal_force(y0n) + dt * mult + c
         Fc = m.volume(y0n) - V0
         return jnp.concatenate([Fu, Fc[None]])
 
@@ -279,7 +279,7 @@ class TimeStepper:
         """(element blocks of dFu/dy0', column dFu/dp', row dFc/dy0') at x."""
         m, th = self.model, self.scheme.theta
         y0n, pn = x[:-1], x[-1]
-        blocks = (self._mass_blocks / (th * dt) + m.kappa * self._lap_blocks
+        blocks = (self._mass_blocks / (th * dt) + m.damping * self._lap_blocks
                   + dt * th * m.tangent_blocks(y0n, 1.0, pn))
         G_new = m.volume_gradient(y0n)
         if self.scheme.multiplier == "step":
@@ -383,7 +383,7 @@ class TimeStepper:
         m = self.model
         G = m.volume_gradient(y0)
         _, Hy1 = jax.jvp(m.volume_gradient, (y0,), (y1,))
-        rhs = self.load(xi, f) - m.kappa * (self._K @ y1) - m.internal_force(y0)
+        rhs = self.load(xi, f) - m.damping * (self._K @ y1) - m.internal_force(y0)
         MinvG = m.apply_mass_inverse(G)
         return (MinvG @ rhs + y1 @ Hy1) / (G @ MinvG)
 
@@ -523,7 +523,7 @@ class TimeStepper:
         n = int(bad[0])
         cause = STATUS.get(int(status[n]), "unknown")
         detail = {
-            "newton": f"Newton did not converge in {int(its[n])} iterations (try a smaller dt, or a larger kappa)",
+            "newton": f"Newton did not converge in {int(its[n])} iterations (try a smaller dt, or a larger damping)",
             "nonfinite": "NaN/Inf in the Newton iterate, or in the residual at every line-search step "
                          "(e.g. an element inverted all along the Newton direction; try a smaller dt)",
             "detF": f"min det F = {float(mindet[n]):.3g} <= 0: an element is inverted",
@@ -557,7 +557,7 @@ def detect_regimes(sol: StateSolution) -> list:
         k = int(np.argmax(ratio))
         if np.max(np.abs(ux[k])) > 1e-3 and ratio[k] > 0.5:
             out.append(f"front at mesh scale at t = {sol.t[k]:.4g}: the jump of u_x between neighbouring cells is "
-                       f"{ratio[k]:.2f} of max|u_x| (refine h or increase kappa)")
+                       f"{ratio[k]:.2f} of max|u_x| (refine h or increase the damping)")
     return out
 
 

@@ -20,8 +20,8 @@ cardiac examples use kPa with lengths in mm).
 Fibre-dependent laws (`Guccione`, `HolzapfelOgden`) read the rows of ``frame`` as the fibre ``f``,
 sheet ``s`` and sheet-normal ``n`` directions (in 2D only ``f, s``), e.g. from
 `hyperoc.mechanics.fibres.rule_based_fibres` passed as ``StateModel(frames=...)``. Their compressible forms
-add the volumetric penalty ``U(J) = kappa/4 (J^2 - 1 - 2 ln J)`` (Simo-Taylor), ``J = sqrt(det C)``:
-``U(1) = U'(1) = 0`` and ``U''(1) = kappa``, so ``kappa`` is the small-strain bulk modulus.
+add the volumetric penalty ``U(J) = bulk_modulus/4 (J^2 - 1 - 2 ln J)`` (Simo-Taylor), ``J = sqrt(det C)``:
+``U(1) = U'(1) = 0`` and ``U''(1) = bulk_modulus``, the small-strain bulk modulus.
 """
 
 from __future__ import annotations
@@ -177,23 +177,23 @@ class NeoHookean(Material):
 
 # --- fibre-dependent laws (cardiac tissue, kPa) ----------------------------------------------------
 
-def penalty(kappa, J):
-    """``U(J) = kappa/4 (J^2 - 1 - 2 ln J)``; U(1) = U'(1) = 0, U''(1) = kappa (Simo-Taylor)."""
-    return _penalty_of_J2(kappa, J * J)
+def penalty(bulk_modulus, J):
+    """``U(J) = bulk_modulus/4 (J^2 - 1 - 2 ln J)``; U(1) = U'(1) = 0, U''(1) = bulk_modulus (Simo-Taylor)."""
+    return _penalty_of_J2(bulk_modulus, J * J)
 
 
-def _penalty_of_J2(kappa, J2):
-    return 0.25 * kappa * (J2 - 1.0 - jnp.log(J2))
+def _penalty_of_J2(bulk_modulus, J2):
+    return 0.25 * bulk_modulus * (J2 - 1.0 - jnp.log(J2))
 
 
-def _volumetric(kappa, C):
-    """`penalty` from ``J^2 = det C``; exactly 0 (not traced) when kappa = 0, the split-off rest."""
-    return _penalty_of_J2(kappa, det(C)) if kappa else 0.0
+def _volumetric(bulk_modulus, C):
+    """`penalty` from ``J^2 = det C``; exactly 0 (not traced) when bulk_modulus = 0, the split-off rest."""
+    return _penalty_of_J2(bulk_modulus, det(C)) if bulk_modulus else 0.0
 
 
 def _split_penalty(material):
-    """``(material without its penalty, U)`` for the laws with a ``kappa`` field."""
-    return replace(material, kappa=0.0), partial(penalty, material.kappa)
+    """``(material without its penalty, U)`` for the laws with a ``bulk_modulus`` field."""
+    return replace(material, bulk_modulus=0.0), partial(penalty, material.bulk_modulus)
 
 
 def _frame_rows(frame, k: int, law: str):
@@ -218,7 +218,7 @@ def _check_moduli(law: str, positive: dict, nonnegative: dict | None = None) -> 
 class Guccione(Material):
     """Transversely isotropic Guccione law (Guccione, McCulloch & Waldman 1991), compressible form.
 
-    ``W = C/2 (exp(Q) - 1) + kappa/4 (J^2 - 1 - 2 ln J)``, ``J = sqrt(det(2E + I))``, with
+    ``W = C/2 (exp(Q) - 1) + bulk_modulus/4 (J^2 - 1 - 2 ln J)``, ``J = sqrt(det(2E + I))``, with
 
     ``Q = bf E_ff^2 + bt (E_ss^2 + E_nn^2 + 2 E_sn^2) + bfs (2 E_fs^2 + 2 E_fn^2)``, ``E_ab = a . E b``,
 
@@ -229,7 +229,7 @@ class Guccione(Material):
     ``isochoric=True``: Q from the isochoric strain ``Ebar = (J^(-2/d) C - I) / 2`` instead of E (the
     Simo-Taylor-Pister split ``W = W_iso(Cbar) + U(J)``). The same law at J = 1, so the same
     incompressible limit, but a different compressible one: the bulk response is U alone, and at
-    a given kappa the body is more compressible (on Land problem 2, use kappa >= 1e4 kPa with it
+    a given bulk modulus the body is more compressible (on Land problem 2, use bulk_modulus >= 1e4 kPa with it
     to stay close to the incompressible limit). Without U, the exponential part
     then grows without bound as a point is compressed to J -> 0, unless it keeps its shape (``Cbar``
     bounded, e.g. a pure dilatation): uniaxially (``F = diag(lambda, 1, 1)``) the transverse
@@ -238,23 +238,23 @@ class Guccione(Material):
     ``lambda^6 - 2 lambda^4 + 4 lambda^2 = 1`` (0.534 for bf = 1). Use it with
     `hyperoc.mechanics.model.StateModel` ``volumetric="cell-mean"``, which takes the bulk term off the points.
 
-    Units: C and kappa in kPa, bf, bt, bfs dimensionless. Defaults: Land et al. (2015) problems 1
+    Units: C and bulk_modulus in kPa, bf, bt, bfs dimensionless. Defaults: Land et al. (2015) problems 1
     and 3 (C = 2 kPa, bf = 8, bt = 2, bfs = 4); problem 2 is C = 10 kPa, bf = bt = bfs = 1. The
-    benchmark is incompressible; here ``kappa`` (kPa, >= 0, default 1000 = 500 C; ``Q`` alone
-    already penalizes every strain) approximates it, and P1 elements lock as kappa / C grows.
+    benchmark is incompressible; here ``bulk_modulus`` (kPa, >= 0, default 1000 = 500 C; ``Q`` alone
+    already penalizes every strain) approximates it, and P1 elements lock as bulk_modulus / C grows.
     """
 
     C: float = 2.0
     bf: float = 8.0
     bt: float = 2.0
     bfs: float = 4.0
-    kappa: float = 1000.0
+    bulk_modulus: float = 1000.0
     isochoric: bool = False
 
     def energy(self, E, frame=None):
         f = _frame_rows(frame, 1, "Guccione")[0]
         C = 2.0 * E + jnp.eye(E.shape[0])
-        volumetric = _volumetric(self.kappa, C)
+        volumetric = _volumetric(self.bulk_modulus, C)
         if self.isochoric:
             E = 0.5 * (det(C) ** (-1.0 / E.shape[0]) * C - jnp.eye(E.shape[0]))
         P = jnp.eye(E.shape[0]) - jnp.outer(f, f)
@@ -266,7 +266,8 @@ class Guccione(Material):
     volumetric_split = _split_penalty
 
     def validate(self):
-        _check_moduli("Guccione", {"C": self.C, "bf": self.bf, "bt": self.bt, "bfs": self.bfs}, {"kappa": self.kappa})
+        _check_moduli("Guccione", {"C": self.C, "bf": self.bf, "bt": self.bt, "bfs": self.bfs},
+                      {"bulk_modulus": self.bulk_modulus})
         _require(isinstance(self.isochoric, bool), f"Guccione: isochoric must be True or False, got {self.isochoric!r}")
         return self
 
@@ -278,7 +279,7 @@ class HolzapfelOgden(Material):
 
     ``W = a/(2b) (exp(b (I1bar - d)) - 1)
         + af/(2bf) (exp(bf <I4f - 1>^2) - 1) + as/(2bs) (exp(bs <I4s - 1>^2) - 1)
-        + afs/(2bfs) (exp(bfs I8fs^2) - 1) + kappa/4 (J^2 - 1 - 2 ln J)``
+        + afs/(2bfs) (exp(bfs I8fs^2) - 1) + bulk_modulus/4 (J^2 - 1 - 2 ln J)``
 
     with ``C = 2E + I``, ``J^2 = det C``, ``I1bar = J^(-2/d) tr C``, ``I4f = f.Cf``, ``I4s = s.Cs``,
     ``I8fs = f.Cs`` (``f, s`` = rows 0, 1 of the frame; d = 2 or 3), and ``<x> = max(x, 0)``: fibres
@@ -294,7 +295,7 @@ class HolzapfelOgden(Material):
     ``I4 = 1`` exactly it is the compression (left) limit 0, so the reference tangent (E = 0) has no
     fibre or sheet contribution.
 
-    Units: a, af, as, afs, kappa in kPa; b, bf, bs, bfs dimensionless. Defaults: the 2009 fit to
+    Units: a, af, as, afs, bulk_modulus in kPa; b, bf, bs, bfs dimensionless. Defaults: the 2009 fit to
     Dokos et al. shear data (a = 0.059, b = 8.023, af = 18.472, bf = 16.026, as = 2.481, bs = 11.120,
     afs = 0.216, bfs = 11.436); ``as_`` is spelled ``as`` in configs.
     """
@@ -307,7 +308,7 @@ class HolzapfelOgden(Material):
     bs: float = 11.120
     afs: float = 0.216
     bfs: float = 11.436
-    kappa: float = 1000.0
+    bulk_modulus: float = 1000.0
 
     def energy(self, E, frame=None):
         f, s = _frame_rows(frame, 2, "Holzapfel-Ogden")
@@ -320,13 +321,14 @@ class HolzapfelOgden(Material):
                 + self.af / (2 * self.bf) * jnp.expm1(self.bf * tension(f) ** 2)
                 + self.as_ / (2 * self.bs) * jnp.expm1(self.bs * tension(s) ** 2)
                 + self.afs / (2 * self.bfs) * jnp.expm1(self.bfs * (2.0 * (f @ E @ s)) ** 2)
-                + _volumetric(self.kappa, C))
+                + _volumetric(self.bulk_modulus, C))
 
     volumetric_split = _split_penalty
 
     def validate(self):
         _check_moduli("Holzapfel-Ogden",
-                      {"a": self.a, "b": self.b, "bf": self.bf, "bs": self.bs, "bfs": self.bfs, "kappa": self.kappa},
+                      {"a": self.a, "b": self.b, "bf": self.bf, "bs": self.bs, "bfs": self.bfs,
+                       "bulk_modulus": self.bulk_modulus},
                       {"af": self.af, "as": self.as_, "afs": self.afs})
         return self
 

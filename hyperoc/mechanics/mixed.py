@@ -4,18 +4,18 @@ incompressible solids.
 The unknown is ``x = (u, p)``: the reduced P2 displacement u (n_u,) and a continuous P1 field p
 (n_p,) on the mesh vertices. The discrete problem is stationarity of the perturbed Lagrangian
 
-    L(u, p) = int_Omega W_rest(E) + p (J - 1) - p^2 / (2 kappa) dx,        J = det F,
+    L(u, p) = int_Omega W_rest(E) + p (J - 1) - p^2 / (2 bulk_modulus) dx,        J = det F,
 
 where ``W_rest`` is the law without its bulk term (`hyperoc.mechanics.materials.Material.volumetric_split`)
-and ``kappa`` its small-strain bulk modulus ``U''(1)``: dL/dp = 0 says ``J - 1 = p / kappa``
+and ``bulk_modulus`` its small-strain bulk modulus ``U''(1)``: dL/dp = 0 says ``J - 1 = p / bulk_modulus``
 against every P1 test function, and eliminating p pointwise would give the quadratic bulk
-energy ``kappa/2 (J - 1)^2`` (the law's ``U(J)`` to second order at J = 1, and the same limit). With
-``kappa = inf`` the constraint is exact: ``int N_a (J - 1) = 0`` for every vertex hat ``N_a``, hence
+energy ``bulk_modulus/2 (J - 1)^2`` (the law's ``U(J)`` to second order at J = 1, and the same limit). With
+``bulk_modulus = inf`` the constraint is exact: ``int N_a (J - 1) = 0`` for every vertex hat ``N_a``, hence
 the deformed volume equals the reference one. p is a tension (positive when J > 1); with
 ``J sigma = P F^T`` the Cauchy stress contains ``+ p I``.
 
 P2-P1 satisfies the inf-sup condition on triangles and tetrahedra (Taylor-Hood), so it does not
-lock as kappa grows and the pressure converges too, unlike the pure displacement form
+lock as the bulk modulus grows and the pressure converges too, unlike the pure displacement form
 (`StateModel` ``volumetric="pointwise"``) or the cell-mean form, which constrains only each cell's
 mean J. The saddle-point tangent is symmetric and indefinite; the sparse LU of `hyperoc.solvers.linsolve`
 (threshold pivoting) factors it.
@@ -44,17 +44,17 @@ from .model import StateModel
 __all__ = ["TaylorHoodModel"]
 
 def _bulk_modulus(material: Material, bulk_modulus) -> tuple[Material, float]:
-    """``(W_rest, kappa)``: the law without its bulk term, and kappa = ``bulk_modulus`` or the law's U''(1)."""
+    """``(W_rest, bulk modulus)``: the law without its bulk term, and ``bulk_modulus`` or, if None, the law's U''(1)."""
     rest, bulk = material.volumetric_split()
     if bulk_modulus is None:
         if bulk is None:
             raise InputError(f"TaylorHoodModel: {type(material).__name__} has no separate bulk term; "
                              "pass bulk_modulus (kPa, or inf for an incompressible body)")
         bulk_modulus = float(jax.grad(jax.grad(bulk))(1.0))
-    kappa = float(bulk_modulus)
-    if not (kappa > 0 and not math.isnan(kappa)):
+    value = float(bulk_modulus)
+    if not (value > 0 and not math.isnan(value)):
         raise InputError(f"TaylorHoodModel: the bulk modulus must be > 0 (or inf), got {bulk_modulus}")
-    return rest, kappa
+    return rest, value
 
 
 class TaylorHoodModel(StateModel):
@@ -63,8 +63,8 @@ class TaylorHoodModel(StateModel):
     Parameters
     ----------
     mesh, material : as `StateModel`; the law's bulk term U(J) is replaced by the pressure field.
-    bulk_modulus : kappa (kPa); None (default): the law's ``U''(1)`` (Guccione, Holzapfel-Ogden: its
-        ``kappa``; neo-Hookean: ``lambda``); ``math.inf``: exactly incompressible.
+    bulk_modulus : kPa; None (default): the law's ``U''(1)`` (Guccione, Holzapfel-Ogden: its
+        ``bulk_modulus``; neo-Hookean: ``lambda``); ``math.inf``: exactly incompressible.
     **kwargs : the boundary and frame arguments of `StateModel` (``dirichlet``,
         ``dirichlet_components``, ``pin_rigid``, ``frames``, ``neumann``, ``traction``).
 
@@ -81,7 +81,7 @@ class TaylorHoodModel(StateModel):
     """
 
     def __init__(self, mesh: Mesh, material: Material, *, bulk_modulus: float | None = None, **kwargs):
-        for name in ("degree", "volumetric", "control", "kappa", "density"):
+        for name in ("degree", "volumetric", "control", "damping", "density"):
             if name in kwargs:
                 raise InputError(f"TaylorHoodModel: {name!r} is fixed (P2-P1, quasi-static, no control)")
         self.n_p = mesh.points.shape[0]  # before StateModel's init, whose traction load goes through load_vector
@@ -134,7 +134,7 @@ class TaylorHoodModel(StateModel):
 
     def _element_energy(self, xe, dN, w, frames):
         """One cell's share of the Lagrangian ``L(u, p)``, ``sum_q w_q (W(F_q) + p_q (det F_q - 1) -
-        p_q^2 / (2 kappa))``, xe (k,) = (u_e node-major, vertex pressures); its gradient in x, summed
+        p_q^2 / (2 bulk_modulus))``, xe (k,) = (u_e node-major, vertex pressures); its gradient in x, summed
         over the cells, is the residual (force, constraint) (`StateModel.internal_force`)."""
         ue, pe = self._split_element(xe)
         F = element_F(ue, dN)
@@ -144,7 +144,7 @@ class TaylorHoodModel(StateModel):
         return jnp.sum(w * density)
 
     def _compliance(self, p):
-        """``p^2 / (2 kappa)``, exactly 0 for an incompressible body."""
+        """``p^2 / (2 bulk_modulus)``, exactly 0 for an incompressible body."""
         return 0.0 if math.isinf(self.bulk_modulus) else p * p / (2.0 * self.bulk_modulus)
 
     def tangent_blocks(self, x, a, b):
@@ -152,9 +152,9 @@ class TaylorHoodModel(StateModel):
         (nc, k, k), k = 10 d + (d + 1) in 3D (6 d + 3 in 2D): displacement rows node-major, then
         the vertex pressures. Cells go ``tangent_chunk_points // nq`` at a time.
 
-        ``[[K_uu, G], [G^T, -a M_p / kappa]]``: K_uu is `hyperoc.mechanics.kernels.element_tangent` of ``W_rest`` with
-        the det F Hessian weighted by ``b + a p`` at each point; ``G_(ai),c = a sum_q w_q (cof F_q)_iJ
-        dN_aJ N^p_c`` couples the pressures to dJ; ``M_p = sum_q w_q N^p N^p^T`` (0 when kappa = inf).
+        ``[[K_uu, G], [G^T, -a M_p / bulk_modulus]]``: K_uu is `hyperoc.mechanics.kernels.element_tangent` of
+        ``W_rest`` with the det F Hessian weighted by ``b + a p`` at each point; ``G_(ai),c = a sum_q w_q (cof F_q)_iJ
+        dN_aJ N^p_c`` couples the pressures to dJ; ``M_p = sum_q w_q N^p N^p^T`` (0 when bulk_modulus = inf).
         """
         return self._map_cells(lambda xs: self._element_block(*self._split_element(xs[0]), *xs[1:], a, b),
                                self._element_args(x))

@@ -49,7 +49,7 @@ class StateModel:
     mesh : Mesh with boundaries ``dirichlet`` (u = 0) and optionally ``neumann`` (traction).
     material : strain energy W(E).
     degree : Lagrange degree (1 or 2).
-    kappa : viscous damping coefficient (``kappa (grad u_t, grad phi)``), >= 0.
+    damping : viscous damping coefficient kappa (``kappa (grad u_t, grad phi)``), >= 0.
     density : mass density (the paper uses 1).
     control : a control operator (`BodyForce`, `ActiveStress`) or None.
     traction : traction g on the Neumann boundary, constant vector or callable ``(x, t)``, evaluated at
@@ -70,12 +70,12 @@ class StateModel:
         is then driven by the net load), a static solve does not (its K is singular).
         Rigid motions left by ``dirichlet`` alone (e.g. a degenerate Gamma_D) are only reported.
     volumetric : how the material's bulk term ``U(J)`` (`Material.volumetric_split`: Guccione and
-        Holzapfel-Ogden ``kappa/4 (J^2 - 1 - 2 ln J)``, neo-Hookean ``lambda/2 (ln J)^2``) enters.
+        Holzapfel-Ogden ``bulk_modulus/4 (J^2 - 1 - 2 ln J)``, neo-Hookean ``lambda/2 (ln J)^2``) enters.
         ``"pointwise"`` (default): ``U(J)`` at every quadrature point, the pure displacement
         formulation, which locks (is too stiff on coarse meshes) as the bulk modulus grows.
         ``"cell-mean"``: ``|e| U(theta_e)`` with ``theta_e`` the mean of J over the cell e. This is
         the mixed displacement-pressure formulation with a pressure ``p_e`` constant per cell
-        (P2-P0, P1-P0) and the constraint ``theta_e - 1 = p_e / kappa`` in the weak sense, after
+        (P2-P0, P1-P0) and the constraint ``theta_e - 1 = p_e / U''(1)`` in the weak sense, after
         eliminating ``p_e = U'(theta_e)`` cell by cell (mean dilatation: Nagtegaal, Parks & Rice
         1974; Simo, Taylor & Pister 1985); same unknowns and sparsity as "pointwise". It
         constrains one volume per cell instead of one per quadrature point. P2-P0 satisfies the
@@ -97,15 +97,15 @@ class StateModel:
         Global dofs (``node * dim + component``) fixed by ``pin_rigid``.
     """
 
-    def __init__(self, mesh: Mesh, material: Material, *, degree: int = 1, kappa: float = 0.0, density: float = 1.0,
+    def __init__(self, mesh: Mesh, material: Material, *, degree: int = 1, damping: float = 0.0, density: float = 1.0,
                  control=None, traction=None, dirichlet: str | None = "gamma_d", neumann: str = "gamma_n", frames=None,
                  dirichlet_components: dict | None = None, pin_rigid: bool = True, volumetric: str = "pointwise"):
-        if kappa < 0 or density <= 0:
-            raise InputError(f"need kappa >= 0 and density > 0, got kappa = {kappa}, density = {density}")
+        if damping < 0 or density <= 0:
+            raise InputError(f"need damping >= 0 and density > 0, got damping = {damping}, density = {density}")
         self.mesh, self.material = mesh, material.validate()
         self.volumetric = volumetric
         self._point_material, self._bulk = kernels.split_law(self.material, volumetric)
-        self.kappa, self.density = float(kappa), float(density)
+        self.damping, self.density = float(damping), float(density)
         self.space = VectorSpace(mesh, degree)
         self.dim = mesh.dim
         self.free, self.to_reduced, self.pinned_dofs, self.rigid_modes = constraints.constrain(

@@ -37,7 +37,7 @@ def mass_blocks(space: VectorSpace, density: float) -> np.ndarray:
 
 def laplace_blocks(space: VectorSpace) -> np.ndarray:
     """Element vector-Laplacian matrices (nc, k, k): ``int grad N_a . grad N_b delta_ij dx``, the
-    damping operator up to its coefficient (``kappa (grad u_t, grad phi)``)."""
+    damping operator up to its coefficient (the damping kappa in ``kappa (grad u_t, grad phi)``)."""
     return vector_blocks(space.laplace_blocks(), space.components)
 
 

@@ -42,7 +42,7 @@ class NewtonIteration:
     converged : whether this increment passed the stopping test (each block of unknowns against its
         own scale: displacements, and the pressure field if there is one).
     field_residual, field_increment : with a pressure field among the unknowns
-        (`hyperoc.mechanics.mixed.TaylorHoodModel`: kPa), ``|r_q|_2`` of its equations (``J - 1 - q/kappa``
+        (`hyperoc.mechanics.mixed.TaylorHoodModel`: kPa), ``|r_q|_2`` of its equations (``J - 1 - q/bulk_modulus``
         tested against P1) and ``|dq|_inf`` of its increment; None without one.
     """
 
