@@ -88,3 +88,13 @@ def test_chord_on_a_traced_solver_or_an_unknown_strategy_is_an_input_error(model
         ho.TimeStepper(model, ho.Scheme(newton="chord"), "dense")
     with pytest.raises(InputError, match="newton"):
         ho.Scheme(newton="quasi")
+
+
+def test_the_newton_strategy_is_a_dynamics_setting_of_the_config():
+    from pathlib import Path
+
+    example = Path(__file__).resolve().parents[1] / "examples" / "annulus-2d.toml"
+    assert ho.load_config(example).scheme().newton == "auto"
+    assert ho.load_config(example, ["dynamics.newton=full"]).scheme().newton == "full"
+    with pytest.raises(InputError, match="newton"):
+        ho.load_config(example, ["dynamics.newton=quasi"])

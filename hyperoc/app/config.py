@@ -184,7 +184,7 @@ class Config:
 
         d = self["dynamics"]
         return Scheme(theta=float(d["theta"]), multiplier=d["multiplier"], rtol=float(d["newton_rtol"]),
-                      max_iter=int(d["newton_max_iter"]))
+                      max_iter=int(d["newton_max_iter"]), newton=d["newton"])
 
     def grid(self):
         from ..dynamics.timegrid import uniform_grid

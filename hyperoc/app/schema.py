@@ -237,6 +237,8 @@ class Dynamics(Section):
     newton_rtol: Annotated[float, Field(allow_inf_nan=False, gt=0, lt=1)] = Field(
         1e-11, description="Newton's relative residual tolerance")
     newton_max_iter: Count = Field(30, description="Newton iterations per step")
+    newton: Literal["auto", "full", "chord"] = Field(
+        "auto", description="auto: chord Newton (a kept factorization) with the sparse solvers, full Newton otherwise")
     traction: Optional[Numbers] = Field(None, description="constant traction on gamma_n, one number per dimension")
 
     @model_validator(mode="after")
