@@ -269,7 +269,9 @@ def plot_snapshots(path, x, t, values, times, *, ylabel, title=None, ncols: int 
     ylabel = ylabel if field_unit is None else axis_label(ylabel, field_unit)
     for ax, n in zip(axes, levels):
         ax.plot(x, values[n], color="C0")
-        ax.set_title(f"t = {t[n]:.4g}{time_unit}", fontsize="medium")
+        # A fixed title height: matplotlib otherwise places each panel's title past its tick labels,
+        # a layout pass over every tick that doubles the figure's drawing time (none are on top here).
+        ax.set_title(f"t = {t[n]:.4g}{time_unit}", fontsize="medium", y=1.0)
     for ax in axes[len(levels):]:
         ax.set_visible(False)
     for i, ax in enumerate(axes[: len(levels)]):
