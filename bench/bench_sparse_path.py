@@ -12,7 +12,7 @@ Variants, each the whole solve after an untimed first step (JIT compilation, the
   before chord Newton);
 - ``full/lu_reuse``: full Newton, each tangent solved by refinement with a kept factorization;
 - ``chord/lu``: chord Newton (the default on the sparse path): the whole Jacobian of an earlier
-  iterate, refreshed when the contraction rate exceeds 1/2 (`hyperoc.solvers.newton.CHORD_RATE`);
+  iterate, refreshed when the contraction rate exceeds 0.1 (`hyperoc.solvers.newton.CHORD_RATE`);
 - ``chord/pardiso``: the same with MKL PARDISO's ``L D L^T`` (needs ``pip install mkl``).
 
 Per variant: wall and CPU seconds, Newton iterations, factorizations, and per Newton iteration the
