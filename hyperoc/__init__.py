@@ -8,10 +8,10 @@ The curated API (see the README for a tour)::
     fibres      transmural_coordinate, rule_based_fibres (helix angle rule), prolate_fibres (analytic, Land)
     controls    BodyForce, ActiveStress, Region
     model       StateModel; mixed: TaylorHoodModel (P2-P1, quasi-static, incompressible allowed)
-    dynamics    Scheme, TimeStepper, solve_state (monitor= sees each step's StepRecord), StateSolution;
-                statics: solve_static with state-dependent loads FollowerPressure (pressure on the
-                deformed boundary), FibreTension (active stress), and NewtonLog, a monitor that
-                prints or keeps every Newton iteration
+    dynamics    Scheme, TimeStepper, solve_state (monitor= sees each step's StepRecord), StateSolution,
+                StepStatus; statics: solve_static with state-dependent loads FollowerPressure (pressure
+                on the deformed boundary), FibreTension (active stress), and NewtonLog, a monitor that
+                prints or keeps every Newton iteration; NewtonStatus, how a Newton solve ended
     time        uniform_grid, TimeGrid, TimeTransform
     objectives  Objective, ControlCost, ControlRateCost (beta/2 ||xi_t||^2), InjectivityPenalty,
                 PressureAt, PressureRise, PressureMean
@@ -78,6 +78,7 @@ _LAZY = {
     "TaylorHoodModel": "mechanics.mixed",
     "StateModel": "mechanics.model",
     "NewtonLog": "solvers.newton",
+    "NewtonStatus": "solvers.newton",
     "ControlCost": "control.objectives",
     "ControlRateCost": "control.objectives",
     "InjectivityPenalty": "control.objectives",
@@ -85,6 +86,7 @@ _LAZY = {
     "OptimizationResult": "control.optimize",
     "ControlSpace": "control.control_space",
     "StepRecord": "dynamics.stepper",
+    "StepStatus": "dynamics.stepper",
     "Objective": "control.objectives",
     "PressureAt": "control.objectives",
     "PressureRise": "control.objectives",
@@ -118,10 +120,10 @@ __version__ = "0.1.0"
 __all__ = [
     "ActiveStress", "BodyForce", "Region", "load_config", "Scheme", "StateSolution", "TimeStepper", "solve_state",
     "HyperocError", "InputError", "SolverError", "annulus", "from_file", "thick_shell", "ventricle", "Fung",
-    "NeoHookean", "Ogden", "SaintVenantKirchhoff", "Guccione", "HolzapfelOgden", "rule_based_fibres", "prolate_fibres",
-    "transmural_coordinate", "Mesh", "box", "interval", "rectangle", "refine", "StateModel", "TaylorHoodModel",
-    "ControlCost", "ControlRateCost", "InjectivityPenalty", "Objective", "PressureAt", "PressureRise", "PressureMean",
-    "barzilai_borwein", "lbfgsb", "newton_cg", "OptimizationResult", "ControlPoint", "ControlSpace", "StepRecord",
-    "ReducedFunctional", "solve_static", "NewtonLog", "FollowerPressure", "FibreTension", "TimeGrid", "TimeTransform",
-    "uniform_grid", "taylor_test",
+    "NeoHookean", "Ogden", "SaintVenantKirchhoff", "Guccione", "HolzapfelOgden", "rule_based_fibres",
+    "prolate_fibres", "transmural_coordinate", "Mesh", "box", "interval", "rectangle", "refine", "StateModel",
+    "TaylorHoodModel", "ControlCost", "ControlRateCost", "InjectivityPenalty", "Objective", "PressureAt",
+    "PressureRise", "PressureMean", "barzilai_borwein", "lbfgsb", "newton_cg", "OptimizationResult", "ControlPoint",
+    "ControlSpace", "StepRecord", "StepStatus", "ReducedFunctional", "solve_static", "NewtonLog", "NewtonStatus",
+    "FollowerPressure", "FibreTension", "TimeGrid", "TimeTransform", "uniform_grid", "taylor_test",
 ]

@@ -9,6 +9,7 @@ import pytest
 
 from helpers import small_1d_toml
 from hyperoc.app.cli import main
+from hyperoc.io import read_npz
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
@@ -30,7 +31,7 @@ def test_simulate_writes_outputs(tmp_path):
     ran = load_config(out / "config.toml")  # the configuration that ran
     assert ran.sections == load_config(cfg, ["dynamics.dt=0.1"]).sections and ran["dynamics"]["dt"] == 0.1
     summary = json.loads((out / "summary.json").read_text())
-    data = np.load(out / "results.npz")
+    data = read_npz(out / "results.npz")
     for key in ("t", "p", "volume", "nodes", "displacement", "xi"):
         assert key in data
     assert data["displacement"].shape == (21, 21, 1)  # T = 2, dt = 0.1: 21 levels, n = 20: 21 nodes

@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hyperoc.io import read_npz
+
 ROOT = Path(__file__).resolve().parents[1]
 SETTINGS = ["--set", "mesh.n=20", "--set", "dynamics.dt=0.1", "--set", "optimize.max_iter=8", "--no-progress"]
 
@@ -38,6 +40,6 @@ def test_sigkill_then_resume_is_bitwise_identical(tmp_path):
     resumed = subprocess.run(_optimize("--resume", str(killed), "--no-progress"), cwd=ROOT, check=True,
                              capture_output=True, text=True)
     assert "resuming:" in resumed.stderr
-    a, b = np.load(reference / "results.npz"), np.load(killed / "results.npz")
+    a, b = read_npz(reference / "results.npz"), read_npz(killed / "results.npz")
     for key in ("xi", "p", "displacement"):
         assert np.array_equal(a[key], b[key])

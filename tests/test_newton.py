@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hyperoc.solvers.newton import newton
+from hyperoc.solvers.newton import NewtonStatus, newton
 
 
 class DenseBordered:
@@ -42,7 +42,7 @@ def solve_log(c, *, max_iter=30, line_search=True, calls=None):
                            max_iter=max_iter, line_search=line_search,
                            monitor=lambda *values: jax.debug.callback(record, *values))
     jax.effects_barrier()
-    return np.asarray(x), int(it), int(status), steps
+    return np.asarray(x), int(it), NewtonStatus(int(status)), steps
 
 
 def counted(residual, calls):
@@ -58,7 +58,7 @@ def test_bordered_solve_converges_to_the_root():
     parts = lambda x: (jnp.array([[1.0 / x[0]]]), jnp.ones(1), jnp.ones(1))
     x, it, status = newton(residual, parts, DenseBordered(), jnp.array([1.0, 0.0]), rtol=1e-12, atol=0.0,
                            max_iter=20)
-    assert int(status) == 0
+    assert int(status) == NewtonStatus.CONVERGED
     np.testing.assert_allclose(np.asarray(x), [2.0, -0.5 - np.log(2.0)], rtol=1e-14)
 
 
@@ -69,7 +69,7 @@ def test_the_residual_is_evaluated_once_per_iteration(line_search):
     residual). ``log(u) + 0.5`` from u = 1: full Newton steps decrease |r| all the way."""
     calls = []
     x, it, status, steps = solve_log(0.5, line_search=line_search, calls=calls)
-    assert status == 0 and it >= 3 and steps == [1.0] * it
+    assert status == NewtonStatus.CONVERGED and it >= 3 and steps == [1.0] * it
     np.testing.assert_allclose(x[0], np.exp(-0.5), rtol=1e-14)
     assert len(calls) == it + 1
 
@@ -81,7 +81,7 @@ def test_backtracking_adds_one_evaluation_per_halving():
     calls = []
     x, it, status, steps = solve_log(3.0, calls=calls)
     halvings = sum(round(-np.log2(step)) for step in steps)
-    assert status == 0 and len(steps) == it and halvings >= 2
+    assert status == NewtonStatus.CONVERGED and len(steps) == it and halvings >= 2
     assert calls[:4] == [1.0, -2.0, -0.5, 0.25]
     assert len(calls) == it + 1 + halvings
 
@@ -90,24 +90,24 @@ def test_backtracks_from_nan_trials_into_the_domain_of_the_residual():
     """c = 3: the full step goes to u = 1 - 3 < 0 and the half step to -0.5 (NaN residuals); the
     quarter step to 0.25 decreases |r| from 3 to 1.61 and is taken; Newton then converges to e^-3."""
     x, it, status, steps = solve_log(3.0)
-    assert status == 0 and steps[0] == 0.25
+    assert status == NewtonStatus.CONVERGED and steps[0] == 0.25
     np.testing.assert_allclose(x[0], np.exp(-3.0), rtol=1e-14)
 
 
 def test_a_residual_nan_at_every_line_search_step_fails_in_that_iteration():
     """c = 5000: even the smallest step 2^-12 lands at u = 1 - 5000/4096 < 0, so every trial residual
-    is NaN: status 2 (non-finite) after the first iteration, not a 2^-12 step into NaN first."""
+    is NaN: status NON_FINITE after the first iteration, not a 2^-12 step into NaN first."""
     _, it, status, steps = solve_log(5000.0)
-    assert status == 2 and it == 1 and steps == [2.0**-12]
+    assert status == NewtonStatus.NON_FINITE and it == 1 and steps == [2.0**-12]
 
 
 @pytest.mark.parametrize("line_search", [True, False])
-def test_a_failed_linear_solve_is_status_two_at_once(line_search):
+def test_a_failed_linear_solve_is_non_finite_at_once(line_search):
     residual = lambda x: jnp.array([x[0] - 1.0, x[1]])
     parts = lambda x: (jnp.zeros((1, 1)), jnp.zeros(1), jnp.zeros(1))  # singular K: the solve gives NaN/Inf
     _, it, status = newton(residual, parts, Decoupled(), jnp.array([0.0, 0.0]), rtol=1e-12, atol=0.0,
                            max_iter=20, line_search=line_search)
-    assert int(status) == 2 and int(it) == 1
+    assert int(status) == NewtonStatus.NON_FINITE and int(it) == 1
 
 
 def test_monitor_reports_displacement_and_pressure_field_apart():
@@ -121,7 +121,7 @@ def test_monitor_reports_displacement_and_pressure_field_apart():
     record = lambda *values: records.append(tuple(float(v) for v in values))
     _, it, status = newton(residual, parts, Decoupled(), jnp.zeros(3), rtol=1e-12, atol=0.0, max_iter=5, n_u=1,
                            monitor=lambda *values: jax.debug.callback(record, *values))
-    assert int(status) == 0 and int(it) == 2
+    assert int(status) == NewtonStatus.CONVERGED and int(it) == 2
     # (iteration, |r_u|, |r_p|, |du|, step, converged, |r_q|, |dq|)
     assert records == [(1.0, 2.0, 0.0, 2.0, 1.0, 0.0, 30.0, 30.0), (2.0, 0.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0)]
 
@@ -137,5 +137,5 @@ def test_each_block_of_unknowns_stops_against_its_own_scale(n_u, converged_u):
     parts = lambda x: (jnp.diag(jnp.array([1.0 / x[0], 1.0])), jnp.zeros(2), jnp.zeros(2))
     x, _, status = newton(residual, parts, Decoupled(), jnp.array([2 * u_star, 0.0, 0.0]), rtol=rtol, atol=0.0,
                           max_iter=30, n_u=n_u)
-    assert int(status) == 0 and float(x[1]) == 1e6
+    assert int(status) == NewtonStatus.CONVERGED and float(x[1]) == 1e6
     assert (abs(float(x[0]) / u_star - 1.0) <= rtol) == converged_u

@@ -38,9 +38,9 @@ def test_best_iterate_reported_saved_and_returned(tmp_path, capsys, monkeypatch)
     assert f"best iterate: J = 3 at iteration 2 (tau = 1), above the final J = 2: {out / 'best.npz'}" in printed
     best = json.loads((out / "summary.json").read_text())["optimization"]["best"]
     assert best == {"objective": 3.0, "iteration": 2, "tau": 1.0, "file": "best.npz"}
-    saved = np.load(out / "best.npz")
-    np.testing.assert_array_equal(saved["xi"], np.full_like(saved["xi"], 2e-3))
-    assert saved["objective"] == 3.0 and saved["iteration"] == 2
+    with np.load(out / "best.npz") as saved:  # an open file left to the GC warns in whatever test runs then
+        np.testing.assert_array_equal(saved["xi"], np.full_like(saved["xi"], 2e-3))
+        assert saved["objective"] == 3.0 and saved["iteration"] == 2
 
     from hyperoc.app.config import load_config
 

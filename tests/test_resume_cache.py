@@ -11,6 +11,7 @@ from helpers import small_1d_toml
 from hyperoc.app.cli import main
 from hyperoc.control.optimize import EvaluationCache
 from hyperoc.control.reduced import ControlPoint
+from hyperoc.io import read_npz
 
 SMALL_1D = small_1d_toml(n=10, dt=0.1, lower=0.5, value=None, max_iter=3)
 
@@ -27,7 +28,7 @@ def test_resume_drops_damaged_entries_and_ends_where_the_run_ended(tmp_path, cap
     cfg.write_text(SMALL_1D)
     assert main(["optimize", str(cfg), "--out", str(out), "--no-progress"]) == 0
     first = json.loads((out / "summary.json").read_text())
-    xi = np.load(out / "results.npz")["xi"]
+    xi = read_npz(out / "results.npz")["xi"]
     entries = sorted((out / "cache").glob("*.npz"))
     assert len(entries) >= 3 and first["iterations"] == 3
     _damage(entries)

@@ -47,8 +47,8 @@ from .. import _jax  # noqa: F401
 from ..errors import InputError, SolverError
 from ..mechanics.model import StateModel
 from ..solvers.linsolve import make_solver
-from ..solvers.newton import NewtonIteration, newton
-from .stepper import Scheme
+from ..solvers.newton import NewtonIteration, NewtonStatus, newton
+from .stepper import Scheme, StepStatus
 
 __all__ = ["StaticSolution", "solve_static"]
 
@@ -289,8 +289,11 @@ def _failed_solves(lin) -> int:
 def _failure(lin, failed_before: int, status, mindet) -> tuple:
     """``(cause, detail)`` of a compiled Newton solve: cause None on success, else "newton" (no
     convergence or a failed linear solve, which returns NaN), "nonfinite" or "detF"."""
-    status, detail = int(status), f"min det F = {float(mindet):.3g}"
-    cause = None if status == 0 and float(mindet) > 0 else {1: "newton", 2: "nonfinite"}.get(status, "detF")
+    status, detail = NewtonStatus(int(status)), f"min det F = {float(mindet):.3g}"
+    if status == NewtonStatus.CONVERGED:
+        cause = None if float(mindet) > 0 else StepStatus.DET_F.cause
+    else:
+        cause = StepStatus(status).cause
     if _failed_solves(lin) > failed_before:
         cause, detail = "newton", f"linear solve failed: {lin.last_failure}"
     return cause, detail

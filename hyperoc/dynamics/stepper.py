@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import time as _time
 from dataclasses import dataclass, field
+from enum import IntEnum
 from functools import cached_property
 
 import jax
@@ -36,12 +37,32 @@ from ..errors import InputError, SolverError
 from ..mechanics.model import StateModel
 from ..mechanics.operators import combined_matvec
 from ..solvers.linsolve import make_solver
-from ..solvers.newton import newton
+from ..solvers.newton import NewtonStatus, newton
 from .timegrid import TimeGrid
 
-__all__ = ["Scheme", "StateSolution", "StepRecord", "TimeStepper", "solve_state", "level_pressure"]
+__all__ = ["Scheme", "StateSolution", "StepRecord", "StepStatus", "TimeStepper", "solve_state", "level_pressure"]
 
-STATUS = {0: "ok", 1: "newton", 2: "nonfinite", 3: "detF"}
+
+
+class StepStatus(IntEnum):
+    """How a time step ended (the compiled loop's traced int): `NewtonStatus`, then what the step adds."""
+
+    OK = NewtonStatus.CONVERGED
+    NEWTON = NewtonStatus.MAX_ITERATIONS
+    NON_FINITE = NewtonStatus.NON_FINITE
+    #: Newton converged to a state with an inverted element (min det F <= 0)
+    DET_F = 3
+    #: an earlier step failed; this one made no Newton iteration
+    AFTER_FAILURE = 4
+
+    @property
+    def cause(self) -> str:
+        """The name `StepRecord.status` and `hyperoc.errors.SolverError` give it."""
+        return _CAUSES[self]
+
+
+_CAUSES = {StepStatus.OK: "ok", StepStatus.NEWTON: "newton", StepStatus.NON_FINITE: "nonfinite",
+           StepStatus.DET_F: "detF", StepStatus.AFTER_FAILURE: "after a failed step"}
 
 # Blocks of steps a compiled time loop runs in when it shows progress (two compilations: the block
 # and the shorter last one).
@@ -112,8 +133,8 @@ class StepRecord:
     min_det_F : the smallest det F over the quadrature points at t_{n+1}.
     volume_drift : ``|vol(u_{n+1}) - V0| / |V0|`` (the constraint holds to Newton's tolerance).
     pressure : the step's multiplier p' (the mid-step pressure).
-    status : "ok", or the cause of the failure ("newton", "nonfinite", "detF"); a failed step is
-        the last one a monitor sees before the solve raises.
+    status : `StepStatus.cause`: "ok", or the cause of the failure ("newton", "nonfinite", "detF"); a
+        failed step is the last one a monitor sees before the solve raises.
     """
 
     step: int
@@ -307,7 +328,9 @@ class TimeStepper:
                                rtol=sch.rtol, atol=sch.atol, max_iter=jnp.where(failed, 0, sch.max_iter),
                                chord=self.chord)
         mindet, maxgrad = m.min_det_F(x[:-1]), m.max_grad(x[:-1])
-        status = jnp.where(failed, 4, jnp.where((status == 0) & ~(mindet > 0), 3, status))
+        status = jnp.where(failed, int(StepStatus.AFTER_FAILURE),
+                           jnp.where((status == int(NewtonStatus.CONVERGED)) & ~(mindet > 0), int(StepStatus.DET_F),
+                                     status))
         y0n, pn = x[:-1], x[-1]
         y1n = self.velocity(y0n, y0, y1, dt)
         failed = failed | (status != 0)
@@ -478,7 +501,7 @@ class TimeStepper:
     def march_stepwise(self, y0, y1, p0, xis, fs, grid, V0, progress, monitor=None):
         """`march` driven from Python, one `advance` at a time, on the TimeGrid ``grid``: a progress bar
         (``progress``), ``monitor(StepRecord)`` after each step, and a stop at the first failed step
-        (the outputs padded to the grid with status 4)."""
+        (the outputs padded to the grid with status ``StepStatus.AFTER_FAILURE``)."""
         from tqdm.auto import tqdm
 
         carry = (jnp.asarray(y0), jnp.asarray(y1), jnp.asarray(p0, dtype=jnp.float64), jnp.asarray(False))
@@ -498,13 +521,13 @@ class TimeStepper:
                 steps.set_postfix_str(record.describe(), refresh=False)
                 if monitor is not None:
                     monitor(record)
-            if int(out[4]) != 0:
+            if int(out[4]) != StepStatus.OK:
                 break
         stacked = [np.stack([o[k] for o in outs]) for k in range(7)]
         if len(outs) < grid.num_steps:  # failed early: pad so that indices match the grid
             pad = grid.num_steps - len(outs)
             stacked = [np.concatenate([s, np.repeat(s[-1:], pad, axis=0)]) for s in stacked]
-            stacked[4][len(outs):] = 4
+            stacked[4][len(outs):] = StepStatus.AFTER_FAILURE
         return stacked
 
     def _record(self, n, grid, out, V0) -> StepRecord:
@@ -512,16 +535,16 @@ class TimeStepper:
         y0n, _, pn, its, status, mindet, _ = out
         volume = float(self.model.jitted["volume"](jnp.asarray(y0n)))
         return StepRecord(n, float(grid.t[n + 1]), int(its), float(mindet), abs(volume - V0) / abs(V0), float(pn),
-                          STATUS.get(int(status), "unknown"))
+                          StepStatus(int(status)).cause)
 
     def raise_on_failure(self, status, grid, its, mindet):
         """`SolverError` naming the first step whose status (L,) is not 0, its time on ``grid`` and the
         cause (Newton iterations ``its``, ``mindet`` = min det F per step); nothing if all steps passed."""
-        bad = np.flatnonzero(np.asarray(status) != 0)
+        bad = np.flatnonzero(np.asarray(status) != StepStatus.OK)
         if bad.size == 0:
             return
         n = int(bad[0])
-        cause = STATUS.get(int(status[n]), "unknown")
+        cause = StepStatus(int(status[n])).cause
         detail = {
             "newton": f"Newton did not converge in {int(its[n])} iterations (try a smaller dt, or a larger damping)",
             "nonfinite": "NaN/Inf in the Newton iterate, or in the residual at every line-search step "

@@ -14,13 +14,14 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from enum import IntEnum
 
 import jax
 import jax.numpy as jnp
 
 from .. import _jax  # noqa: F401
 
-__all__ = ["newton", "NewtonIteration", "NewtonLog", "CHORD_RATE"]
+__all__ = ["newton", "NewtonStatus", "NewtonIteration", "NewtonLog", "CHORD_RATE", "CHORD_MARGIN"]
 
 #: Contraction rate above which a chord iteration refreshes the factorization: below it a kept
 #: factorization gains a digit or more per solve; a slower one would need more solves to reach the
@@ -30,6 +31,16 @@ CHORD_RATE = 0.1
 #: the multiplier p, a reaction, amplifies what is left of u, and a linearly converging iteration does
 #: not leave the round-off that a quadratically converging one does.
 CHORD_MARGIN = 0.01
+
+
+class NewtonStatus(IntEnum):
+    """How `newton` ended, its third result (a traced int; compare on the host as ``NewtonStatus``)."""
+
+    CONVERGED = 0
+    #: not converged in ``max_iter`` iterations
+    MAX_ITERATIONS = 1
+    #: a non-finite iterate, or a residual that is non-finite at every line-search step
+    NON_FINITE = 2
 
 
 @dataclass(frozen=True)
@@ -94,10 +105,9 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
     quadratic convergence the error after that update is far below the test. With ``n_u`` (a
     pressure field q among the unknowns) the test is made on each block apart,
     ``|du|_inf <= rtol |u + du|_inf + atol`` and ``|dq|_inf <= rtol |q + dq|_inf + atol``, so that
-    neither block's stopping depends on the other's units (mm and kPa). Status 0 = converged,
-    1 = not converged in ``max_iter`` iterations, 2 = non-finite iterate, or a residual that is
-    non-finite at every line-search step. ``max_iter`` may be traced (0: no iteration, x0 returned
-    with status 1). When the full step does not decrease ``|r|^2``
+    neither block's stopping depends on the other's units (mm and kPa). ``status`` is a
+    `NewtonStatus` as a traced int. ``max_iter`` may be traced (0: no iteration, x0 returned with
+    status ``MAX_ITERATIONS``). When the full step does not decrease ``|r|^2``
     (sufficient decrease 1e-4), it is halved (at most 12 times); ``line_search=False`` always
     takes the full step (penalty-stiff static problems with load stepping, where the merit of the
     first full step can grow although Newton then converges).
@@ -164,14 +174,15 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
         # all along the Newton direction) is a failure now, not one iteration later; after a
         # converged step the residual is not used, and not tested.
         finite = jnp.all(jnp.isfinite(x_new)) & (converged | jnp.isfinite(merit(r1)))
-        status = jnp.where(~finite, 2, jnp.where(converged, 0, 1))
+        status = jnp.where(~finite, int(NewtonStatus.NON_FINITE),
+                           jnp.where(converged, int(NewtonStatus.CONVERGED), int(NewtonStatus.MAX_ITERATIONS)))
         return x_new, r1, it + 1, status, finite
 
     def cond(state):
         _, _, it, status, finite = state
-        return (status == 1) & (it < max_iter) & finite
+        return (status == int(NewtonStatus.MAX_ITERATIONS)) & (it < max_iter) & finite
 
-    x, _, it, status, _ = jax.lax.while_loop(cond, body, (x0, residual(x0), 0, 1, True))
+    x, _, it, status, _ = jax.lax.while_loop(cond, body, (x0, residual(x0), 0, int(NewtonStatus.MAX_ITERATIONS), True))
     return x, it, status
 
 
@@ -221,7 +232,8 @@ def _chord_newton(residual, jacobian_parts, solver, x0, *, rtol, atol, max_iter,
             monitor(it + 1, res, jnp.abs(r[-1]), inc, jnp.where(accepted, alpha, 0.0), converged, *field)
         finite = ~refresh | solved  # a failed kept solve only asks for a refresh
         finite = finite & jnp.all(jnp.isfinite(x_new)) & (converged | jnp.isfinite(merit(r_new)))
-        status = jnp.where(~finite, 2, jnp.where(converged, 0, 1))
+        status = jnp.where(~finite, int(NewtonStatus.NON_FINITE),
+                           jnp.where(converged, int(NewtonStatus.CONVERGED), int(NewtonStatus.MAX_ITERATIONS)))
         refresh_next = ~accepted | (rate > CHORD_RATE)
         # A kept solve that failed (no factorization yet) is no iteration: only the refresh it asks for.
         counted = it + jnp.where(refresh | solved, 1, 0)
@@ -229,9 +241,10 @@ def _chord_newton(residual, jacobian_parts, solver, x0, *, rtol, atol, max_iter,
 
     def cond(state):
         _, _, it, status, finite, *_ = state
-        return (status == 1) & (it < max_iter) & finite
+        return (status == int(NewtonStatus.MAX_ITERATIONS)) & (it < max_iter) & finite
 
-    init = (x0, residual(x0), 0, 1, True, jnp.asarray(False), jnp.asarray(jnp.inf, dtype=x0.dtype))
+    init = (x0, residual(x0), 0, int(NewtonStatus.MAX_ITERATIONS), True, jnp.asarray(False),
+            jnp.asarray(jnp.inf, dtype=x0.dtype))
     x, _, it, status, *_ = jax.lax.while_loop(cond, body, init)
     return x, it, status
 
