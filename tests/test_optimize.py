@@ -21,7 +21,7 @@ from hyperoc import (
     lbfgsb,
 )
 from hyperoc.control.objectives import ControlCost, PressureAt
-from hyperoc.control.optimize import BBStepRule, LumpedMetric, newton_cg, tau_scaling
+from hyperoc.control.optimize import BBStepRule, newton_cg, tau_scaling
 from hyperoc.control.problems import vibrating_bar
 from hyperoc.errors import InputError
 
@@ -80,7 +80,7 @@ def test_bounded_optimizers_reach_the_same_kkt_point(bar_reference):
     """Bounds ``|xi| <= b`` at half the unconstrained maximizer's largest value, so that they are
     active: projected BB and L-BFGS-B must both reach a projected gradient ``||P(m + G) - m||`` <=
     1e-6 of its start, in the lumped metric where the nodal clip is the projection
-    (`LumpedMetric`; with the consistent-mass gradient, projected BB stopped at a point that is not
+    (`ControlSpace.metric(bounded=True)`; with the consistent-mass gradient, projected BB stopped at a point that is not
     a KKT point, and L-BFGS-B's KKT point did not pass the test), and they must agree.
 
     Why they agree to this tolerance: with the same active set (strict complementarity), the
@@ -106,7 +106,7 @@ def test_bounded_optimizers_reach_the_same_kkt_point(bar_reference):
     # L-BFGS-B works on scaled values ``z = c xi``: a value on the bound comes back within an ulp or two
     active = [np.abs(res.point.xi) >= b * (1 - 4 * np.finfo(float).eps) for res in runs]
     assert active[0].any() and all(np.array_equal(active[0], a) for a in active[1:])
-    metric = LumpedMetric(J)
+    metric = J.space.metric(bounded=True)
     lam = _least_curvature_on(J, metric, runs[0].point, free=~active[0])
     eps = [res.history["grad_norm"][-1] for res in runs]
     for other, e in zip(runs[1:], eps[1:]):

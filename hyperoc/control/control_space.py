@@ -1,4 +1,4 @@
-"""The control space: its inner product, Riesz map and coordinates for optimizers.
+"""The control space: its inner product, Riesz map, the optimizers' metric and coordinates.
 
 A control point is ``m = (xi~, tau)``, xi~ (N+1, n_ctrl) the nodal values of the control on the
 control nodes at the levels of the fixed s-grid (s in [0, 2]), tau a scalar. The inner product is
@@ -17,6 +17,9 @@ diagonal time weights and K the tridiagonal 1D stiffness in s (natural end condi
 ``l_s = (2/T) sqrt(beta / alpha)``; `control_space` scales the xi-part by ``c = alpha T/2``, so the
 metric is the cost's Hessian there, and the number of iterations does not grow with the number of
 time levels.
+
+With pointwise bounds on xi the optimizers work in the lumped L2 metric instead (`LumpedMetric`,
+``ControlSpace.metric(bounded=True)``), where the nodal clip is the projection onto the bounds.
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ import scipy.sparse.linalg as spla
 
 from ..dynamics.timegrid import trapezoid_weights
 
-__all__ = ["ControlSpace", "control_space", "s_time_scale"]
+__all__ = ["ControlSpace", "LumpedMetric", "control_space", "s_time_scale"]
 
 
 def s_time_scale(alpha: float, beta: float, T: float) -> float:
@@ -119,6 +122,18 @@ class ControlSpace:
     def norm(self, a) -> float:
         return float(np.sqrt(max(self.inner(a, a), 0.0)))
 
+    # --- the metric the optimizers work in -------------------------------------------------------
+    def metric(self, bounded: bool) -> "ControlSpace | LumpedMetric":
+        """This space itself, or with pointwise bounds on xi (``bounded``) its `LumpedMetric`; either
+        has ``inner``, ``norm`` and ``gradient``."""
+        return LumpedMetric(self) if bounded else self
+
+    @staticmethod
+    def gradient(g):
+        """The gradient in this metric from the reduced functional's gradient g, which is already the
+        Riesz representative in it: g."""
+        return g
+
     # --- coordinates in which the Euclidean geometry is the (lumped) control metric --------------
     @cached_property
     def lumped_weights(self) -> np.ndarray:
@@ -156,6 +171,37 @@ class ControlSpace:
             return dual_xi / self._diagonal_scale
         lower = np.vstack([self.time_cholesky[1], np.concatenate([self.time_cholesky[0, 1:], [0.0]])])
         return sla.solve_banded((1, 0), lower, dual_xi / np.sqrt(self.lumped_mass))
+
+
+class LumpedMetric:
+    """The L2-in-time inner product of a `ControlSpace` with the spatial mass lumped: ``<a, b>_L =
+    sum_k w_k a.xi_k . (D b.xi_k) + a.tau b.tau``, w the trapezoid weights in s, D the lumped mass of
+    the control nodes (`ControlSpace.lumped_weights` of `ControlSpace.l2_in_time`).
+
+    Why: with pointwise bounds on xi, the nodal clip is the projection onto the box in this
+    metric, and it is not in the consistent-mass one of the control space (M^-1 couples
+    neighbouring nodes). So ``m = P(m + G_L)``, with ``G_L = D^-1 dJ/dm`` the gradient in this
+    metric, holds exactly at the KKT points of the discrete problem (dJ/dxi_i = 0 where xi_i is
+    free, of the sign pushing on the bound where it is active), while ``m = P(m + G)`` with the
+    consistent-mass gradient G does not: projected gradient steps along G have other fixed points,
+    and ``||P(m + G) - m||`` does not vanish at a KKT point with active bounds. The two metrics are
+    spectrally equivalent, so without bounds either gives mesh-independent iterations.
+    """
+
+    def __init__(self, space: ControlSpace):
+        self.space = space
+        self.weights = space.l2_in_time().lumped_weights  # (N+1, n_ctrl)
+
+    def inner(self, a, b) -> float:
+        return float(np.sum(a.xi * self.weights * b.xi) + a.tau * b.tau)
+
+    def norm(self, a) -> float:
+        return float(np.sqrt(max(self.inner(a, a), 0.0)))
+
+    def gradient(self, g):
+        """``G_L`` from the gradient g in the control space's metric (its Riesz representative there)."""
+        d = self.space.dual(g)
+        return type(g)(d.xi / self.weights, d.tau)
 
 
 def control_space(transform, control, alpha: float, beta: float) -> ControlSpace:

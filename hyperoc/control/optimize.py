@@ -29,8 +29,8 @@ from ..io import read_npz, write_npz
 from .control_space import ControlSpace
 from .reduced import ControlPoint, ReducedFunctional
 
-__all__ = ["OptimizationResult", "EvaluationCache", "BBStepRule", "LumpedMetric", "barzilai_borwein", "lbfgsb",
-           "newton_cg", "stationarity", "tau_scaling"]
+__all__ = ["OptimizationResult", "EvaluationCache", "BBStepRule", "barzilai_borwein", "lbfgsb", "newton_cg",
+           "stationarity", "tau_scaling"]
 
 
 @dataclass
@@ -157,52 +157,6 @@ class EvaluationCache:
         return value, g
 
 
-class LumpedMetric:
-    """The control space's inner product with the spatial mass lumped: ``<a, b>_L = sum_k w_k
-    a.xi_k . (D b.xi_k) + a.tau b.tau``, w the trapezoid weights in s, D = `ControlData.lumped_mass`.
-
-    Why: with pointwise bounds on xi, the nodal clip is the projection onto the box in this
-    metric, and it is not in the consistent-mass one of `ReducedFunctional.inner` (M^-1 couples
-    neighbouring nodes). So ``m = P(m + G_L)``, with ``G_L = D^-1 dJ/dm`` the gradient in this
-    metric, holds exactly at the KKT points of the discrete problem (dJ/dxi_i = 0 where xi_i is
-    free, of the sign pushing on the bound where it is active), while ``m = P(m + G)`` with the
-    consistent-mass gradient G does not: projected gradient steps along G have other fixed points,
-    and ``||P(m + G) - m||`` does not vanish at a KKT point with active bounds. The two metrics are
-    spectrally equivalent, so without bounds either gives mesh-independent iterations.
-    """
-
-    def __init__(self, J: ReducedFunctional):
-        self.J = J
-        self.weights = J.space.l2_in_time().lumped_weights  # (N+1, n_ctrl)
-
-    def inner(self, a: ControlPoint, b: ControlPoint) -> float:
-        return float(np.sum(a.xi * self.weights * b.xi) + a.tau * b.tau)
-
-    def norm(self, a: ControlPoint) -> float:
-        return float(np.sqrt(max(self.inner(a, a), 0.0)))
-
-    def gradient(self, g: ControlPoint) -> ControlPoint:
-        """``G_L`` from the consistent-mass gradient g (Riesz representative for `ReducedFunctional.inner`)."""
-        d = self.J.dual(g)
-        return ControlPoint(d.xi / self.weights, d.tau)
-
-
-class ConsistentMetric:
-    """`ReducedFunctional.inner` itself (the control space's inner product); gradients as J gives them."""
-
-    def __init__(self, J: ReducedFunctional):
-        self.inner, self.norm = J.inner, J.norm
-
-    @staticmethod
-    def gradient(g: ControlPoint) -> ControlPoint:
-        return g
-
-
-def control_metric(J: ReducedFunctional, xi_bounds=(None, None)):
-    """`LumpedMetric` when xi has a bound (so that projections are nodal clips), else `ConsistentMetric`."""
-    return ConsistentMetric(J) if tuple(xi_bounds) == (None, None) else LumpedMetric(J)
-
-
 def _project(J: ReducedFunctional, m: ControlPoint, tau_range, xi_bounds=(None, None)) -> ControlPoint:
     """Projection onto the admissible set: tau in tau_range = (lo, hi), xi in xi_bounds."""
     lo, hi = tau_range
@@ -212,10 +166,17 @@ def _project(J: ReducedFunctional, m: ControlPoint, tau_range, xi_bounds=(None, 
 
 
 def stationarity(J: ReducedFunctional, m: ControlPoint, g: ControlPoint, tau_range, xi_bounds=(None, None)) -> float:
-    """``|| P(m + G) - m ||`` in `control_metric` (G its gradient, from J's gradient g): the projected
-    gradient norm, zero exactly at the KKT points; ``||G||`` when no bound is active."""
-    metric = control_metric(J, xi_bounds)
+    """``|| P(m + G) - m ||`` in the optimizers' metric (`_metric`; G the gradient there, from J's
+    gradient g): the projected gradient norm, zero exactly at the KKT points; ``||G||`` when no bound
+    is active."""
+    metric = _metric(J, xi_bounds)
     return _projected_norm(J, metric, m, metric.gradient(g), tau_range, xi_bounds)
+
+
+def _metric(J: ReducedFunctional, xi_bounds):
+    """`ControlSpace.metric` of J's control space: the lumped one when xi has a bound (so that
+    projections are nodal clips), else the space's own."""
+    return J.space.metric(bounded=tuple(xi_bounds) != (None, None))
 
 
 def _projected_norm(J, metric, m: ControlPoint, G: ControlPoint, tau_range, xi_bounds) -> float:
@@ -295,9 +256,9 @@ def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e
     With ``xi_bounds`` the iterates are projected onto the box (projected BB, the paper's Remark
     ``rk-box`` as a pointwise bound); ``||G||`` is then the projected gradient norm
     ``||P(m + G) - m||``, and G, the steps and the BB inner products are those of the lumped-mass
-    metric (`LumpedMetric`: the nodal clip is the projection there, so the iteration's fixed
-    points are the KKT points). Stops when it is ``<= max(gtol ||G0||, gtol_abs)`` or after ``max_iter``
-    iterations. ``fix_tau`` optimizes the control only (tau stays at ``m0.tau``). The BB step
+    metric (`hyperoc.control.control_space.LumpedMetric`: the nodal clip is the projection there, so
+    the iteration's fixed points are the KKT points). Stops when it is ``<= max(gtol ||G0||, gtol_abs)``
+    or after ``max_iter`` iterations. ``fix_tau`` optimizes the control only (tau stays at ``m0.tau``). The BB step
     is ``alpha = <s, s> / <s, -y>`` (s = m_k - m_{k-1}, y = G_k - G_{k-1}); when it is not positive
     (J locally not concave along s) the iteration takes an Armijo step from ``|s| / |y|``.
     A trial point where the state solver fails is rejected and its step halved.
@@ -329,7 +290,7 @@ def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e
         raise InputError(f"nonmonotone must be an integer >= 0 (0: the paper's Algorithm 1), got {nonmonotone!r}")
     start = time.perf_counter()
     tau_range = _tau_range(J, tau_margin, fix_tau, m0.tau)
-    metric = control_metric(J, xi_bounds)
+    metric = _metric(J, xi_bounds)
     cache = EvaluationCache(J, cache_dir)
     evaluate = _in_metric(cache, metric)
     res = OptimizationResult(m0, np.nan, 0, False, "")
@@ -564,7 +525,7 @@ def newton_cg(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None),
     Each iteration splits the values into binding ones (within ``w`` of a bound that G pushes against,
     ``w`` the largest component of the projected step ``P(m + G) - m`` per block: Bertsekas's
     epsilon-active set, which shrinks to the active set at a KKT point) and free ones. On the free ones
-    it solves ``-H d = G`` (H the Hessian of J, G the gradient, both in the metric of `control_metric`)
+    it solves ``-H d = G`` (H the Hessian of J, G the gradient, both in the metric of `ControlSpace.metric`)
     by conjugate gradients to the relative residual ``min(0.5, sqrt(||P(m + G) - m|| / ||.||_0))``
     (superlinear local convergence) or ``max_cg`` products; the binding values take the gradient step.
     The step ``P(m + alpha d)`` is searched by Armijo backtracking from alpha = 1, as in `barzilai_borwein`;
@@ -587,7 +548,7 @@ def newton_cg(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None),
     """
     start = time.perf_counter()
     tau_range = _tau_range(J, tau_margin, fix_tau, m0.tau)
-    metric = control_metric(J, xi_bounds)
+    metric = _metric(J, xi_bounds)
     cache = EvaluationCache(J, cache_dir)
     evaluate = _in_metric(cache, metric)
     counts = {"hessian_products": 0, "nonconcave_iterations": 0, "gradient_steps": 0}

@@ -11,7 +11,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-__all__ = ["SparsePattern", "reduced_numbering", "solve_dirichlet"]
+__all__ = ["SparsePattern", "dump_index", "reduced_numbering", "solve_dirichlet"]
 
 
 def reduced_numbering(num_dofs: int, constrained: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -22,6 +22,13 @@ def reduced_numbering(num_dofs: int, constrained: np.ndarray) -> tuple[np.ndarra
     to_reduced = np.full(num_dofs, -1, dtype=np.int64)
     to_reduced[free] = np.arange(free.size)
     return free, to_reduced
+
+
+def dump_index(reduced: np.ndarray, n: int) -> np.ndarray:
+    """Reduced dof indices (any shape, -1 = constrained, as `reduced_numbering` gives them) with the
+    constrained ones sent to the dump slot n: the index of `hyperoc.mechanics.kernels.gather` (which
+    reads 0 there) and of `hyperoc.mechanics.kernels.scatter` (which drops what lands there)."""
+    return np.where(reduced < 0, n, reduced)
 
 
 class SparsePattern:

@@ -40,8 +40,10 @@ import numpy as np
 
 from .. import _jax  # noqa: F401
 from ..errors import InputError
+from ..fem.assembly import dump_index
 from ..fem.quadrature import simplex_rule
 from ..fem.spaces import reference_shape
+from .kernels import gather, scatter
 
 __all__ = ["FollowerPressure"]
 
@@ -102,7 +104,7 @@ class FollowerPressure:
         self.boundary, self.pressure, self.n, self.dim = boundary, float(pressure), model.n, dim
         self.num_facets = nf
         red = model.to_reduced[space.node_dofs(nodes.ravel()).reshape(nf, m * dim)]
-        self._gather = jnp.asarray(np.where(red < 0, model.n, red))  # (nf, m d), n = Dirichlet dump
+        self._gather = jnp.asarray(dump_index(red, model.n))  # (nf, m d)
         self._X = jnp.asarray(space.nodes[nodes])  # (nf, m, dim)
         # Local positions of the facet dofs inside the owner cell's element block.
         loc = np.argmax(space.cell_nodes[owner][:, None, :] == nodes[:, :, None], axis=2)  # (nf, m)
@@ -125,7 +127,7 @@ class FollowerPressure:
 
     def _positions(self, u):
         """Deformed facet nodes ``x = X + u`` (nf, m, dim) from the reduced displacement u (n,)."""
-        ue = jnp.concatenate([u, jnp.zeros(1, u.dtype)])[self._gather]
+        ue = gather(u, self._gather)
         return self._X + ue.reshape(self._X.shape)
 
     # --- assembled ------------------------------------------------------------------------------
@@ -136,7 +138,7 @@ class FollowerPressure:
 
     def force(self, u, factor=1.0):
         """Nodal force ``f(u)`` (n,) on the reduced dofs of ``factor * pressure`` on the deformed boundary."""
-        return jnp.zeros(self.n + 1).at[self._gather].add(self.facet_forces(u, factor))[: self.n]
+        return scatter(self.facet_forces(u, factor), self._gather, self.n)
 
     def facet_stiffness(self, u, factor=1.0):
         """Load stiffness ``K_p = -df/dx`` per facet, (nf, m dim, m dim), node-major facet dofs."""

@@ -31,7 +31,7 @@ import scipy.sparse.linalg as spla
 
 from .. import _jax  # noqa: F401
 from ..errors import InputError
-from ..fem.assembly import SparsePattern
+from ..fem.assembly import SparsePattern, dump_index
 from ..fem.mesh import Mesh
 from ..fem.spaces import VectorSpace, prolong
 from . import constraints, diagnostics, kernels, operators
@@ -129,7 +129,7 @@ class StateModel:
         entries pointing at a dump slot n (read as 0, `kernels.gather`). Set eagerly (an array created
         while a kernel is traced would become that trace's constant)."""
         self.cell_dofs = cell_dofs
-        self._element_gather = jnp.asarray(np.where(cell_dofs < 0, self.n, cell_dofs))
+        self._element_gather = jnp.asarray(dump_index(cell_dofs, self.n))
 
     # --- constant operators (`hyperoc.mechanics.operators`) ----------------------------------------
     @cached_property

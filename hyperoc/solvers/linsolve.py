@@ -29,6 +29,7 @@ import scipy.sparse.linalg as spla
 
 from .. import _jax  # noqa: F401
 from ..errors import InputError
+from ..fem.assembly import dump_index
 
 __all__ = ["DenseSolver", "TridiagonalSolver", "SparseSolver", "make_solver", "nested_dissection"]
 
@@ -48,7 +49,7 @@ class DenseSolver:
     def __init__(self, model):
         k = model.cell_dofs.shape[1]
         n = model.n
-        ed = np.where(model.cell_dofs < 0, n, model.cell_dofs)
+        ed = dump_index(model.cell_dofs, n)
         self.n = n
         self._rows = jnp.asarray(np.repeat(ed, k, axis=1).ravel())
         self._cols = jnp.asarray(np.tile(ed, (1, k)).ravel())
