@@ -4,8 +4,9 @@ worker builds a problem the first time one of its tests asks for it, and later t
 JAX compiles a model's kernels once per model and a time loop once per reduced functional, so a
 shared model saves its construction and its compiled kernels, and a shared reduced functional also
 saves its compiled forward and adjoint loops. A reduced functional keeps evaluation counts and its
-last state, so it is shared only by tests that compare values and gradients and do not count
-solves; `checkpointing_problem` hands it out with the checkpointing settings reset.
+last solves, so it is shared only by tests that compare values and gradients, or count solves as
+differences at points no other test evaluates; `checkpointing_problem` hands it out with the
+checkpointing settings reset.
 """
 
 from dataclasses import dataclass

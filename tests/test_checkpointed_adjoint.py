@@ -17,6 +17,7 @@ import math
 from dataclasses import dataclass
 
 import jax.numpy as jnp
+import numpy as np
 import pytest
 
 from helpers import bar, checkpointing_problem, control_point
@@ -76,3 +77,23 @@ def test_whole_trajectory_objective_is_refused():
     for bad in (0, 1.5, True):
         with pytest.raises(InputError, match="checkpoint_every"):
             J.checkpoint_every = bad
+
+
+def test_state_after_the_gradient_reuses_its_forward_solve():
+    """The whole trajectory at a point whose value and gradient were computed is read from their
+    record when it keeps every level (no checkpointing): bit for bit the trajectory of a fresh solve,
+    and no further solve; with checkpoints the record does not hold it, and the state costs one solve."""
+    J = checkpointing_problem("traced-1d")
+    m = control_point(J, 0.75, 0.04, seed=11)  # a point no other test evaluates: not cached yet
+    before = J.counts["state"]
+    J.value_and_gradient(m)
+    sol = J.state(m)
+    assert J.counts["state"] == before + 1
+    fresh = J.stepper.run(J.transform.grid(m.tau), m.xi, diagnose=False)
+    for name in ("t", "y0", "y1", "p_steps", "pressure", "volume", "newton_iterations", "min_det_F", "max_grad", "xi"):
+        assert np.array_equal(getattr(sol, name), getattr(fresh, name)), name
+    J.checkpoint_every = 3
+    other = control_point(J, 0.75, 0.04, seed=12)
+    J.value_and_gradient(other)
+    J.state(other)
+    assert J.counts["state"] == before + 3

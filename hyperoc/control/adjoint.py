@@ -25,6 +25,7 @@ pass, so recomputed states equal the forward ones bit for bit.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -49,7 +50,8 @@ class Record:
     broadcast view when constant); V0 : the constrained volume ``int det F`` (length^d); schedule :
     the `Schedule`; keep : the levels asked for, ascending (J's partials are given there); p_steps :
     (N,) step multipliers (all kept); levels : (K,) the kept levels, ascending (the schedule's and
-    keep); y0, y1 : (K, n) the states there.
+    keep); y0, y1 : (K, n) the states there; newton_iterations, min_det_F, max_grad : (N,) the steps'
+    monitors (as in `hyperoc.dynamics.stepper.StateSolution`); wall_time : seconds of the forward solve.
     """
 
     grid: TimeGrid
@@ -62,6 +64,10 @@ class Record:
     levels: np.ndarray
     y0: np.ndarray
     y1: np.ndarray
+    newton_iterations: np.ndarray | None = None
+    min_det_F: np.ndarray | None = None
+    max_grad: np.ndarray | None = None
+    wall_time: float = 0.0
 
     @property
     def stored_states(self) -> int:
@@ -153,14 +159,17 @@ class Adjoint:
         V0, y0, y1 = self._initial_state(u0, v0)
         rec = Record(grid, xi, loads, V0, schedule, tuple(sorted(set(keep))), np.zeros(N), *_block({}, n))
         blocks = [_block({0: (y0, y1)} if 0 in hold else {}, n)]
-        its, status, mindet = np.zeros(N, int), np.zeros(N, int), np.zeros(N)
-        state = (y0, y1)
+        its, status, mindet, maxgrad = np.zeros(N, int), np.zeros(N, int), np.zeros(N), np.zeros(N)
+        state, start = (y0, y1), time.perf_counter()
         for a, b in zip(bounds[:-1], bounds[1:]):
             kept, state, monitors = self._steps(rec, state, a, b, hold)
             blocks.append(kept)
-            rec.p_steps[a:b], its[a:b], status[a:b], mindet[a:b] = (np.asarray(m) for m in jax.device_get(monitors))
+            rec.p_steps[a:b], its[a:b], status[a:b], mindet[a:b], maxgrad[a:b] = (
+                np.asarray(m) for m in jax.device_get(monitors))
             self.stepper.raise_on_failure(status, grid, its, mindet)
         rec.levels, rec.y0, rec.y1 = (np.concatenate(parts) for parts in zip(*blocks))
+        rec.newton_iterations, rec.min_det_F, rec.max_grad = its, mindet, maxgrad
+        rec.wall_time = time.perf_counter() - start
         return rec
 
     def _initial_state(self, u0, v0):
@@ -172,19 +181,19 @@ class Adjoint:
         """The steps a .. b-1 from ``state = (y0, y1)`` at level a with Newton's first guess ``p_{a-1/2}`` (0
         at a = 0), by the loop of ``rec.schedule``: the stepper's own loop or one jitted step at a time.
         Returns the states at the levels ``hold`` in a+1 .. b as a `_block` (only those stay in memory), the
-        state at level b and the steps' ``(p, iterations, status, min det F)``, (b - a,) each (on the device
-        for the jitted steps)."""
+        state at level b and the steps' ``(p, iterations, status, min det F, max |grad u|)``, (b - a,) each
+        (on the device for the jitted steps)."""
         p_prev = float(rec.p_steps[a - 1]) if a else 0.0
         if rec.schedule.compiled:
             out = self.stepper.march_levels(*state, p_prev, rec.grid.t[a:b + 1], rec.xi[a:b + 1], rec.loads[a:b + 1],
                                             rec.V0)
-            Y0, Y1, *monitors = (np.asarray(o) for o in out[:6])
+            Y0, Y1, *monitors = (np.asarray(o) for o in out[:7])
             rows = np.flatnonzero([n in hold for n in range(a + 1, b + 1)])
             return (rows + a + 1, Y0[rows], Y1[rows]), (Y0[-1], Y1[-1]), monitors
         carry, kept, monitors = (*state, jnp.asarray(p_prev, dtype=jnp.float64), jnp.asarray(False)), {}, []
         for n in range(a + 1, b + 1):
             carry, out = self.stepper.advance(carry, rec.step_inputs(n - 1))
-            monitors.append(out[2:6])
+            monitors.append(out[2:7])
             if n in hold:
                 kept[n] = out[:2]
         return _block(kept, rec.loads.shape[1]), out[:2], list(zip(*monitors))

@@ -14,6 +14,11 @@ state, the levels the objective reads and the step multipliers, and the adjoint 
 segment from its checkpoint (`hyperoc.control.revolve.EveryK`). With ``checkpoint_snapshots=s`` it
 follows the binomial schedule instead (s snapshots, the least number of recomputed steps;
 `hyperoc.control.revolve.Binomial`).
+
+The forward solves of the last point are kept (`ReducedFunctional.record` and `ReducedFunctional.state`
+share them): the record made for the value and the gradient, and the whole state trajectory, which
+is read from that record when it holds every level (no checkpointing) and costs one more solve
+otherwise.
 """
 
 from __future__ import annotations
@@ -117,6 +122,16 @@ class ControlPoint:
         return np.concatenate([self.xi.ravel(), [self.tau]])
 
 
+@dataclass(eq=False)
+class _Solves:
+    """The forward solves made at one point ``key = (tau, xi bytes)``: its `Record` and its `StateSolution`,
+    each None until asked for."""
+
+    key: tuple
+    record: Record | None = None
+    state: StateSolution | None = None
+
+
 class ReducedFunctional:
     """``J(m)`` and its exact gradient for a model, a time transform and an objective (maximized).
 
@@ -173,7 +188,7 @@ class ReducedFunctional:
         self.v0 = np.zeros(model.n) if v0 is None else np.asarray(v0, float)
         self.N = transform.num_steps
         self.counts = {"state": 0, "adjoint": 0}
-        self._cache_key, self._cache = None, None
+        self._solves = _Solves(None)
         self._set_checkpointing(checkpoint_every, checkpoint_snapshots)
         from jax.experimental import sparse as jsparse
 
@@ -219,7 +234,7 @@ class ReducedFunctional:
             raise InputError(f"{'checkpoint_every' if every else 'checkpoint_snapshots'} is implemented for the exact "
                              "gradient only")
         self._checkpoint_every, self._checkpoint_snapshots = every, snapshots
-        self._record_key, self._record = None, None
+        self._solves.record = None  # made under the previous schedule
 
     # --- geometry of the control space -----------------------------------------------------------
     @property
@@ -251,16 +266,30 @@ class ReducedFunctional:
             raise InputError(f"control must have shape {(self.N + 1, self.model.control.size)}, got {m.xi.shape}")
         self.transform.check_tau(m.tau)
 
-    def state(self, m: ControlPoint) -> StateSolution:
-        """The state for m (cached for the last point)."""
+    def _solves_at(self, m: ControlPoint) -> _Solves:
+        """The solves kept for m: those of the last point if m is that point, else none yet."""
         self._check(m)
         key = (m.tau, m.xi.tobytes())
-        if key != self._cache_key:
-            grid = self.transform.grid(m.tau)
-            sol = self.stepper.run(grid, m.xi, u0=self.u0, v0=self.v0, diagnose=False)
-            self.counts["state"] += 1
-            self._cache_key, self._cache = key, sol
-        return self._cache
+        if key != self._solves.key:
+            self._solves = _Solves(key)
+        return self._solves
+
+    def state(self, m: ControlPoint) -> StateSolution:
+        """The whole state trajectory for m (cached for the last point): from m's `record` when it
+        holds every level, else one forward solve."""
+        solves = self._solves_at(m)
+        if solves.state is None:
+            rec = solves.record
+            span = None if rec is None else rec.span(0, self.N)
+            if span is not None:
+                solves.state = self.stepper.solution(rec.grid, *span, rec.p_steps,
+                                                     (rec.newton_iterations, rec.min_det_F, rec.max_grad), rec.xi,
+                                                     rec.wall_time)
+            else:
+                sol = self.stepper.run(self.transform.grid(m.tau), m.xi, u0=self.u0, v0=self.v0, diagnose=False)
+                self.counts["state"] += 1
+                solves.state = sol
+        return solves.state
 
     def trajectory(self, sol: StateSolution) -> Trajectory:
         n1, n2, _ = self.transform.steps
@@ -318,15 +347,13 @@ class ReducedFunctional:
     def record(self, m: ControlPoint) -> Record:
         """The forward solve for m under `schedule`, keeping the level states the objective receives (all
         of them without checkpointing); cached for the last point."""
-        self._check(m)
-        key = (m.tau, m.xi.tobytes())
-        if key != self._record_key:
+        solves = self._solves_at(m)
+        if solves.record is None:
             grid = self.transform.grid(m.tau)
             loads = self.stepper.external_loads(None, grid)
-            rec = self.adjoint.record(grid, m.xi, loads, self.u0, self.v0, self.schedule, self._read_levels)
+            solves.record = self.adjoint.record(grid, m.xi, loads, self.u0, self.v0, self.schedule, self._read_levels)
             self.counts["state"] += 1
-            self._record_key, self._record = key, rec
-        return self._record
+        return solves.record
 
     def _record_arrays(self, rec: Record):
         """The arguments ``(y0, y1, p, xi, dt)`` of the objective functions: the states at `_read_levels`,

@@ -456,9 +456,17 @@ class TimeStepper:
         Y1 = np.concatenate([y1[None], Y1n])
         if self.scheme.multiplier == "theta":
             P = np.concatenate([[p0], P])
+        return self.solution(grid, Y0, Y1, P, (its, mindet, maxgrad), xis, wall, diagnose)
+
+    def solution(self, grid, Y0, Y1, P, monitors, xi, wall_time: float = 0.0, diagnose: bool = False) -> StateSolution:
+        """The `StateSolution` of a solve on ``grid``: the level states Y0, Y1 (N+1, n), the multipliers P
+        (as in `StateSolution.p_steps`), the steps' ``monitors = (newton_iterations, min_det_F, max_grad)``
+        (N,) each, the controls xi (N+1, n_ctrl); the level volumes and pressures are computed here, the
+        regimes (`detect_regimes`) with ``diagnose``."""
+        m = self.model
         vol = np.asarray(self._volumes(jnp.asarray(Y0)))
         sol = StateSolution(m, grid.t, Y0, Y1, P, level_pressure(P, grid.dt, self.scheme.multiplier), vol,
-                            its, mindet, maxgrad, xis if m.control is not None else None, wall)
+                            *monitors, xi if m.control is not None else None, wall_time)
         if diagnose:
             sol.warnings = detect_regimes(sol)
         return sol
