@@ -17,6 +17,7 @@ What is checked:
 """
 
 import io
+import json
 import math
 
 import jax
@@ -29,6 +30,7 @@ from hyperoc.cardiac.land import BEAM, PUBLISHED, VENTRICLE, beam_deflection, lo
 from hyperoc.dynamics.statics import solve_static
 from hyperoc.errors import InputError, SolverError
 from hyperoc.fem.mesh import box, rectangle, refine
+from hyperoc.io import write_npz
 from hyperoc.mechanics.mixed import TaylorHoodModel
 from hyperoc.solvers.linsolve import DenseSolver
 
@@ -164,6 +166,16 @@ def test_saved_state_reloads_with_the_same_mesh_and_solution(incompressible_vent
     assert np.array_equal(loaded.model.prolong(loaded.model, loaded.u), res.model.prolong(res.model, res.u))
     with pytest.raises(InputError, match="save_state"):
         load_state(tmp_path / "missing.npz")
+
+
+def test_state_with_other_parameter_names_is_an_input_error(tmp_path):
+    """A state whose parameters lack one that `ventricle_apex` takes (here ``bulk_modulus``, saved as
+    ``kappa``) is refused with the names, before any model is built."""
+    params = {"problem": 2, "mesh_size": 6.0, "kappa": 1000.0, "degree": 2, "curved": True, "base": "clamped",
+              "refinements": 0, "volumetric": "pointwise", "isochoric": False}
+    path = write_npz(tmp_path / "old.npz", u=np.zeros(3), values=np.array("{}"), params=np.array(json.dumps(params)))
+    with pytest.raises(InputError, match="lacks the parameter.s. bulk_modulus"):
+        load_state(path)
 
 
 def test_bad_arguments_are_input_errors():

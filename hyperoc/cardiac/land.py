@@ -309,13 +309,18 @@ def load_state(path) -> BenchmarkResult:
     """The result `save_state` wrote, with its model rebuilt from the saved parameters (the same mesh:
     gmsh and the refinement are deterministic), usable as `ventricle_apex`'s ``coarse``. Only
     ``values``, ``params``, ``model``, ``u``, ``h`` and ``dofs`` are set (the diagnostics are NaN).
-    A missing or foreign file, or a rebuilt model of another size, is an `InputError`."""
+    A missing or foreign file, one without the parameters `ventricle_apex` now takes (e.g. ``kappa``
+    for ``bulk_modulus``), or a rebuilt model of another size, is an `InputError`."""
     try:
         data = read_npz(path)
         u, values, params = data["u"], json.loads(str(data["values"])), json.loads(str(data["params"]))
     except (OSError, KeyError, ValueError) as err:
         raise InputError(f"load_state: {path} is not a state written by save_state ({err})") from err
     keys = ("bulk_modulus", "degree", "curved", "base", "refinements", "volumetric", "isochoric")
+    missing = [k for k in ("problem", "mesh_size", *keys) if k not in params]
+    if missing:
+        raise InputError(f"load_state: {path} lacks the parameter(s) {', '.join(missing)} of ventricle_apex "
+                         f"(it has {', '.join(params)})")
     model, _ = _ventricle_setup(params["problem"], params["mesh_size"], taper=params.get("taper", 0.0),
                                 **{k: params[k] for k in keys})
     if model.n != u.size:
