@@ -98,3 +98,18 @@ def test_the_newton_strategy_is_a_dynamics_setting_of_the_config():
     assert ho.load_config(example, ["dynamics.newton=full"]).scheme().newton == "full"
     with pytest.raises(InputError, match="newton"):
         ho.load_config(example, ["dynamics.newton=quasi"])
+
+
+def test_static_solves_take_chord_newton_only_on_request(model):
+    """`Scheme.chord_with`: time stepping uses chord Newton for "auto" where the solver can, static
+    solves only for "chord"; "chord" with a solver that keeps no factorization is refused."""
+    from hyperoc.dynamics.statics import solve_static
+
+    lu, dense = SparseSolver(model, "lu"), ho.TimeStepper(model, ho.Scheme(), "dense").solver
+    assert ho.Scheme().chord_with(lu, auto=True) and not ho.Scheme().chord_with(lu, auto=False)
+    assert ho.Scheme(newton="chord").chord_with(lu, auto=False)
+    assert not ho.Scheme(newton="full").chord_with(lu, auto=True)
+    with pytest.raises(InputError, match="chord"):
+        solve_static(model, scheme=ho.Scheme(newton="chord"), solver="minres")
+    with pytest.raises(InputError, match="chord"):
+        ho.Scheme(newton="chord").chord_with(dense, auto=True)

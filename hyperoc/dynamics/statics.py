@@ -94,6 +94,7 @@ def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, co
         return cache[key]
     slot = [None]
     e = jnp.full(model.n, model.n ** -0.5)
+    chord = scheme.chord_with(lin, auto=False)
 
     def displacement(x):
         return x[:-1] if constrained else x[:-1] + x[-1] * e
@@ -139,7 +140,7 @@ def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, co
         monitor = (lambda *values: jax.debug.callback(report, s, *values)) if monitored else None
         x, it, status = newton(lambda x: residual(x, fk, Vk, s), lambda x: jacobian_parts(x, fk, s), lin, x0,
                                rtol=scheme.rtol, atol=scheme.atol, max_iter=scheme.max_iter, line_search=line_search,
-                               chord=scheme.newton == "chord",
+                               chord=chord,
                                monitor=monitor, n_u=getattr(model, "n_u", None))
         return x, it, status, model.min_det_F(displacement(x))
 

@@ -43,7 +43,6 @@ from .timegrid import TimeGrid
 __all__ = ["Scheme", "StateSolution", "StepRecord", "StepStatus", "TimeStepper", "solve_state", "level_pressure"]
 
 
-
 class StepStatus(IntEnum):
     """How a time step ended (the compiled loop's traced int): `NewtonStatus`, then what the step adds."""
 
@@ -101,6 +100,15 @@ class Scheme:
             raise InputError(f"newton must be 'auto', 'full' or 'chord', got {self.newton!r}")
         if not (0 < self.rtol < 1 and self.atol >= 0 and self.max_iter >= 1):
             raise InputError("Newton options: need 0 < rtol < 1, atol >= 0, max_iter >= 1")
+
+    def chord_with(self, solver, auto: bool) -> bool:
+        """Whether Newton runs as chord Newton with ``solver``: ``newton`` "chord" or "full", or for
+        "auto" ``auto`` where the solver can (time stepping: True, static solves: False).
+        `InputError` for "chord" with a solver that keeps no factorization."""
+        can = getattr(solver, "chord", False)
+        if self.newton == "chord" and not can:
+            raise InputError("chord Newton needs a sparse solver that factors (lu, lu_reuse, pardiso...)")
+        return can and (self.newton == "chord" or (self.newton == "auto" and auto))
 
 
 def level_pressure(p_steps, dt, multiplier: str = "step"):
@@ -244,10 +252,7 @@ class TimeStepper:
         self._mass_blocks = jnp.asarray(model.mass_blocks)
         self._lap_blocks = jnp.asarray(model.laplace_blocks)
         self._inertia_damping = combined_matvec(model.mass, model.laplace)  # (y, a, b) -> a M y + b K y
-        can_chord = getattr(self.solver, "chord", False)
-        if scheme.newton == "chord" and not can_chord:
-            raise InputError("chord Newton needs a sparse solver that factors (lu, lu_reuse, pardiso...)")
-        self.chord = can_chord and scheme.newton != "full"
+        self.chord = scheme.chord_with(self.solver, auto=True)
 
     # --- the step residual: single source of truth for Newton and adjoint -------------------------
     @property

@@ -132,7 +132,6 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
     `CHORD_MARGIN`; an increment that meets the unscaled test while theta exceeds `CHORD_RATE` is
     at the round-off floor, and ends the iteration too.
     """
-    merit = lambda r: jnp.sum(r * r)
     if chord:
         return _chord_newton(residual, jacobian_parts, solver, x0, rtol=rtol, atol=atol, max_iter=max_iter,
                              line_search=line_search, monitor=monitor, n_u=n_u)
@@ -144,16 +143,6 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
         blocks, col, row = jacobian_parts(x)
         du, dp = solver.solve(blocks, col, row, -r[:-1], -r[-1])
         dx = jnp.concatenate([du, dp[None]])
-        m0 = merit(r)
-
-        def shrink(ls):
-            alpha, _ = ls
-            return alpha / 2, residual(x + alpha / 2 * dx)
-
-        def keep_shrinking(ls):
-            alpha, r1 = ls
-            return (~(merit(r1) <= (1 - 1e-4 * alpha) * m0)) & (alpha > 2.0**-12)
-
         # A failed linear solve returns NaN, whose max is not NaN in XLA's reduction (-inf on CPU):
         # test for it first, so that it is neither "converged" nor backtracked on 12 times.
         solved = jnp.all(jnp.isfinite(dx))
@@ -162,8 +151,7 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
         converged = solved & _small(x[:-1], du, n_u, rtol, atol)
         r_full = residual(x + dx)
         if line_search:
-            take_whole = converged | ~solved
-            alpha, r1 = jax.lax.while_loop(lambda ls: ~take_whole & keep_shrinking(ls), shrink, (1.0, r_full))
+            alpha, r1 = _backtrack(residual, x, dx, _merit(r), r_full, ~(converged | ~solved))
         else:
             alpha, r1 = 1.0, r_full
         x_new = x + alpha * dx
@@ -173,14 +161,12 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
         # A residual that is NaN even at the smallest step (e.g. log det F of an inverted element
         # all along the Newton direction) is a failure now, not one iteration later; after a
         # converged step the residual is not used, and not tested.
-        finite = jnp.all(jnp.isfinite(x_new)) & (converged | jnp.isfinite(merit(r1)))
-        status = jnp.where(~finite, int(NewtonStatus.NON_FINITE),
-                           jnp.where(converged, int(NewtonStatus.CONVERGED), int(NewtonStatus.MAX_ITERATIONS)))
-        return x_new, r1, it + 1, status, finite
+        finite = jnp.all(jnp.isfinite(x_new)) & (converged | jnp.isfinite(_merit(r1)))
+        return x_new, r1, it + 1, _status(finite, converged), finite
 
     def cond(state):
         _, _, it, status, finite = state
-        return (status == int(NewtonStatus.MAX_ITERATIONS)) & (it < max_iter) & finite
+        return _running(status, it, finite, max_iter)
 
     x, _, it, status, _ = jax.lax.while_loop(cond, body, (x0, residual(x0), 0, int(NewtonStatus.MAX_ITERATIONS), True))
     return x, it, status
@@ -188,8 +174,6 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
 
 def _chord_newton(residual, jacobian_parts, solver, x0, *, rtol, atol, max_iter, line_search, monitor, n_u):
     """`newton` with ``chord=True`` (its docstring); returns ``(x, iterations, status)``."""
-    merit = lambda r: jnp.sum(r * r)
-
     def fresh(x, r):
         blocks, col, row = jacobian_parts(x)
         return solver.refresh_solve(blocks, col, row, -r[:-1], -r[-1])
@@ -197,18 +181,11 @@ def _chord_newton(residual, jacobian_parts, solver, x0, *, rtol, atol, max_iter,
     def kept(x, r):
         return solver.kept_solve(-r[:-1], -r[-1])
 
-    def shrink(x, dx, m0):
-        def keep_shrinking(ls):
-            alpha, r1 = ls
-            return (~(merit(r1) <= (1 - 1e-4 * alpha) * m0)) & (alpha > 2.0**-12)
-
-        return lambda ls: (ls[0] / 2, residual(x + ls[0] / 2 * dx)), keep_shrinking
-
     def body(state):
         x, r, it, _, _, refresh, previous = state
         du, dp = jax.lax.cond(refresh, fresh, kept, x, r)
         dx = jnp.concatenate([du, dp[None]])
-        m0 = merit(r)
+        m0 = _merit(r)
         solved = jnp.all(jnp.isfinite(dx))
         increment = jnp.where(solved, jnp.max(jnp.abs(du)), jnp.inf)
         # The error left after this update, contracting by the rate: rate / (1 - rate) |du|.
@@ -219,11 +196,9 @@ def _chord_newton(residual, jacobian_parts, solver, x0, *, rtol, atol, max_iter,
         at_floor = (rate > CHORD_RATE) & _small(x[:-1], du, n_u, rtol, atol)
         converged = solved & (_small(x[:-1], left * du, n_u, CHORD_MARGIN * rtol, CHORD_MARGIN * atol) | at_floor)
         r_full = residual(x + dx)
-        step, keep_shrinking = shrink(x, dx, m0)
         # A fresh (full Newton) step backtracks (with ``line_search``); a chord step is taken whole or rejected.
-        search = refresh & ~converged & solved & line_search
-        alpha, r1 = jax.lax.while_loop(lambda ls: search & keep_shrinking(ls), step, (1.0, r_full))
-        decreased = merit(r1) <= (1 - 1e-4 * alpha) * m0
+        alpha, r1 = _backtrack(residual, x, dx, m0, r_full, refresh & ~converged & solved & line_search)
+        decreased = _sufficient_decrease(r1, alpha, m0)
         accepted = solved & (converged | decreased | refresh)
         x_new = jnp.where(accepted, x + alpha * dx, x)
         r_new = jnp.where(accepted, r1, r)
@@ -231,9 +206,8 @@ def _chord_newton(residual, jacobian_parts, solver, x0, *, rtol, atol, max_iter,
             res, inc, *field = _parts(r[:-1], du, solved, n_u)
             monitor(it + 1, res, jnp.abs(r[-1]), inc, jnp.where(accepted, alpha, 0.0), converged, *field)
         finite = ~refresh | solved  # a failed kept solve only asks for a refresh
-        finite = finite & jnp.all(jnp.isfinite(x_new)) & (converged | jnp.isfinite(merit(r_new)))
-        status = jnp.where(~finite, int(NewtonStatus.NON_FINITE),
-                           jnp.where(converged, int(NewtonStatus.CONVERGED), int(NewtonStatus.MAX_ITERATIONS)))
+        finite = finite & jnp.all(jnp.isfinite(x_new)) & (converged | jnp.isfinite(_merit(r_new)))
+        status = _status(finite, converged)
         refresh_next = ~accepted | (rate > CHORD_RATE)
         # A kept solve that failed (no factorization yet) is no iteration: only the refresh it asks for.
         counted = it + jnp.where(refresh | solved, 1, 0)
@@ -241,12 +215,48 @@ def _chord_newton(residual, jacobian_parts, solver, x0, *, rtol, atol, max_iter,
 
     def cond(state):
         _, _, it, status, finite, *_ = state
-        return (status == int(NewtonStatus.MAX_ITERATIONS)) & (it < max_iter) & finite
+        return _running(status, it, finite, max_iter)
 
     init = (x0, residual(x0), 0, int(NewtonStatus.MAX_ITERATIONS), True, jnp.asarray(False),
             jnp.asarray(jnp.inf, dtype=x0.dtype))
     x, _, it, status, *_ = jax.lax.while_loop(cond, body, init)
     return x, it, status
+
+
+def _merit(r):
+    """``|r|^2``, the merit function of the line search."""
+    return jnp.sum(r * r)
+
+
+def _sufficient_decrease(r1, alpha, m0):
+    """Whether the step of length ``alpha`` to the residual r1 decreased the merit ``m0`` enough
+    (Armijo with 1e-4)."""
+    return _merit(r1) <= (1 - 1e-4 * alpha) * m0
+
+
+def _backtrack(residual, x, dx, m0, r_full, search):
+    """``(alpha, r(x + alpha dx))``: the full step's ``r_full`` halved while it does not decrease the
+    merit ``m0`` enough, at most 12 times; with ``search`` False (traced) the full step as it is."""
+    def shrink(ls):
+        alpha, _ = ls
+        return alpha / 2, residual(x + alpha / 2 * dx)
+
+    def keep_shrinking(ls):
+        alpha, r1 = ls
+        return search & ~_sufficient_decrease(r1, alpha, m0) & (alpha > 2.0**-12)
+
+    return jax.lax.while_loop(keep_shrinking, shrink, (1.0, r_full))
+
+
+def _status(finite, converged):
+    """The traced `NewtonStatus` of an iteration."""
+    return jnp.where(~finite, int(NewtonStatus.NON_FINITE),
+                     jnp.where(converged, int(NewtonStatus.CONVERGED), int(NewtonStatus.MAX_ITERATIONS)))
+
+
+def _running(status, it, finite, max_iter):
+    """The loop condition: not converged, below ``max_iter`` iterations, finite."""
+    return (status == int(NewtonStatus.MAX_ITERATIONS)) & (it < max_iter) & finite
 
 
 def _blocks(n_u):
