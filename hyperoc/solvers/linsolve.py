@@ -34,11 +34,16 @@ from ..fem.assembly import dump_index
 __all__ = ["DenseSolver", "TridiagonalSolver", "SparseSolver", "make_solver", "nested_dissection"]
 
 
-def _schur(solve2, col, row, r_u, r_c):
-    ab = solve2(jnp.stack([r_u, col], axis=1))
+def _eliminate(ab, row, r_c):
+    """The bordered solution ``(x, q)`` from ``a = K^-1 r_u`` and ``b = K^-1 col``, the columns of ab
+    (NumPy or JAX arrays): ``q = (row . a - r_c) / (row . b)``, ``x = a - b q``."""
     a, b = ab[:, 0], ab[:, 1]
     q = (row @ a - r_c) / (row @ b)
     return a - b * q, q
+
+
+def _schur(solve2, col, row, r_u, r_c):
+    return _eliminate(solve2(jnp.stack([r_u, col], axis=1)), row, r_c)
 
 
 class DenseSolver:
@@ -324,24 +329,22 @@ class SparseSolver:
             self.stats["solve_s"] += time.perf_counter() - t0
         else:
             rhs = rhs if q is None else rhs[q]
+            # The first "mmd" factorization is of K in the original numbering, later ones of the
+            # permuted K: it is not kept.
+            keepable = q is not None or self._pardiso
             if keep:
                 self._kept = None  # freed before the new factorization is built
                 lu, ab = self._fresh_solve(K, rhs, q is not None)
-                # first "mmd" call: K in the original numbering, later ones are permuted: not kept
-                if q is not None or self._pardiso:
-                    self._kept = (lu, _unpermuted(ab, q)[:, 1], np.asarray(row, dtype=np.float64))
-            elif not self._reuse or self._lu is None:
-                self._lu, ab = self._fresh_solve(K, rhs, q is not None)
-                if q is None and not self._pardiso:
-                    self._lu = None
-            else:
+                self._kept = (lu, _unpermuted(ab, q)[:, 1], np.asarray(row, dtype=np.float64)) if keepable else None
+            elif self._reuse and self._lu is not None:
                 ab = self._solve_refined(K, rhs, self._lu, max_iter=self.reuse_max_iter, rate=self.reuse_rate)
                 if ab is None:  # the kept factorization is too far from K: refresh it
                     self.stats["refactor_after_stall"] += 1
                     self._lu = None  # freed before the new factorization is built
                     self._lu, ab = self._fresh_solve(K, rhs, q is not None)
-            if not self._reuse:
-                self._lu = None
+            else:
+                lu, ab = self._fresh_solve(K, rhs, q is not None)
+                self._lu = lu if self._reuse and keepable else None
             ab = _unpermuted(ab, q)
         self.stats["host_s"] += time.perf_counter() - t_start
         return _bordered(ab, row, r_c)
@@ -508,12 +511,9 @@ def _unpermuted(ab, q):
 
 
 def _bordered(ab, row, r_c) -> np.ndarray:
-    """The bordered solution ``(x, q)`` (n + 1,) from ``a = K^-1 r_u``, ``b = K^-1 col`` (columns of ab):
-    ``q = (row . a - r_c) / (row . b)``, ``x = a - b q``."""
-    a, b = ab[:, 0], ab[:, 1]
-    row = np.asarray(row, dtype=np.float64)
-    qmult = (row @ a - float(r_c)) / (row @ b)
-    return np.concatenate([a - b * qmult, [qmult]])
+    """`_eliminate` on the host, as one array ``(x, q)`` (n + 1,)."""
+    x, q = _eliminate(ab, np.asarray(row, dtype=np.float64), float(r_c))
+    return np.concatenate([x, [q]])
 
 
 def _upper_triangle_map(pattern) -> tuple:
