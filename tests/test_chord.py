@@ -8,7 +8,7 @@ import pytest
 import hyperoc as ho
 from hyperoc.errors import InputError
 from hyperoc.fem.geometry import annulus
-from hyperoc.solvers.linsolve import SparseSolver
+from hyperoc.solvers.linsolve import DenseSolver, SparseSolver
 from hyperoc.solvers.newton import CHORD_MARGIN, CHORD_RATE
 
 STEPS = 20
@@ -105,7 +105,7 @@ def test_static_solves_take_chord_newton_only_on_request(model):
     solves only for "chord"; "chord" with a solver that keeps no factorization is refused."""
     from hyperoc.dynamics.statics import solve_static
 
-    lu, dense = SparseSolver(model, "lu"), ho.TimeStepper(model, ho.Scheme(), "dense").solver
+    lu, dense = SparseSolver(model, "lu"), DenseSolver(model)
     assert ho.Scheme().chord_with(lu, auto=True) and not ho.Scheme().chord_with(lu, auto=False)
     assert ho.Scheme(newton="chord").chord_with(lu, auto=False)
     assert not ho.Scheme(newton="full").chord_with(lu, auto=True)
