@@ -21,7 +21,7 @@ from hyperoc import (
     lbfgsb,
 )
 from hyperoc.control.objectives import ControlCost, PressureAt
-from hyperoc.control.optimize import BBStepRule, newton_cg, tau_scaling
+from hyperoc.control.optimize import BBStepRule, CurvaturePairs, newton_cg, tau_scaling
 from hyperoc.control.problems import vibrating_bar
 from hyperoc.errors import InputError
 
@@ -155,6 +155,38 @@ def _least_curvature_on(J, metric, m, free, h=1e-6):
     lam = scipy.linalg.eigh(-(H + H.T) / 2, np.diag(W), eigvals_only=True)[0]
     assert lam > 0, "the bounded maximizer must be nondegenerate on its free coordinates"
     return lam
+
+
+def test_curvature_pairs_are_an_spd_inverse_satisfying_the_newest_secant_equation():
+    """The preconditioner of Newton-CG is the L-BFGS inverse from pairs (s, y = A s) of an SPD A:
+    B y = s holds exactly for the newest pair (the BFGS update's secant equation), B is symmetric
+    and positive definite in the metric, and it is the identity without pairs (round-off tolerances)."""
+    rng = np.random.default_rng(0)
+    weights = rng.uniform(0.5, 2.0, 7)  # a diagonal metric on (xi (3, 2), tau)
+
+    class Metric:
+        @staticmethod
+        def inner(a, b):
+            return float(np.sum(weights * a.flat() * b.flat()))
+
+    point = lambda z: ControlPoint(z[:6].reshape(3, 2), float(z[6]))
+    Q = rng.standard_normal((7, 7))
+    A = Q @ Q.T + 0.1 * np.eye(7)  # y = W^-1 A s: the Riesz representative, so <s, y> = s^T A s > 0
+    apply_A = lambda v: point(np.linalg.solve(np.diag(weights), A @ v.flat()))
+    B = CurvaturePairs(Metric(), memory=4)
+    r = point(rng.standard_normal(7))
+    assert B(r).flat() == pytest.approx(r.flat(), abs=0)
+    for _ in range(6):
+        s = point(rng.standard_normal(7))
+        y = apply_A(s)
+        B.add([(s, y, Metric.inner(s, y))])
+    assert len(B.pairs) == 4
+    s, y, _ = B.pairs[-1]
+    np.testing.assert_allclose(B(y).flat(), s.flat(), rtol=1e-10, atol=1e-12 * np.abs(s.flat()).max())
+    columns = np.column_stack([B(point(e)).flat() for e in np.eye(7)])
+    gram = np.diag(weights) @ columns  # <e_i, B e_j> in the metric
+    np.testing.assert_allclose(gram, gram.T, rtol=1e-10, atol=1e-12 * np.abs(gram).max())
+    assert np.linalg.eigvalsh((gram + gram.T) / 2)[0] > 0
 
 
 @pytest.mark.slow
