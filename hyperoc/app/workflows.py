@@ -176,7 +176,7 @@ def write_optimization_outputs(out: Path, cfg: Config, J: ReducedFunctional, res
     ``[(t, label), ...]`` marked on the pressure panel. Returns the summary."""
     sol = J.state(res.point)
     sol.warnings = detect_regimes(sol)
-    parts = J.objective.parts(J.trajectory(sol))
+    parts = J.objective_terms(sol)
     summary = {**res.summary(), "objective_terms": parts, "tau0": float(res.history["tau"][0]),
                **(extra or {})}
     hist = {"objective": res.history["objective"], "grad_norm": res.history["grad_norm"], "tau": res.history["tau"]}

@@ -196,11 +196,8 @@ class Objective:
         return total
 
     def parts(self, traj: Trajectory) -> dict:
-        """Each term's value, for reports."""
-        out = {type(self.at_tau).__name__: float(self.at_tau.value(traj))}
-        for term in self.running + self.terminal:
-            out[type(term).__name__] = float(term.value(traj))
-        return out
+        """Each term's value (JAX scalars, traceable), by its class name, for reports."""
+        return {type(term).__name__: term.value(traj) for term in (self.at_tau, *self.running, *self.terminal)}
 
 
 def objective_from_config(cfg: dict) -> Objective:

@@ -292,19 +292,29 @@ class ReducedFunctional:
         return solves.state
 
     def trajectory(self, sol: StateSolution) -> Trajectory:
+        return self._trajectory(*self._solution_arrays(sol))
+
+    def _trajectory(self, y0, y1, p_steps, xi, dt) -> Trajectory:
         n1, n2, _ = self.transform.steps
-        return Trajectory(jnp.asarray(sol.y0), jnp.asarray(sol.y1), jnp.asarray(sol.p_steps), jnp.asarray(sol.xi),
-                          jnp.asarray(sol.dt), n1, n1 + n2, self._control_mass, self.stepper.mass, self.model)
+        return Trajectory(y0, y1, p_steps, xi, dt, n1, n1 + n2, self._control_mass, self.stepper.mass, self.model)
+
+    def objective_terms(self, sol: StateSolution) -> dict:
+        """Each objective term's value on the state ``sol`` (`Objective.parts`), in one compiled call."""
+        return {name: float(v) for name, v in self._objective_terms(*self._solution_arrays(sol)).items()}
+
+    @staticmethod
+    def _solution_arrays(sol: StateSolution) -> tuple:
+        return tuple(jnp.asarray(a) for a in (sol.y0, sol.y1, sol.p_steps, sol.xi, sol.dt))
+
+    @cached_property
+    def _objective_terms(self):
+        return jax.jit(lambda *arrays: self.objective.parts(self._trajectory(*arrays)))
 
     def _objective_functions(self, states):
         """Jitted ``J(y0, y1, p, xi, dt)`` and its value and partial derivatives; ``states`` turns the
         y0 / y1 arguments into what the terms see (the arrays themselves, or `LevelStates`)."""
-        n1, n2, _ = self.transform.steps
-
         def value(y0, y1, p, xi, dt):
-            traj = Trajectory(states(y0), states(y1), p, xi, dt, n1, n1 + n2, self._control_mass, self.stepper.mass,
-                              self.model)
-            return self.objective.value(traj)
+            return self.objective.value(self._trajectory(states(y0), states(y1), p, xi, dt))
 
         return jax.jit(value), jax.jit(jax.value_and_grad(value, argnums=(0, 1, 2, 3, 4)))
 
@@ -364,8 +374,7 @@ class ReducedFunctional:
     def __call__(self, m: ControlPoint) -> float:
         value, _ = self._objective_pair
         if self.gradient_method == "continuous":  # its gradient reads `state`: the value from the same solve
-            sol = self.state(m)
-            return float(value(*(jnp.asarray(a) for a in (sol.y0, sol.y1, sol.p_steps, sol.xi, sol.dt))))
+            return float(value(*self._solution_arrays(self.state(m))))
         return float(value(*self._record_arrays(self.record(m))))
 
     def value_and_derivative(self, m: ControlPoint) -> tuple[float, ControlPoint]:
