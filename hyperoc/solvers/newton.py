@@ -21,7 +21,7 @@ import jax.numpy as jnp
 
 from .. import _jax  # noqa: F401
 
-__all__ = ["newton", "NewtonStatus", "NewtonIteration", "NewtonLog", "CHORD_RATE", "CHORD_MARGIN", "AHEAD_MARGIN"]
+__all__ = ["newton", "NewtonStatus", "NewtonIteration", "NewtonLog", "CHORD_RATE", "CHORD_MARGIN"]
 
 #: Contraction rate above which a chord iteration refreshes the factorization: below it a kept
 #: factorization gains a digit or more per solve; a slower one would need more solves to reach the
@@ -31,11 +31,6 @@ CHORD_RATE = 0.1
 #: the multiplier p, a reaction, amplifies what is left of u, and a linearly converging iteration does
 #: not leave the round-off that a quadratically converging one does.
 CHORD_MARGIN = 0.01
-#: Full Newton stops one iteration early when the increment that quadratic convergence predicts for
-#: the next iteration is below this fraction of the tolerance: the prediction is an estimate, and
-#: this margin leaves the state within round-off of the one the extra iteration gives (the paper's
-#: 1D problem: u to 4e-14 relative, and p to 4e-12, the round-off of a reaction).
-AHEAD_MARGIN = 1e-4
 
 
 class NewtonStatus(IntEnum):
@@ -107,12 +102,7 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
     """Solve ``residual(x) = 0``; returns ``(x, iterations, status)``.
 
     Convergence: ``|du|_inf <= rtol |u + du|_inf + atol`` for the Newton increment du; with
-    quadratic convergence the error after that update is far below the test. The test is also made
-    one iteration ahead: after two full steps, quadratic convergence ``|du_{k+1}| ~ C |du_k|^2`` with
-    ``C ~ |du_k| / |du_{k-1}|^2`` predicts the next increment ``theta^2 |du_k|``, ``theta =
-    |du_k|_inf / |du_{k-1}|_inf``, and the iteration ends when that prediction passes the test with
-    the tolerances scaled by `AHEAD_MARGIN` (one iteration of three or four saved per time step of the
-    paper's problem). With ``n_u`` (a
+    quadratic convergence the error after that update is far below the test. With ``n_u`` (a
     pressure field q among the unknowns) the test is made on each block apart,
     ``|du|_inf <= rtol |u + du|_inf + atol`` and ``|dq|_inf <= rtol |q + dq|_inf + atol``, so that
     neither block's stopping depends on the other's units (mm and kPa). ``status`` is a
@@ -149,19 +139,16 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
     def body(state):
         # r = residual(x) is carried: the line search evaluates it at the point it accepts, which
         # is the next iterate, so each iteration evaluates the residual once (plus backtracking).
-        x, r, it, _, _, previous = state
+        x, r, it, _, _ = state
         blocks, col, row = jacobian_parts(x)
         du, dp = solver.solve(blocks, col, row, -r[:-1], -r[-1])
         dx = jnp.concatenate([du, dp[None]])
         # A failed linear solve returns NaN, whose max is not NaN in XLA's reduction (-inf on CPU):
         # test for it first, so that it is neither "converged" nor backtracked on 12 times.
         solved = jnp.all(jnp.isfinite(dx))
-        increment = jnp.where(solved, _block_maxima(du, n_u), jnp.inf)
-        ahead = jnp.all(jnp.isfinite(previous)) & _small(x[:-1], _predicted(du, increment / previous, n_u), n_u,
-                                                         AHEAD_MARGIN * rtol, AHEAD_MARGIN * atol)
         # An increment below the tolerance is taken whole: its merit is at round-off level and
         # backtracking on it would only stall.
-        converged = solved & (_small(x[:-1], du, n_u, rtol, atol) | ahead)
+        converged = solved & _small(x[:-1], du, n_u, rtol, atol)
         r_full = residual(x + dx)
         if line_search:
             alpha, r1 = _backtrack(residual, x, dx, _merit(r), r_full, ~(converged | ~solved))
@@ -175,16 +162,13 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
         # all along the Newton direction) is a failure now, not one iteration later; after a
         # converged step the residual is not used, and not tested.
         finite = jnp.all(jnp.isfinite(x_new)) & (converged | jnp.isfinite(_merit(r1)))
-        # A damped step says nothing of the quadratic rate: the next test is not made ahead.
-        return x_new, r1, it + 1, _status(finite, converged), finite, jnp.where(alpha == 1.0, increment, jnp.inf)
+        return x_new, r1, it + 1, _status(finite, converged), finite
 
     def cond(state):
-        _, _, it, status, finite, _ = state
+        _, _, it, status, finite = state
         return _running(status, it, finite, max_iter)
 
-    no_increment = jnp.full(len(_blocks(n_u)), jnp.inf, dtype=x0.dtype)
-    init = (x0, residual(x0), 0, int(NewtonStatus.MAX_ITERATIONS), True, no_increment)
-    x, _, it, status, *_ = jax.lax.while_loop(cond, body, init)
+    x, _, it, status, _ = jax.lax.while_loop(cond, body, (x0, residual(x0), 0, int(NewtonStatus.MAX_ITERATIONS), True))
     return x, it, status
 
 
@@ -279,16 +263,6 @@ def _blocks(n_u):
     """The blocks of the unknowns (the multiplier excluded): all of them, or with ``n_u`` the
     displacements ``[:n_u]`` and the pressure field ``[n_u:]``."""
     return [slice(None)] if n_u is None else [slice(None, n_u), slice(n_u, None)]
-
-
-def _block_maxima(du, n_u):
-    """``|du_b|_inf`` of each block b (`_blocks`), as an array."""
-    return jnp.stack([jnp.max(jnp.abs(du[b])) for b in _blocks(n_u)])
-
-
-def _predicted(du, theta, n_u):
-    """The next quadratically converging increment, ``theta_b^2 du_b`` on each block b (`_blocks`)."""
-    return jnp.concatenate([t * t * du[b] for t, b in zip(theta, _blocks(n_u))])
 
 
 def _small(u, du, n_u, rtol, atol):
