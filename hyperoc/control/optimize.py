@@ -532,7 +532,7 @@ def newton_cg(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None),
     CG resolves the Hessian's stiff directions first, so with that loose residual it leaves out the soft
     ones (the paper problem's curved ridge in (xi, tau), curvature ~1e-3 along it against ~1 across) and
     the iterates crawl along them; with the pairs, which hold those directions, the paper's problem takes
-    28 iterations and 125 gradient evaluations instead of 46 and 285.
+    29 iterations and 123 gradient evaluations instead of 46 and 285.
     The step ``P(m + alpha d)`` is searched by Armijo backtracking from alpha = 1, as in `barzilai_borwein`;
     where that fails (a poor curvature model: no ascent in ``max_backtracks`` halvings), the same search along G.
 
