@@ -14,7 +14,7 @@ import math
 import numpy as np
 import pytest
 
-from hyperoc.dynamics.stepper import Scheme, TimeStepper
+from hyperoc.dynamics.stepper import PROGRESS_CHUNKS, Scheme, TimeStepper
 from hyperoc.dynamics.timegrid import uniform_grid
 from hyperoc.errors import SolverError
 from hyperoc.fem import geometry
@@ -46,6 +46,20 @@ def check_records_match(records, sol, grid, volume_tol):
     np.testing.assert_array_equal([r.pressure for r in records], sol.p_steps)
     drift = np.abs(sol.volume[1:] - sol.volume[0]) / abs(sol.volume[0])
     np.testing.assert_allclose([r.volume_drift for r in records], drift, rtol=0, atol=volume_tol)
+
+
+def test_progress_bar_blocks_share_one_compiled_loop_and_change_nothing(bar_1d):
+    """With ``progress`` the compiled loop runs in PROGRESS_CHUNKS blocks; 101 steps do not divide into
+    20 blocks, so the last block is padded with inactive steps: one compiled loop for every block, and
+    the same arithmetic as the whole scan (bitwise equal)."""
+    grid = uniform_grid(2.02, 0.02)
+    assert grid.num_steps % PROGRESS_CHUNKS != 0
+    xi = constant_control(bar_1d, grid, 0.05)
+    scanned = bar_1d.run(grid, xi)
+    blocked = bar_1d.run(grid, xi, progress=True)
+    for name in ("y0", "y1", "p_steps", "newton_iterations", "min_det_F"):
+        np.testing.assert_array_equal(getattr(blocked, name), getattr(scanned, name))
+    assert bar_1d._scan_from._cache_size() == 1
 
 
 def test_monitor_sees_every_step_and_leaves_the_scanned_solve_unchanged(bar_1d):

@@ -357,15 +357,23 @@ class TimeStepper:
 
     @cached_property
     def _scan_from(self):
-        """`march`'s loop from a given carry, returning the final carry too (`_chunked_scan`)."""
-        def run(carry, xis, fs, dts, V):
-            return jax.lax.scan(self.step, carry, (xis[:-1], xis[1:], fs[:-1], fs[1:], dts, V))
+        """`march`'s loop from a given carry over one block of steps, returning the final carry too
+        (`_chunked_scan`); a step whose ``active`` entry is False is computed but leaves the carry as it
+        was, so that blocks padded to one length share one compiled loop."""
+        def masked_step(carry, inputs):
+            *step_inputs, active = inputs
+            new, out = self.step(carry, tuple(step_inputs))
+            return jax.tree.map(lambda a, b: jnp.where(active, a, b), new, carry), out
+
+        def run(carry, xis, fs, dts, V, active):
+            return jax.lax.scan(masked_step, carry, (xis[:-1], xis[1:], fs[:-1], fs[1:], dts, V, active))
 
         return jax.jit(run)
 
     def _chunked_scan(self, y0, y1, p0, xis, fs, grid, V0):
         """The compiled loop over ``PROGRESS_CHUNKS`` blocks of steps, with a bar updated between
-        blocks: "compiling" until the first block has run, then the steps."""
+        blocks: "compiling" until the first block has run, then the steps. The last block is padded
+        with inactive repeats of its last step, so that every block has one length (one compilation)."""
         from tqdm.auto import tqdm
 
         N = grid.num_steps
@@ -375,9 +383,12 @@ class TimeStepper:
         bar = tqdm(total=N, desc="compiling", leave=False)
         for start in range(0, N, size):
             stop = min(start + size, N)
-            carry, out = self._scan_from(carry, jnp.asarray(xis[start:stop + 1]), jnp.asarray(fs[start:stop + 1]),
-                                         jnp.asarray(grid.dt[start:stop]), jnp.full(stop - start, V0))
-            outs.append([np.asarray(o) for o in out])
+            levels = np.minimum(np.arange(start, start + size + 1), N)  # the last level repeated as padding
+            steps = np.minimum(np.arange(start, start + size), N - 1)
+            carry, out = self._scan_from(carry, jnp.asarray(xis[levels]), jnp.asarray(fs[levels]),
+                                         jnp.asarray(grid.dt[steps]), jnp.full(size, V0),
+                                         jnp.asarray(np.arange(start, start + size) < N))
+            outs.append([np.asarray(o)[: stop - start] for o in out])
             if start == 0:  # the ETA from here on counts steps, not the compilation
                 bar.set_description("time steps", refresh=False)
                 bar.reset()
