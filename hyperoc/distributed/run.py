@@ -11,7 +11,7 @@ volume constraint. ``beam``: problem 1 (`hyperoc.cardiac.land.beam_problem`, n),
 Newton steps with load stepping, as `hyperoc.cardiac.land`. The JSON (written by rank 0) holds the solution
 u (serial numbering), the multiplier p, the z of the benchmark's points, Newton iterations, the wall
 time of the set-up and of the solve (JIT compilation included), and the peak resident memory of
-each rank (MB).
+each rank (MB), and on the distributed path the solve's split (`DistributedSolution.split`).
 """
 
 from __future__ import annotations
@@ -64,7 +64,7 @@ def main(argv=None):
                            cutbacks=args.cutbacks)
         u, p, iters, rejected, seconds = sol.u, sol.p, sol.newton_iterations, sol.rejected_iterations, \
             time.perf_counter() - t0
-        rank, size, memory = 0, 1, [peak_mb()]
+        rank, size, memory, split = 0, 1, [peak_mb()], {}
     else:
         from mpi4py import MPI
 
@@ -76,6 +76,7 @@ def main(argv=None):
         setup += time.perf_counter() - t0
         sol = dist.solve(steps=args.steps, cutbacks=args.cutbacks)
         u, p, iters, rejected, seconds = sol.u, sol.p, sol.newton_iterations, sol.rejected_iterations, sol.seconds
+        split = sol.split
         rank, size, memory = comm.rank, comm.size, comm.gather(peak_mb())
         setup = comm.allreduce(setup, op=MPI.MAX)
     if rank == 0:
@@ -84,7 +85,7 @@ def main(argv=None):
                   "constrained": args.constrained, "serial": args.serial, "ranks": size, "unknowns": int(model.n),
                   "values": values, "p": float(p), "newton_iterations": np.asarray(iters).tolist(),
                   "rejected_iterations": int(rejected), "setup_seconds": setup, "solve_seconds": seconds,
-                  "peak_mb": memory, "u": np.asarray(u).tolist()}
+                  "peak_mb": memory, "split_seconds": split, "u": np.asarray(u).tolist()}
         with open(args.out, "w") as fh:
             json.dump(record, fh)
 

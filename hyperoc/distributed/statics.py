@@ -21,6 +21,8 @@ steps (the Land benchmarks' ``line_search=False``), stopped as the serial solve,
 
 from __future__ import annotations
 
+import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -44,13 +46,17 @@ __all__ = ["DistributedStatics", "DistributedSolution"]
 @dataclass(eq=False)
 class DistributedSolution:
     """Equilibrium ``u`` (n,) in the serial numbering (on every rank), multiplier ``p`` (0 when
-    unconstrained), Newton iterations per accepted load increment, rejected ones, seconds of the solve."""
+    unconstrained), Newton iterations per accepted load increment, rejected ones, seconds of the solve,
+    and its split (seconds, the largest over the ranks): ``kernels`` (the JAX residual and element
+    blocks, compilation included), ``assembly`` (ghost scatters, COO values into the matrix),
+    ``solve`` (factorization and the KSP solves)."""
 
     u: np.ndarray
     p: float
     newton_iterations: np.ndarray
     rejected_iterations: int
     seconds: float
+    split: dict
 
 
 class DistributedStatics:
@@ -111,31 +117,36 @@ class DistributedStatics:
     def _newton(self, x0: np.ndarray, V: float, s: float, scheme: Scheme):
         """Newton from ``x0`` (owned values, then p when constrained) at load factor s and target
         volume V: ``(x, iterations, NewtonStatus, min det F)``."""
-        k = self._kernels
+        k, clock = self._kernels, self._clock
         x = x0.copy()
         owned = self.x.getLocalSize()
         r, G, a, b = (self.x.duplicate() for _ in range(4))
         for it in range(1, scheme.max_iter + 1):
             self.x.setArray(x[:owned])
             p = x[owned] if self.constrained else 0.0
-            xl = jnp.asarray(self.ghosts.gather(self.x))
-            f = np.asarray(k["force"](xl, s))
-            if self.constrained:
-                gl = np.asarray(k["volume_gradient"](xl))
-                self.ghosts.add(gl, G)
-                f = f + p * gl
-            self.ghosts.add(-f, r)
-            self.A.setValuesCOO(np.asarray(k["blocks"](xl, p, s)).ravel(), PETSc.InsertMode.INSERT_VALUES)
-            self.A.assemble()
-            self.ksp.setOperators(self.A)
-            self.ksp.solve(r, a)
-            du = a.getArray().copy()
-            step = [du]
-            if self.constrained:  # the bordered step, the Schur complement of linsolve._eliminate
-                self.ksp.solve(G, b)
-                dp = (G.dot(a) + self.volume(xl) - V) / G.dot(b)
-                du = du - dp * b.getArray()
-                step = [du, [dp]]
+            with clock("assembly"):
+                xl = jnp.asarray(self.ghosts.gather(self.x))
+            with clock("kernels"):
+                f = np.asarray(k["force"](xl, s))
+                gl = np.asarray(k["volume_gradient"](xl)) if self.constrained else None
+                blocks = np.asarray(k["blocks"](xl, p, s))
+            with clock("assembly"):
+                if self.constrained:
+                    self.ghosts.add(gl, G)
+                    f = f + p * gl
+                self.ghosts.add(-f, r)
+                self.A.setValuesCOO(blocks.ravel(), PETSc.InsertMode.INSERT_VALUES)
+                self.A.assemble()
+            with clock("solve"):
+                self.ksp.setOperators(self.A)
+                self.ksp.solve(r, a)
+                du = a.getArray().copy()
+                step = [du]
+                if self.constrained:  # the bordered step, the Schur complement of linsolve._eliminate
+                    self.ksp.solve(G, b)
+                    dp = (G.dot(a) + self.volume(xl) - V) / G.dot(b)
+                    du = du - dp * b.getArray()
+                    step = [du, [dp]]
             if self.ksp.getConvergedReason() < 0 or not self._finite(du):
                 return x, it, NewtonStatus.NON_FINITE, np.nan
             x = x + np.concatenate(step)
@@ -145,6 +156,13 @@ class DistributedStatics:
                 mindet = self.comm.allreduce(float(k["min_det_F"](xl)), op=MPI.MIN)
                 return x, it, NewtonStatus.CONVERGED, mindet
         return x, scheme.max_iter, NewtonStatus.MAX_ITERATIONS, np.nan
+
+    @contextmanager
+    def _clock(self, part: str):
+        """Add the wall time of the block to ``part`` of the solve's split."""
+        t0 = time.perf_counter()
+        yield
+        self._split[part] = self._split.get(part, 0.0) + time.perf_counter() - t0
 
     def _finite(self, du) -> bool:
         return bool(self.comm.allreduce(bool(np.all(np.isfinite(du))), op=MPI.LAND))
@@ -165,7 +183,7 @@ class DistributedStatics:
         if not self.constrained and volume is not None:
             raise InputError("DistributedStatics.solve: a target volume needs the volume constraint")
         self.comm.Barrier()
-        t0 = MPI.Wtime()
+        t0, self._split = MPI.Wtime(), {}
         x = np.zeros(self.x.getLocalSize() + (1 if self.constrained else 0))
         V0 = self.volume(jnp.zeros(self.local.n))
         V = V0 if volume is None else float(volume)
@@ -174,8 +192,9 @@ class DistributedStatics:
         x, iters, rejected = _step_load(None, solve, x, 0.0, V0, V, steps=steps, cutbacks=cutbacks,
                                         predictor=predictor)
         seconds = MPI.Wtime() - t0
+        split = {part: self.comm.allreduce(value, op=MPI.MAX) for part, value in sorted(self._split.items())}
         return DistributedSolution(self.gather(x[: self.x.getLocalSize()]), float(x[-1]) if self.constrained else 0.0,
-                                   np.array(iters), rejected, seconds)
+                                   np.array(iters), rejected, seconds, split)
 
     def gather(self, owned: np.ndarray) -> np.ndarray:
         """The serial vector (n,) on every rank from each rank's owned values."""
