@@ -7,12 +7,14 @@ load steps, full Newton steps (`hyperoc.cardiac.land`). Each row is one process 
 ``python -m hyperoc.distributed.run``: the serial path (`hyperoc.dynamics.statics.solve_static`, its
 default sparse LU) and the distributed path on 1 and on 2 ranks (``mpiexec -n``). Reported: the
 wall time of the set-up (mesh, model, partition, PETSc objects) and of the solve (JIT compilation
-included), the Newton iterations, the largest peak resident memory over the ranks, and the largest
+included) and, on the distributed path, its split into the JAX kernels, the assembly (ghost
+scatters, COO values) and the factorizations and solves (the largest over the ranks), the Newton
+iterations, the largest peak resident memory over the ranks, and the largest
 difference of the displacement and of the apex positions from the serial path, relative to the
 largest displacement. Needs the ``mpi`` extra (docs/distributed.md); run it with that environment's
 python, whose bin/ holds mpiexec.
 
-    /work/venv312/bin/python bench/bench_distributed.py --refinements 0,1
+    venv-mpi/bin/python bench/bench_distributed.py --refinements 0,1
 
 Writes ``bench/results/bench_distributed.json`` (`bench/results.py`).
 """
@@ -29,10 +31,12 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+
 from results import Table, command_line, write_results
 
 COLUMNS = ["level", "unknowns", "path", "ranks", "set-up (s)", "solve (s)", "speed-up vs 1 rank", "Newton iterations",
-           "peak RSS per rank, max (MB)", "max |u - u_serial| / max |u|", "max |z_apex - z_serial| (mm)"]
+           "peak RSS per rank, max (MB)",
+           "kernels / assembly / factor + solves (s)", "max |u - u_serial| / max |u|", "max |z_apex - z_serial| (mm)"]
 
 
 def run(refinements: int, ranks: int | None, folder: Path) -> dict:
@@ -47,6 +51,12 @@ def run(refinements: int, ranks: int | None, folder: Path) -> dict:
         cmd = [mpiexec, "-n", str(ranks), *cmd]
     subprocess.run(cmd, check=True)
     return json.loads(out.read_text())
+
+
+def split(record: dict) -> str | None:
+    """The distributed solve's split (`hyperoc.distributed.statics.DistributedSolution`), largest over the ranks."""
+    parts = record.get("split_seconds") or {}
+    return " / ".join(f"{parts[k]:.1f}" for k in ("kernels", "assembly", "solve")) if parts else None
 
 
 def main():
@@ -69,7 +79,7 @@ def main():
                 speedup = None if r["serial"] or one is None else one["solve_seconds"] / r["solve_seconds"]
                 table.add(level, r["unknowns"], "serial" if r["serial"] else "distributed", r["ranks"],
                           r["setup_seconds"], r["solve_seconds"], speedup, int(sum(r["newton_iterations"])),
-                          max(r["peak_mb"]), float(np.abs(u - u_ref).max() / np.abs(u_ref).max()), dz)
+                          max(r["peak_mb"]), split(r), float(np.abs(u - u_ref).max() / np.abs(u_ref).max()), dz)
     write_results("bench_distributed", command_line(), [table.as_dict()])
 
 
