@@ -16,7 +16,9 @@ python, whose bin/ holds mpiexec.
 
     venv-mpi/bin/python bench/bench_distributed.py --refinements 0,1
 
-Writes ``bench/results/bench_distributed.json`` (`bench/results.py`).
+    venv-mpi/bin/python bench/bench_distributed.py --refinements 2 --ranks 2 --no-serial --results bench_distributed_L2
+
+Writes ``bench/results/bench_distributed.json`` (`bench/results.py`), or ``--results NAME``.
 """
 
 from __future__ import annotations
@@ -53,6 +55,15 @@ def run(refinements: int, ranks: int | None, folder: Path) -> dict:
     return json.loads(out.read_text())
 
 
+def differences(record: dict, serial: dict | None) -> tuple:
+    """``(max |u - u_serial| / max |u_serial|, max |z_apex - z_apex,serial|)``, (None, None) without a serial run."""
+    if serial is None:
+        return None, None
+    u, u_ref = np.asarray(record["u"]), np.asarray(serial["u"])
+    dz = max(abs(record["values"][k] - serial["values"][k]) for k in serial["values"])
+    return float(np.abs(u - u_ref).max() / np.abs(u_ref).max()), dz
+
+
 def split(record: dict) -> str | None:
     """The distributed solve's split (`hyperoc.distributed.statics.DistributedSolution`), largest over the ranks."""
     parts = record.get("split_seconds") or {}
@@ -63,24 +74,25 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--refinements", default="0,1", help="comma-separated levels")
     parser.add_argument("--ranks", default="1,2", help="comma-separated rank counts of the distributed path")
+    parser.add_argument("--no-serial", action="store_true",
+                        help="distributed runs only (no differences reported), e.g. for a level the serial path "
+                             "takes too long at")
+    parser.add_argument("--results", default="bench_distributed", help="results file stem")
     args = parser.parse_args()
     table = Table("Land problem 2 (Taylor-Hood, incompressible): serial JAX path vs MPI + PETSc (MUMPS)", COLUMNS,
                   "Speed-up: solve time on 1 rank over solve time on this many. Differences against the serial path "
                   "(its own row: 0).")
     with tempfile.TemporaryDirectory() as tmp:
         for level in map(int, args.refinements.split(",")):
-            serial = run(level, None, Path(tmp))
-            records = [serial] + [run(level, int(r), Path(tmp)) for r in args.ranks.split(",")]
+            serial = None if args.no_serial else run(level, None, Path(tmp))
+            records = [serial] * (serial is not None) + [run(level, int(r), Path(tmp)) for r in args.ranks.split(",")]
             one = next((r for r in records if not r["serial"] and r["ranks"] == 1), None)
-            u_ref = np.asarray(serial["u"])
             for r in records:
-                u = np.asarray(r["u"])
-                dz = max(abs(r["values"][k] - serial["values"][k]) for k in serial["values"])
                 speedup = None if r["serial"] or one is None else one["solve_seconds"] / r["solve_seconds"]
                 table.add(level, r["unknowns"], "serial" if r["serial"] else "distributed", r["ranks"],
                           r["setup_seconds"], r["solve_seconds"], speedup, int(sum(r["newton_iterations"])),
-                          max(r["peak_mb"]), split(r), float(np.abs(u - u_ref).max() / np.abs(u_ref).max()), dz)
-    write_results("bench_distributed", command_line(), [table.as_dict()])
+                          max(r["peak_mb"]), split(r), *differences(r, serial))
+    write_results(args.results, command_line(), [table.as_dict()])
 
 
 if __name__ == "__main__":
