@@ -34,6 +34,7 @@ from mpi4py import MPI
 from ..dynamics.statics import _step_load
 from ..dynamics.stepper import Scheme
 from ..errors import InputError
+from ..mechanics.follower import FollowerPressure
 from ..mechanics.model import StateModel
 from ..solvers.newton import NewtonStatus
 from .local import local_dofs, restrict_follower, restrict_model
@@ -70,6 +71,10 @@ class DistributedStatics:
                  solver: str = "mumps"):
         self.model, self.comm, self.constrained = model, comm, constrained
         followers = (follower,) if not isinstance(follower, (tuple, list)) else tuple(follower)
+        for f in followers:
+            if not isinstance(f, FollowerPressure):
+                raise InputError(f"DistributedStatics: the loads are follower pressures; {type(f).__name__} "
+                                 "is not distributed yet")
         self.part = comm.bcast(Partition.build(model.mesh.cells, model.cell_dofs, model.n, comm.size)
                                if comm.rank == 0 else None)
         cells = self.part.cells_of(comm.rank)
