@@ -112,3 +112,12 @@ def test_two_ranks_equal_the_serial_solve(tmp_path, args):
     assert dist["newton_iterations"] == sol.newton_iterations.tolist()
     for value in dist["values"].values():
         assert np.isfinite(value)
+
+
+def test_a_load_that_is_not_distributed_is_an_input_error(beam):
+    pytest.importorskip("dolfinx_solver")
+    pytest.importorskip("petsc4py")
+    from hyperoc.distributed.statics import DistributedStatics
+
+    with pytest.raises(InputError, match="not distributed"):
+        DistributedStatics(beam[0], [beam[1], object()])
