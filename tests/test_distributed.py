@@ -1,0 +1,123 @@
+"""The distributed path (`hyperoc.distributed`): the partition and the restriction to a rank's cells in
+any environment; the 2-rank solve under ``mpiexec`` where PETSc is installed (the ``mpi`` extra,
+Python >= 3.12), else those tests skip."""
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from types import SimpleNamespace
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from hyperoc.cardiac.land import beam_problem
+from hyperoc.distributed.local import local_dofs, restrict_follower, restrict_model
+from hyperoc.distributed.partition import Partition
+from hyperoc.distributed.run import problem
+from hyperoc.dynamics.statics import solve_static
+from hyperoc.dynamics.stepper import Scheme
+from hyperoc.errors import InputError
+
+
+@pytest.fixture(scope="module")
+def beam():
+    return beam_problem(1, bulk_modulus=1000.0)
+
+
+def test_partition_owns_each_dof_once_in_contiguous_ranges_by_a_rank_holding_it(beam):
+    model, _ = beam
+    part = Partition.build(model.mesh.cells, model.cell_dofs, model.n, 3)
+    assert set(part.cell_part) == {0, 1, 2}
+    assert np.array_equal(np.sort(part.to_global), np.arange(model.n))
+    for r in range(3):
+        start, stop = part.owned(r)
+        owned = np.flatnonzero(part.dof_owner == r)
+        assert np.array_equal(np.sort(part.to_global[owned]), np.arange(start, stop))
+        held = local_dofs(model, part.cells_of(r))
+        assert np.all(np.isin(owned, held))  # the owner assembles a cell of each dof it owns
+    with pytest.raises(InputError, match="parts"):
+        Partition.build(model.mesh.cells, model.cell_dofs, model.n, 0)
+
+
+@pytest.mark.parametrize("mixed", [False, True])
+def test_restricted_kernels_sum_over_the_parts_to_the_serial_ones(beam, mixed):
+    """Forces, follower forces, volume, volume gradient and the assembled tangent (follower stiffness
+    included) of the parts, summed into the serial numbering, equal the serial model's to round-off."""
+    model, follower = beam_problem(1, bulk_modulus=np.inf, volumetric="taylor-hood", isochoric=True) if mixed \
+        else beam
+    x = jnp.asarray(np.random.default_rng(0).normal(scale=1e-2, size=model.n))
+    part = Partition.build(model.mesh.cells, model.cell_dofs, model.n, 2)
+    force, grad, volume = np.zeros(model.n), np.zeros(model.n), 0.0
+    K = np.zeros((model.n, model.n))
+    for r in range(2):
+        cells = part.cells_of(r)
+        dofs = local_dofs(model, cells)
+        local, fol = restrict_model(model, cells, dofs), restrict_follower(follower, model, cells, dofs)
+        xl = x[dofs]
+        force[dofs] += np.asarray(local.internal_force(xl) - fol.force(xl, 0.5))
+        grad[dofs] += np.asarray(local.volume_gradient(xl))
+        volume += float(local.volume(xl))
+        blocks = np.asarray(fol.add_stiffness(local.tangent_blocks(xl, 1.0, 0.3), xl, 0.5))
+        cd = np.where(local.cell_dofs >= 0, dofs[np.maximum(local.cell_dofs, 0)], -1)
+        for c in range(cd.shape[0]):
+            keep = cd[c] >= 0
+            K[np.ix_(cd[c][keep], cd[c][keep])] += blocks[c][np.ix_(keep, keep)]
+    serial_force = np.asarray(model.internal_force(x) - follower.force(x, 0.5))
+    scale = np.abs(serial_force).max()
+    assert np.abs(force - serial_force).max() <= 1e-13 * scale
+    assert np.allclose(grad, np.asarray(model.volume_gradient(x)), rtol=0, atol=1e-13)
+    assert volume == pytest.approx(float(model.volume(x)), rel=1e-14)
+    serial_K = model.pattern.matrix(np.asarray(follower.add_stiffness(model.tangent_blocks(x, 1.0, 0.3), x, 0.5)))
+    assert np.abs(K - serial_K.toarray()).max() <= 1e-13 * np.abs(K).max()
+
+
+def _mpiexec():
+    """The mpiexec next to this interpreter (the mpich wheel of the mpi extra puts it in the venv's bin/)."""
+    return shutil.which("mpiexec", path=os.path.dirname(sys.executable)) or shutil.which("mpiexec")
+
+
+# The serial and the distributed Newton both stop at |du|_inf <= rtol |u|_inf (rtol = Scheme().rtol), and
+# quadratic convergence makes the error after that step far smaller: both lie within rtol |u|_inf of the
+# discrete solution. The multiplier p enters no stopping test; it is fixed by the force balance, whose
+# round-off relative to |p| is larger by the ratio of the stresses to p (beam: ~1e3), hence its own bound.
+U_TOL = 10 * Scheme().rtol
+P_TOL = 1e-8
+
+
+@pytest.mark.parametrize("args", [["--problem", "beam", "--n", "1", "--constrained"],
+                                  ["--problem", "ventricle", "--refinements", "0"]], ids=["beam-volume", "ventricle"])
+def test_two_ranks_equal_the_serial_solve(tmp_path, args):
+    """`mpiexec -n 2 python -m hyperoc.distributed.run` (MUMPS) against `solve_static` in this process:
+    displacement, multiplier, the benchmark's apex / tip positions, and the Newton iterations per load step."""
+    pytest.importorskip("dolfinx_solver")
+    pytest.importorskip("petsc4py")
+    mpiexec = _mpiexec()
+    if mpiexec is None:
+        pytest.skip("no mpiexec")
+    out = tmp_path / "run.json"
+    subprocess.run([mpiexec, "-n", "2", sys.executable, "-m", "hyperoc.distributed.run", *args, "--out", str(out)],
+                   check=True, timeout=600)
+    dist = json.loads(out.read_text())
+    assert dist["ranks"] == 2
+    opts = SimpleNamespace(problem=args[1], n=1, refinements=0)
+    model, load, _ = problem(opts)
+    sol = solve_static(model, follower=load, constrained="--constrained" in args, steps=20, line_search=False,
+                       cutbacks=40)
+    u = np.asarray(dist["u"])
+    assert np.abs(u - sol.u).max() <= U_TOL * np.abs(sol.u).max()
+    assert dist["p"] == pytest.approx(sol.p, rel=P_TOL, abs=0.0)
+    assert dist["newton_iterations"] == sol.newton_iterations.tolist()
+    for value in dist["values"].values():
+        assert np.isfinite(value)
+
+
+def test_a_load_that_is_not_distributed_is_an_input_error(beam):
+    pytest.importorskip("dolfinx_solver")
+    pytest.importorskip("petsc4py")
+    from hyperoc.distributed.statics import DistributedStatics
+
+    with pytest.raises(InputError, match="not distributed"):
+        DistributedStatics(beam[0], [beam[1], object()])
