@@ -17,7 +17,6 @@ each rank (MB), and on the distributed path the solve's split (`DistributedSolut
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import resource
 import time
@@ -26,6 +25,7 @@ import numpy as np
 
 from ..cardiac.land import BEAM, VENTRICLE, beam_problem, node_position, ventricle_problem
 from ..dynamics.statics import solve_static
+from ..io import write_json
 
 
 def problem(args):
@@ -86,8 +86,7 @@ def main(argv=None):
                   "values": values, "p": float(p), "newton_iterations": np.asarray(iters).tolist(),
                   "rejected_iterations": int(rejected), "setup_seconds": setup, "solve_seconds": seconds,
                   "peak_mb": memory, "split_seconds": split, "u": np.asarray(u).tolist()}
-        with open(args.out, "w") as fh:
-            json.dump(record, fh)
+        write_json(args.out, record)
 
 
 if __name__ == "__main__":
