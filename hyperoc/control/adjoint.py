@@ -174,7 +174,7 @@ class Adjoint:
 
     def _initial_state(self, u0, v0):
         """``(V0, y0, y1)``: the constrained volume ``int det F(u0)`` and the level-0 state as JAX arrays."""
-        V0 = float(self.stepper.model.jitted["volume"](jnp.asarray(u0)))
+        V0 = self.stepper.deformed_volume(u0)
         return V0, jnp.asarray(u0, dtype=jnp.float64), jnp.asarray(v0, dtype=jnp.float64)
 
     def _steps(self, rec: Record, state, a: int, b: int, hold=()):

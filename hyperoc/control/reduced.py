@@ -162,12 +162,15 @@ class ReducedFunctional:
         s = 1, N for s >= N - 1) against N when storing everything, e.g. 4.5 N for N = 3000, s = 10
         and 3.3 N for s = 20. Same requirements as ``checkpoint_every``, which it excludes; the
         gradient equals the stored one to round-off.
+    adjoint : the state solver and its adjoint recursion, an `Adjoint` of a stepper of ``model``
+        (default ``Adjoint(TimeStepper(model, scheme, solver))``; ``scheme`` and ``solver`` are not
+        used when it is given); e.g. `hyperoc.distributed.dynamics.DistributedAdjoint` to solve on MPI ranks.
     """
 
     def __init__(self, model: StateModel, transform: TimeTransform, objective: Objective, *,
                  scheme: Scheme = Scheme(), solver="auto", u0=None, v0=None, gradient: str = "exact",
                  checkpoint_every: int | None = None, checkpoint_snapshots: int | None = None,
-                 space: ControlSpace | None = None):
+                 space: ControlSpace | None = None, adjoint: Adjoint | None = None):
         if gradient not in ("exact", "continuous"):
             raise InputError(f"gradient must be 'exact' or 'continuous', got {gradient!r}")
         self.gradient_method = gradient
@@ -182,8 +185,8 @@ class ReducedFunctional:
         if gradient == "continuous" and objective.control_weights[1] > 0:
             raise InputError("gradient = 'continuous' does not include the cost of d xi/dt: use 'exact' with beta > 0")
         self.space = space
-        self.stepper = TimeStepper(model, scheme, solver)
-        self.adjoint = Adjoint(self.stepper)
+        self.adjoint = Adjoint(TimeStepper(model, scheme, solver)) if adjoint is None else adjoint
+        self.stepper = self.adjoint.stepper
         self.u0 = np.zeros(model.n) if u0 is None else np.asarray(u0, float)
         self.v0 = np.zeros(model.n) if v0 is None else np.asarray(v0, float)
         self.N = transform.num_steps

@@ -12,17 +12,13 @@ factor s (`hyperoc.dynamics.statics._step_load`, shared). Each Newton iteration 
     [ K   G ] [du]   [ -r           ]
     [ G^T 0 ] [dp] = [ -(vol - V)    ]
 
-by the Schur complement (`hyperoc.solvers.linsolve._eliminate`): ``K a = -r``, ``K b = G`` against one
-MUMPS factorization, ``dp = (G.a + vol - V) / (G.b)``, ``du = a - dp b``; unconstrained, ``K du = -r``.
-``vol`` and the dot products reduce over the ranks (MPI allreduce); p lives on every rank. Full Newton
-steps (the Land benchmarks' ``line_search=False``), stopped as the serial solve, per block
-(displacement, then Taylor-Hood pressure): ``|du_b|_inf <= rtol |u_b + du_b|_inf + atol``.
+by the Schur complement against one MUMPS factorization (`hyperoc.distributed.newton`); ``vol`` and the
+dot products reduce over the ranks (MPI allreduce); p lives on every rank. Full Newton steps (the Land
+benchmarks' ``line_search=False``), stopped as the serial solve.
 """
 
 from __future__ import annotations
 
-import time
-from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -37,9 +33,9 @@ from ..errors import InputError
 from ..mechanics.follower import FollowerPressure
 from ..mechanics.model import StateModel
 from ..solvers.newton import NewtonStatus
-from .local import local_dofs, restrict_follower, restrict_model
-from .partition import Partition
-from .petsc import Ghosts, PETSc, coo_matrix, direct_solver, vector
+from .layout import Layout
+from .local import restrict_follower, restrict_model
+from .newton import newton
 
 __all__ = ["DistributedStatics", "DistributedSolution"]
 
@@ -62,7 +58,7 @@ class DistributedSolution:
 
 class DistributedStatics:
     """``model`` (a `StateModel` or `hyperoc.mechanics.mixed.TaylorHoodModel`, built on every rank) and its
-    follower loads, distributed over ``comm`` by a METIS partition of the cells.
+    follower loads, distributed over ``comm`` by a METIS partition of the cells (`Layout`).
 
     ``solver``: the PETSc direct solver package of PC lu (``"mumps"``, ``"superlu_dist"``).
     """
@@ -75,22 +71,10 @@ class DistributedStatics:
             if not isinstance(f, FollowerPressure):
                 raise InputError(f"DistributedStatics: the loads are follower pressures; {type(f).__name__} "
                                  "is not distributed yet")
-        self.part = comm.bcast(Partition.build(model.mesh.cells, model.cell_dofs, model.n, comm.size)
-                               if comm.rank == 0 else None)
-        cells = self.part.cells_of(comm.rank)
-        dofs = local_dofs(model, cells)
+        self.layout = Layout(model, comm, solver)
+        cells, dofs = self.layout.cells, self.layout.dofs
         self.local = restrict_model(model, cells, dofs)
         self.followers = tuple(restrict_follower(f, model, cells, dofs) for f in followers)
-        start, stop = self.part.owned(comm.rank)
-        petsc_comm = PETSc.Comm(comm)
-        self.x = vector(petsc_comm, stop - start, model.n)
-        self.ghosts = Ghosts(self.x, self.part.to_global[dofs])
-        gdofs = np.append(self.part.to_global[dofs], -1)  # local index m (constrained) -> -1
-        self.A = coo_matrix(petsc_comm, stop - start, model.n, gdofs[self.local._element_gather])
-        self.ksp = direct_solver(self.A, solver)
-        serial = np.argsort(self.part.to_global)[start:stop]  # serial index of each owned entry
-        n_u = getattr(model, "n_u", model.n)
-        self._blocks = [serial < n_u] + ([serial >= n_u] if n_u < model.n else [])
 
     # --- local kernels ---------------------------------------------------------------------------
     @cached_property
@@ -111,74 +95,36 @@ class DistributedStatics:
         return {"force": jax.jit(force), "blocks": jax.jit(blocks), "volume": jax.jit(local.volume),
                 "volume_gradient": jax.jit(local.volume_gradient), "min_det_F": jax.jit(local.min_det_F)}
 
-    def _sum(self, value: float) -> float:
-        return self.comm.allreduce(float(value), op=MPI.SUM)
-
     def volume(self, xl) -> float:
         """vol(u) = int det F dx over the whole body, from the local unknowns."""
-        return self._sum(self._kernels["volume"](xl))
+        return self.layout.sum(self._kernels["volume"](xl))
 
     # --- Newton ------------------------------------------------------------------------------------
     def _newton(self, x0: np.ndarray, V: float, s: float, scheme: Scheme):
         """Newton from ``x0`` (owned values, then p when constrained) at load factor s and target
         volume V: ``(x, iterations, NewtonStatus, min det F)``."""
-        k, clock = self._kernels, self._clock
-        x = x0.copy()
-        owned = self.x.getLocalSize()
-        r, G, a, b = (self.x.duplicate() for _ in range(4))
-        for it in range(1, scheme.max_iter + 1):
-            self.x.setArray(x[:owned])
-            p = x[owned] if self.constrained else 0.0
-            with clock("assembly"):
-                xl = jnp.asarray(self.ghosts.gather(self.x))
-            with clock("kernels"):
+        k, layout = self._kernels, self.layout
+
+        def residual(xl, p):
+            with layout.clock("kernels"):
                 f = np.asarray(k["force"](xl, s))
-                gl = np.asarray(k["volume_gradient"](xl)) if self.constrained else None
-                blocks = np.asarray(k["blocks"](xl, p, s))
-            with clock("assembly"):
                 if self.constrained:
-                    self.ghosts.add(gl, G)
-                    f = f + p * gl
-                self.ghosts.add(-f, r)
-                self.A.setValuesCOO(blocks.ravel(), PETSc.InsertMode.INSERT_VALUES)
-                self.A.assemble()
-            with clock("solve"):
-                self.ksp.setOperators(self.A)
-                self.ksp.solve(r, a)
-                du = a.getArray().copy()
-                step = [du]
-                if self.constrained:  # the bordered step, the Schur complement of linsolve._eliminate
-                    self.ksp.solve(G, b)
-                    dp = (G.dot(a) + self.volume(xl) - V) / G.dot(b)
-                    du = du - dp * b.getArray()
-                    step = [du, [dp]]
-            if self.ksp.getConvergedReason() < 0 or not self._finite(du):
-                return x, it, NewtonStatus.NON_FINITE, np.nan
-            x = x + np.concatenate(step)
-            if self._small(x[:owned], du, scheme):
-                self.x.setArray(x[:owned])
-                xl = jnp.asarray(self.ghosts.gather(self.x))
-                mindet = self.comm.allreduce(float(k["min_det_F"](xl)), op=MPI.MIN)
-                return x, it, NewtonStatus.CONVERGED, mindet
-        return x, scheme.max_iter, NewtonStatus.MAX_ITERATIONS, np.nan
+                    f = f + p * np.asarray(k["volume_gradient"](xl))
+            r = layout.add(f)
+            return np.append(r, self.volume(xl) - V) if self.constrained else r
 
-    @contextmanager
-    def _clock(self, part: str):
-        """Add the wall time of the block to ``part`` of the solve's split."""
-        t0 = time.perf_counter()
-        yield
-        self._split[part] = self._split.get(part, 0.0) + time.perf_counter() - t0
+        def jacobian(xl, p):
+            with layout.clock("kernels"):
+                blocks = np.asarray(k["blocks"](xl, p, s))
+                G = layout.add(np.asarray(k["volume_gradient"](xl))) if self.constrained else None
+            return blocks, G, G
 
-    def _finite(self, du) -> bool:
-        return bool(self.comm.allreduce(bool(np.all(np.isfinite(du))), op=MPI.LAND))
-
-    def _small(self, u, du, scheme: Scheme) -> bool:
-        """The serial stopping test (`hyperoc.solvers.newton._small`) on every block, maxima over the ranks."""
-        for mask in self._blocks:
-            big = lambda v: self.comm.allreduce(float(np.max(np.abs(v[mask]), initial=0.0)), op=MPI.MAX)
-            if big(du) > scheme.rtol * big(u) + scheme.atol:
-                return False
-        return True
+        x, it, status = newton(residual, jacobian, layout, x0, rtol=scheme.rtol, atol=scheme.atol,
+                               max_iter=scheme.max_iter, constrained=self.constrained)
+        mindet = np.nan
+        if status == NewtonStatus.CONVERGED:
+            mindet = layout.min(k["min_det_F"](layout.local_of_owned(x[:layout.owned_size])))
+        return x, it, status, mindet
 
     def solve(self, *, steps: int = 1, cutbacks: int = 0, volume: float | None = None,
               scheme: Scheme = Scheme(), predictor: str = "previous") -> DistributedSolution:
@@ -187,9 +133,10 @@ class DistributedStatics:
         ``volume``: the target volume (default the reference one); constrained solves only."""
         if not self.constrained and volume is not None:
             raise InputError("DistributedStatics.solve: a target volume needs the volume constraint")
+        layout = self.layout
         self.comm.Barrier()
-        t0, self._split = MPI.Wtime(), {}
-        x = np.zeros(self.x.getLocalSize() + (1 if self.constrained else 0))
+        t0, layout.split = MPI.Wtime(), {}
+        x = np.zeros(layout.owned_size + (1 if self.constrained else 0))
         V0 = self.volume(jnp.zeros(self.local.n))
         V = V0 if volume is None else float(volume)
         solve = lambda x0, fk, Vk, s: self._newton(x0, Vk, s, scheme)
@@ -197,11 +144,5 @@ class DistributedStatics:
         x, iters, rejected = _step_load(None, solve, x, 0.0, V0, V, steps=steps, cutbacks=cutbacks,
                                         predictor=predictor)
         seconds = MPI.Wtime() - t0
-        split = {part: self.comm.allreduce(value, op=MPI.MAX) for part, value in sorted(self._split.items())}
-        return DistributedSolution(self.gather(x[: self.x.getLocalSize()]), float(x[-1]) if self.constrained else 0.0,
-                                   np.array(iters), rejected, seconds, split)
-
-    def gather(self, owned: np.ndarray) -> np.ndarray:
-        """The serial vector (n,) on every rank from each rank's owned values."""
-        full = np.concatenate(self.comm.allgather(owned))
-        return full[self.part.to_global]
+        return DistributedSolution(layout.serial(x[: layout.owned_size]), float(x[-1]) if self.constrained else 0.0,
+                                   np.array(iters), rejected, seconds, layout.slowest_split())

@@ -454,7 +454,7 @@ class TimeStepper:
         xis = self._controls(xi, N)
         fs = self.external_loads(external, grid)
         self._check_initial_velocity(y0, y1)
-        V0 = float(m.jitted["volume"](jnp.asarray(y0)))
+        V0 = self.deformed_volume(y0)
         p0 = self.initial_pressure(y0, y1, xis[0], fs[0]) if self.scheme.multiplier == "theta" else 0.0
         start = _time.perf_counter()
         if self.solver.traced and monitor is None and progress:
@@ -480,7 +480,7 @@ class TimeStepper:
         (N,) each, the controls xi (N+1, n_ctrl); the level volumes and pressures are computed here, the
         regimes (`detect_regimes`) with ``diagnose``."""
         m = self.model
-        vol = np.asarray(self._volumes(jnp.asarray(Y0)))
+        vol = self.level_volumes(Y0)
         sol = StateSolution(m, grid.t, Y0, Y1, P, level_pressure(P, grid.dt, self.scheme.multiplier), vol,
                             *monitors, xi if m.control is not None else None, wall_time)
         if diagnose:
@@ -490,6 +490,14 @@ class TimeStepper:
     @cached_property
     def _volumes(self):
         return jax.jit(jax.vmap(self.model.volume))
+
+    def level_volumes(self, Y0) -> np.ndarray:
+        """The deformed volumes (L,) of the states Y0 (L, n)."""
+        return np.asarray(self._volumes(jnp.asarray(Y0)))
+
+    def deformed_volume(self, y0) -> float:
+        """vol(y0) = int det(I + grad y0) dx of a state (n,) (the constraint's value)."""
+        return float(self.model.jitted["volume"](jnp.asarray(y0)))
 
     def _controls(self, xi, N) -> np.ndarray:
         nc = self.model.control.size if self.model.control is not None else 0
@@ -557,7 +565,7 @@ class TimeStepper:
     def _record(self, n, grid, out, V0) -> StepRecord:
         """The `StepRecord` of step n from the step's outputs (y0', y1', p', its, status, min det F, max grad)."""
         y0n, _, pn, its, status, mindet, _ = out
-        volume = float(self.model.jitted["volume"](jnp.asarray(y0n)))
+        volume = self.deformed_volume(y0n)
         return StepRecord(n, float(grid.t[n + 1]), int(its), float(mindet), abs(volume - V0) / abs(V0), float(pn),
                           StepStatus(int(status)).cause)
 

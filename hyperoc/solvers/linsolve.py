@@ -34,11 +34,13 @@ from ..fem.assembly import dump_index
 __all__ = ["DenseSolver", "TridiagonalSolver", "SparseSolver", "make_solver", "nested_dissection"]
 
 
-def _eliminate(ab, row, r_c):
+def _eliminate(ab, row, r_c, dot=None):
     """The bordered solution ``(x, q)`` from ``a = K^-1 r_u`` and ``b = K^-1 col``, the columns of ab
-    (NumPy or JAX arrays): ``q = (row . a - r_c) / (row . b)``, ``x = a - b q``."""
+    (NumPy or JAX arrays): ``q = (row . a - r_c) / (row . b)``, ``x = a - b q``. ``dot(u, v)``: the
+    inner product (default ``u @ v``; a distributed solve passes the sum over the ranks of their parts')."""
     a, b = ab[:, 0], ab[:, 1]
-    q = (row @ a - r_c) / (row @ b)
+    dot = dot or (lambda u, v: u @ v)
+    q = (dot(row, a) - r_c) / dot(row, b)
     return a - b * q, q
 
 

@@ -1,0 +1,189 @@
+"""The theta scheme and its exact adjoint on MPI ranks: `TimeStepper`'s step residual and Jacobian on
+each rank's cells, Newton and the adjoint's transposed solves on PETSc.
+
+Step ``n -> n+1`` is the serial one (`hyperoc.dynamics.stepper`): with ``x = (y0', p')``,
+
+    F_u(x) = sum_e F_u^e(y0', p'; y0, y1, dt) - dt (theta L(xi', f') + (1 - theta) L(xi, f)) = 0,
+    F_c(x) = sum_e vol^e(y0') - V0 = 0,
+
+the element parts ``F_u^e`` (inertia, damping, internal force, multiplier) computed by the serial
+`TimeStepper.residual_at` of the model restricted to the rank's cells, summed into the owners' rows,
+the loads ``L = B xi + f`` applied on the owned rows (B and f are assembled already), the volumes summed
+over the ranks. The adjoint step (`hyperoc.control.adjoint`) solves the transposed bordered step
+matrix by the same Schur elimination with ``col`` and ``row`` swapped, and takes the vector-Jacobian
+products of the same local residual, summed over the ranks.
+
+States cross this module's boundary in the serial numbering, the same vector on every rank (each
+step ends with an allgather of the new state): `Adjoint.record`, the checkpointing schedules and
+`ReducedFunctional` then run unchanged, every rank taking the same decisions on the same values.
+Memory: n floats per rank for each state the schedule holds (`hyperoc.control.revolve.Binomial`
+bounds their number); the tangent, its factorization and the element kernels are distributed.
+"""
+
+from __future__ import annotations
+
+from functools import cached_property
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from mpi4py import MPI
+
+from ..control.adjoint import Adjoint
+from ..dynamics.stepper import Scheme, StepStatus, TimeStepper
+from ..errors import InputError
+from ..mechanics import operators
+from ..mechanics.model import StateModel
+from ..solvers.linsolve import _eliminate
+from ..solvers.newton import NewtonStatus
+from .layout import Layout
+from .local import restrict_model
+from .newton import newton
+
+__all__ = ["DistributedStepper", "DistributedAdjoint"]
+
+
+class DistributedStepper(TimeStepper):
+    """`TimeStepper` for ``model`` (a `StateModel`, built on every rank) with Newton on PETSc over
+    ``comm`` (`Layout`; ``solver`` the PC lu package). Full Newton steps with the serial stopping test
+    of ``scheme`` (multiplier "step"); `run`, `march_stepwise`, `solution` and the monitors are the
+    serial ones, driven one `advance` at a time.
+
+    local : the serial `TimeStepper` of the model restricted to the rank's cells, without control
+        and loads (they enter on the owned rows): the single source of the step's element terms.
+    """
+
+    def __init__(self, model: StateModel, scheme: Scheme = Scheme(), *, comm=MPI.COMM_WORLD, solver: str = "mumps"):
+        if hasattr(model, "n_u"):
+            raise InputError("DistributedStepper: the dynamics of a Taylor-Hood model is not implemented")
+        if scheme.multiplier != "step":
+            raise InputError("DistributedStepper: multiplier must be 'step' (the adjoint's scheme)")
+        self.model, self.scheme, self.chord = model, scheme, False
+        self.layout = self.solver = Layout(model, comm, solver)
+        local = restrict_model(model, self.layout.cells, self.layout.dofs)
+        local.control = None  # B xi + f is assembled: it enters on the owned rows
+        local.__dict__["mass_blocks"] = model.mass_blocks[self.layout.cells]  # TEMP until restricted()
+        local.__dict__["laplace_blocks"] = model.laplace_blocks[self.layout.cells]
+        self.local = TimeStepper(local, scheme, solver=None)
+        owned = self.layout.owned_serial
+        self._B = model.control.load[owned] if model.control is not None else None
+
+    @cached_property
+    def mass(self):
+        """The serial mass matrix M (JAX sparse), for objective terms that read it."""
+        return operators.to_bcoo(self.model.mass)
+
+    @cached_property
+    def _kernels(self):
+        """The jitted local functions of the step on the rank's unknowns (m,) (`TimeStepper`'s, on the
+        restricted model, loads zero)."""
+        st = self.local
+        zero = jnp.zeros(st.model.n)
+
+        def residual(yl0, yl1, dt, x):
+            """The element rows (m,) and the local volume of ``x = (y0' (m,), p')``."""
+            return st.residual(x, yl0, yl1, 0.0, None, None, zero, zero, dt, 0.0)
+
+        def residual_vjp(yl0, yl1, dt, x, w):
+            return jax.vjp(lambda a, b, c: residual(a, b, c, x), yl0, yl1, dt)[1](w)
+
+        return {"known": jax.jit(lambda yl0, yl1, dt: st.known_terms(yl0, yl1, None, None, zero, zero, dt)),
+                "residual_at": jax.jit(lambda x, known, yl0, yl1, dt: st.residual_at(x, known, yl0, yl1, 0.0, dt,
+                                                                                     0.0)),
+                "jacobian": jax.jit(st.jacobian_parts), "residual_vjp": jax.jit(residual_vjp),
+                "velocity_vjp": jax.jit(lambda a, b, c, dt, w: jax.vjp(st.velocity, a, b, c, dt)[1](w)),
+                "volume": jax.jit(st.model.volume), "min_det_F": jax.jit(st.model.min_det_F),
+                "max_grad": jax.jit(st.model.max_grad)}
+
+    def owned_load(self, xi0, xi1, f0, f1, dt) -> np.ndarray:
+        """``-dt (theta L(xi1, f1) + (1 - theta) L(xi0, f0))`` on the owned rows (m_o,), ``L = B xi + f``."""
+        o, th = self.layout.owned_serial, self.scheme.theta
+        load = lambda xi, f: np.asarray(f)[o] + (self._B @ np.asarray(xi) if self._B is not None else 0.0)
+        return -dt * (th * load(xi1, f1) + (1 - th) * load(xi0, f0))
+
+    def deformed_volume(self, y0) -> float:
+        return self.layout.sum(self._kernels["volume"](jnp.asarray(np.asarray(y0)[self.layout.dofs])))
+
+    def level_volumes(self, Y0) -> np.ndarray:
+        return np.array([self.deformed_volume(y) for y in Y0])
+
+    def advance(self, carry, inputs):
+        """One step, as `TimeStepper.advance`: carry ``(y0, y1, p, failed)``, inputs ``(xi0, xi1, f0, f1,
+        dt, V0)``, the states and loads serial (n,); returns the new carry and ``(y0', y1', p', iterations,
+        status, min det F, max |grad u|)``."""
+        y0, y1, p_prev, failed = carry
+        xi0, xi1, f0, f1, dt, V0 = inputs
+        y0, y1, dt, V0 = np.asarray(y0), np.asarray(y1), float(dt), float(V0)
+        if bool(failed):
+            return carry, (y0, y1, float(p_prev), 0, int(StepStatus.AFTER_FAILURE), np.nan, np.nan)
+        L, k, sch = self.layout, self._kernels, self.scheme
+        d, o = L.dofs, L.owned_serial
+        yl0, yl1 = jnp.asarray(y0[d]), jnp.asarray(y1[d])
+        with L.clock("kernels"):
+            known = k["known"](yl0, yl1, dt)
+        load = self.owned_load(xi0, xi1, f0, f1, dt)
+
+        def residual(xl, q):
+            with L.clock("kernels"):
+                r = np.asarray(k["residual_at"](jnp.append(jnp.asarray(xl), q), known, yl0, yl1, dt))
+            return np.append(L.add(r[:-1]) + load, L.sum(r[-1]) - V0)
+
+        def jacobian(xl, q):
+            with L.clock("kernels"):
+                blocks, col, row = (np.asarray(a) for a in k["jacobian"](jnp.append(jnp.asarray(xl), q), yl0, dt))
+            return blocks, L.add(col), L.add(row)
+
+        x, it, status = newton(residual, jacobian, L, np.append(y0[o] + dt * y1[o], float(p_prev)), rtol=sch.rtol,
+                               atol=sch.atol, max_iter=sch.max_iter)
+        y0n, pn = L.serial(x[:-1]), float(x[-1])
+        with L.clock("kernels"):
+            mindet, maxgrad = (f(k[name](jnp.asarray(y0n[d]))) for f, name in ((L.min, "min_det_F"),
+                                                                                (L.max, "max_grad")))
+        if status == NewtonStatus.CONVERGED and not mindet > 0:
+            status = StepStatus.DET_F
+        y1n = np.asarray(self.velocity(y0n, y0, y1, dt))
+        return (y0n, y1n, pn, status != NewtonStatus.CONVERGED), (y0n, y1n, pn, it, int(status), mindet, maxgrad)
+
+
+class DistributedAdjoint(Adjoint):
+    """`Adjoint` of a `DistributedStepper`: the backward step on the ranks, one step at a time (the
+    forward pass and the checkpointing schedules are `Adjoint`'s)."""
+
+    stepper: DistributedStepper
+
+    def __init__(self, stepper: DistributedStepper):
+        if not isinstance(stepper, DistributedStepper):
+            raise InputError("DistributedAdjoint needs a DistributedStepper")
+        super().__init__(stepper)
+
+    @property
+    def _jitted_step(self):
+        """The backward step the reversal calls (`Adjoint`'s is compiled; this one runs on the host)."""
+        return self.step
+
+    def step(self, carry, inputs):
+        """`Adjoint.step` with the states, the totals and the loads serial (n,): the transposed bordered
+        solve on PETSc, the vector-Jacobian products of the local residual summed into the owned rows,
+        the control's and dt's parts reduced over the ranks."""
+        st = self.stepper
+        L, k, th = st.layout, st._kernels, st.scheme.theta
+        d, o = L.dofs, L.owned_serial
+        lam0, lam1 = (np.asarray(c) for c in carry)
+        y0n, pn, y0, y1, xi0, xi1, f0, f1, dt, V0, gp = inputs
+        y0n, y0, y1, pn, dt, gp = np.asarray(y0n), np.asarray(y0), np.asarray(y1), float(pn), float(dt), float(gp)
+        with L.clock("kernels"):
+            v_y0n, v_y0, v_y1, v_dt = (np.asarray(a) for a in k["velocity_vjp"](y0n[o], y0[o], y1[o], dt, lam1[o]))
+            x = jnp.append(jnp.asarray(y0n[d]), pn)
+            blocks, col, row = (np.asarray(a) for a in k["jacobian"](x, jnp.asarray(y0[d]), dt))
+        col, row = L.add(col), L.add(row)
+        L.factor(blocks)
+        w_u, w_p = _eliminate(L.solve(lam0[o] + v_y0n, row), col, gp, dot=L.dot)  # transpose: col <-> row
+        with L.clock("kernels"):
+            w = jnp.append(jnp.asarray(L.local_of_owned(w_u)), w_p)
+            r_y0, r_y1, r_dt = (np.asarray(a) for a in k["residual_vjp"](jnp.asarray(y0[d]), jnp.asarray(y1[d]), dt,
+                                                                         x, w))
+        # the loads' part -dt (th L1 + (1 - th) L0), L = B xi + f, on the owned rows
+        load_dt = st.owned_load(xi0, xi1, f0, f1, 1.0) @ w_u
+        Bw = L.sum_array(st._B.T @ w_u) if st._B is not None else np.zeros(0)
+        lam = (L.serial(v_y0 - L.add(r_y0)), L.serial(v_y1 - L.add(r_y1)))
+        return lam, (dt * (1 - th) * Bw, dt * th * Bw, L.sum(float(v_dt) - float(r_dt) - load_dt))

@@ -1,0 +1,122 @@
+"""Command line: the reduced functional J(xi, tau) of a config's problem and its exact gradient, on MPI
+ranks or in one process, written as JSON.
+
+    mpiexec -n 2 python -m hyperoc.distributed.gradient examples/ventricle-3d.toml --set mesh.h=1.5 --out g.json
+    python -m hyperoc.distributed.gradient examples/ventricle-3d.toml --set mesh.h=1.5 --serial --out g1.json
+    mpiexec -n 2 python -m hyperoc.distributed.gradient examples/ventricle-3d.toml --taylor --out t.json
+
+The point: tau = ``optimize.tau0`` (or ``--tau``), xi uniform in [-a, a] at every node and s-level
+(``--amplitude`` a, ``--seed``), the same on every rank. The distributed path solves with
+`hyperoc.distributed.dynamics.DistributedStepper` (Newton on PETSc, MUMPS) and
+`DistributedAdjoint`; ``--serial`` with the package's serial `ReducedFunctional` (the config's solver).
+``--snapshots s``: binomial checkpointing with s snapshots (`hyperoc.control.revolve.Binomial`).
+``--taylor``: the Taylor test along the joint (xi, tau) direction of
+`hyperoc.control.verification.random_directions`. The JSON (rank 0) holds J, the gradient (dJ/dxi as a
+dual vector, dJ/dtau), the wall time of the value and gradient (compilation included) and of each later
+evaluation, the Newton iterations, the peak resident memory of each rank (MB), the Taylor result, and
+on the distributed path the split of the two evaluations (`hyperoc.distributed.layout.Layout.split`).
+Bad input: one line on standard error (from rank 0), exit status 2, nothing written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import sys
+import time
+
+import numpy as np
+
+from ..errors import InputError
+from ..io import write_json
+
+
+def peak_mb() -> float:
+    """This process's peak resident memory, MB (Linux reports kB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def parse(argv):
+    parser = argparse.ArgumentParser(prog="python -m hyperoc.distributed.gradient", description=__doc__.split("\n")[0])
+    parser.add_argument("config", help="a hyperoc TOML config with [control] and [objective]")
+    parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="config override")
+    parser.add_argument("--tau", type=float, help="default: optimize.tau0")
+    parser.add_argument("--amplitude", type=float, default=2.0, help="xi uniform in [-a, a] (control units)")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--snapshots", type=int, help="binomial checkpointing with this many snapshots")
+    parser.add_argument("--taylor", action="store_true", help="Taylor test along a random (xi, tau) direction")
+    parser.add_argument("--serial", action="store_true", help="the serial path, one process")
+    parser.add_argument("--solver", default="mumps", help="PETSc direct solver package (distributed path)")
+    parser.add_argument("--out", required=True)
+    args = parser.parse_args(argv)
+    if args.amplitude < 0:
+        raise InputError(f"--amplitude must be >= 0, got {args.amplitude}")
+    return args
+
+
+def reduced_functional(args):
+    """``(J, m, comm)``: the config's `ReducedFunctional` (distributed unless ``--serial``), the point and
+    the communicator (None serial)."""
+    from ..app.config import load_config
+    from ..control.reduced import ControlPoint, ReducedFunctional
+
+    cfg = load_config(args.config, args.set)
+    tau = float(cfg["optimize"].get("tau0", cfg["dynamics"]["T"] / 2)) if args.tau is None else args.tau
+    transform = cfg.transform(tau)
+    model = cfg.model()
+    comm, options = None, {"scheme": cfg.scheme(), "solver": cfg["dynamics"]["solver"],
+                           "checkpoint_snapshots": args.snapshots}
+    if not args.serial:
+        from mpi4py import MPI
+
+        from .dynamics import DistributedAdjoint, DistributedStepper
+
+        comm = MPI.COMM_WORLD
+        options["adjoint"] = DistributedAdjoint(DistributedStepper(model, cfg.scheme(), comm=comm,
+                                                                   solver=args.solver))
+    J = ReducedFunctional(model, transform, cfg.objective(), **options)
+    xi = np.random.default_rng(args.seed).uniform(-args.amplitude, args.amplitude, (J.N + 1, model.control.size))
+    return J, ControlPoint(xi, tau), comm
+
+
+def evaluate(J, m) -> dict:
+    """J(m) and its derivative, timed (first evaluation: compilation included; then a second one at a
+    new point next to m, the cost of an optimizer's iteration)."""
+    t0 = time.perf_counter()
+    value, d = J.value_and_derivative(m)
+    first = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    J.value_and_derivative(m * (1 + 1e-6))
+    again = time.perf_counter() - t0
+    rec = J.record(m * (1 + 1e-6))
+    return {"J": value, "dJ_dtau": d.tau, "dJ_dxi": d.xi.ravel().tolist(), "dJ_dxi_norm": float(np.linalg.norm(d.xi)),
+            "seconds_first": first, "seconds": again, "newton_iterations": int(np.sum(rec.newton_iterations))}
+
+
+def main(argv=None) -> int:
+    try:
+        args = parse(argv)
+        J, m, comm = reduced_functional(args)
+    except InputError as err:
+        if os.environ.get("PMI_RANK", "0") == "0":  # mpiexec's rank (the communicator may not exist yet)
+            print(f"error: {err}", file=sys.stderr)
+        return 2
+    record = {"config": args.config, "overrides": args.set, "serial": args.serial,
+              "ranks": 1 if comm is None else comm.size, "unknowns": int(J.model.n), "steps": int(J.N),
+              "controls": int(J.model.control.size), "tau": m.tau, "amplitude": args.amplitude, "seed": args.seed,
+              "snapshots": args.snapshots, **evaluate(J, m)}
+    if comm is not None:
+        record["split_seconds"] = J.stepper.layout.slowest_split()
+    if args.taylor:
+        from ..control.verification import random_directions, taylor_test
+
+        record["taylor"] = taylor_test(J, m, random_directions(J, m, args.seed)["joint"]).as_dict()
+    record["peak_mb"] = [peak_mb()] if comm is None else comm.gather(peak_mb())
+    if comm is None or comm.rank == 0:
+        write_json(args.out, record)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
