@@ -4,6 +4,7 @@ ranks or in one process, written as JSON.
     mpiexec -n 2 python -m hyperoc.distributed.gradient examples/ventricle-3d.toml --set mesh.h=1.5 --out g.json
     python -m hyperoc.distributed.gradient examples/ventricle-3d.toml --set mesh.h=1.5 --serial --out g1.json
     mpiexec -n 2 python -m hyperoc.distributed.gradient examples/ventricle-3d.toml --taylor --out t.json
+    mpiexec -n 2 python -m hyperoc.distributed.gradient examples/ventricle-3d.toml --optimize --out o.json
 
 The point: tau = ``optimize.tau0`` (or ``--tau``), xi uniform in [-a, a] at every node and s-level
 (``--amplitude`` a, ``--seed``), the same on every rank. The distributed path solves with
@@ -11,9 +12,12 @@ The point: tau = ``optimize.tau0`` (or ``--tau``), xi uniform in [-a, a] at ever
 `DistributedAdjoint`; ``--serial`` with the package's serial `ReducedFunctional` (the config's solver).
 ``--snapshots s``: binomial checkpointing with s snapshots (`hyperoc.control.revolve.Binomial`).
 ``--taylor``: the Taylor test along the joint (xi, tau) direction of
-`hyperoc.control.verification.random_directions`. The JSON (rank 0) holds J, the gradient (dJ/dxi as a
+`hyperoc.control.verification.random_directions`. ``--optimize``: then the config's optimization from
+(0, tau) (`hyperoc.app.workflows.optimize_single`: its method, ``max_iter`` and bounds), the optimizer
+running unchanged on every rank with the same values. The JSON (rank 0) holds J, the gradient (dJ/dxi as a
 dual vector, dJ/dtau), the wall time of the value and gradient (compilation included) and of each later
-evaluation, the Newton iterations, the peak resident memory of each rank (MB), the Taylor result, and
+evaluation, the Newton iterations, the peak resident memory of each rank (MB), the Taylor result, the
+optimization's iterates (J, tau) and result, and
 on the distributed path the split of the two evaluations (`hyperoc.distributed.layout.Layout.split`).
 Bad input: one line on standard error (from rank 0), exit status 2, nothing written.
 """
@@ -46,6 +50,7 @@ def parse(argv):
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--snapshots", type=int, help="binomial checkpointing with this many snapshots")
     parser.add_argument("--taylor", action="store_true", help="Taylor test along a random (xi, tau) direction")
+    parser.add_argument("--optimize", action="store_true", help="then the config's optimization from (0, tau)")
     parser.add_argument("--serial", action="store_true", help="the serial path, one process")
     parser.add_argument("--solver", default="mumps", help="PETSc direct solver package (distributed path)")
     parser.add_argument("--out", required=True)
@@ -56,8 +61,8 @@ def parse(argv):
 
 
 def reduced_functional(args):
-    """``(J, m, comm)``: the config's `ReducedFunctional` (distributed unless ``--serial``), the point and
-    the communicator (None serial)."""
+    """``(J, m, comm, cfg)``: the config's `ReducedFunctional` (distributed unless ``--serial``), the point,
+    the communicator (None serial) and the config."""
     from ..app.config import load_config
     from ..control.reduced import ControlPoint, ReducedFunctional
 
@@ -77,7 +82,18 @@ def reduced_functional(args):
                                                                    solver=args.solver))
     J = ReducedFunctional(model, transform, cfg.objective(), **options)
     xi = np.random.default_rng(args.seed).uniform(-args.amplitude, args.amplitude, (J.N + 1, model.control.size))
-    return J, ControlPoint(xi, tau), comm
+    return J, ControlPoint(xi, tau), comm, cfg
+
+
+def optimization(cfg, J, tau: float) -> dict:
+    """The config's optimization from (0, tau): its iterates' J and tau and how it ended."""
+    from ..app.workflows import optimize_single
+
+    t0 = time.perf_counter()
+    _, res = optimize_single(cfg, tau, J=J)
+    return {"method": cfg["optimize"]["method"], "objective": res.objective, "tau": res.point.tau,
+            "iterations": res.iterations, "converged": res.converged, "seconds": time.perf_counter() - t0,
+            "history_objective": list(res.history["objective"]), "history_tau": list(res.history["tau"])}
 
 
 def evaluate(J, m) -> dict:
@@ -97,7 +113,7 @@ def evaluate(J, m) -> dict:
 def main(argv=None) -> int:
     try:
         args = parse(argv)
-        J, m, comm = reduced_functional(args)
+        J, m, comm, cfg = reduced_functional(args)
     except InputError as err:
         if os.environ.get("PMI_RANK", "0") == "0":  # mpiexec's rank (the communicator may not exist yet)
             print(f"error: {err}", file=sys.stderr)
@@ -112,6 +128,8 @@ def main(argv=None) -> int:
         from ..control.verification import random_directions, taylor_test
 
         record["taylor"] = taylor_test(J, m, random_directions(J, m, args.seed)["joint"]).as_dict()
+    if args.optimize:
+        record["optimization"] = optimization(cfg, J, m.tau)
     record["peak_mb"] = [peak_mb()] if comm is None else comm.gather(peak_mb())
     if comm is None or comm.rank == 0:
         write_json(args.out, record)
