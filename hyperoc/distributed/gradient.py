@@ -52,7 +52,8 @@ def parse(argv):
     parser.add_argument("--taylor", action="store_true", help="Taylor test along a random (xi, tau) direction")
     parser.add_argument("--optimize", action="store_true", help="then the config's optimization from (0, tau)")
     parser.add_argument("--serial", action="store_true", help="the serial path, one process")
-    parser.add_argument("--solver", default="mumps", help="PETSc direct solver package (distributed path)")
+    parser.add_argument("--solver", default="mumps",
+                        help="distributed path: mumps, superlu_dist (PETSc LU) or gamg (GMRES + algebraic multigrid)")
     parser.add_argument("--out", required=True)
     args = parser.parse_args(argv)
     if args.amplitude < 0:
@@ -118,7 +119,7 @@ def main(argv=None) -> int:
         if os.environ.get("PMI_RANK", "0") == "0":  # mpiexec's rank (the communicator may not exist yet)
             print(f"error: {err}", file=sys.stderr)
         return 2
-    record = {"config": args.config, "overrides": args.set, "serial": args.serial,
+    record = {"config": args.config, "overrides": args.set, "serial": args.serial, "solver": args.solver,
               "ranks": 1 if comm is None else comm.size, "unknowns": int(J.model.n), "steps": int(J.N),
               "controls": int(J.model.control.size), "tau": m.tau, "amplitude": args.amplitude, "seed": args.seed,
               "snapshots": args.snapshots, **evaluate(J, m)}

@@ -24,15 +24,16 @@ from mpi4py import MPI
 from ..mechanics.model import StateModel
 from .local import local_dofs
 from .partition import Partition
-from .petsc import Ghosts, PETSc, coo_matrix, direct_solver, vector
+from .petsc import Ghosts, PETSc, coo_matrix, linear_solver, vector
 
 __all__ = ["Layout"]
 
 
 class Layout:
     """``model``'s unknowns distributed over ``comm`` by a METIS partition of its cells (made on rank 0,
-    broadcast), with the tangent's COO pattern of the rank's cells and a PETSc direct solver
-    (``solver``: the PC lu package, ``"mumps"`` or ``"superlu_dist"``).
+    broadcast), with the tangent's COO pattern of the rank's cells and a PETSc solver
+    (``solver``: the PC lu package, ``"mumps"`` or ``"superlu_dist"``, or ``"gamg"``: GMRES with
+    algebraic multigrid, `hyperoc.distributed.petsc.iterative_solver`).
 
     cells : (nc_local,) the rank's cells; dofs : (m,) their unknowns (serial indices, increasing);
     owned_serial : (m_o,) the serial index of each owned entry; n_u : for a model with a pressure
@@ -59,7 +60,7 @@ class Layout:
         cell_dofs = model.cell_dofs[self.cells]
         self.A = coo_matrix(petsc_comm, stop - start, model.n,
                             np.where(cell_dofs >= 0, self.part.to_global[np.maximum(cell_dofs, 0)], -1))
-        self.ksp = direct_solver(self.A, solver)
+        self.ksp = linear_solver(self.A, solver)
         self.owned_serial = np.argsort(self.part.to_global)[start:stop]
         self.n_u = int(np.sum(self.owned_serial < model.n_u)) if hasattr(model, "n_u") else None
         self.split: dict[str, float] = {}

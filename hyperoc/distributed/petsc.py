@@ -15,7 +15,12 @@ import dolfinx_solver  # noqa: F401  (loads MPI ahead of the bindings)
 import numpy as np
 from petsc4py import PETSc
 
-__all__ = ["PETSc", "Ghosts", "coo_matrix", "direct_solver", "vector"]
+from ..errors import InputError
+
+__all__ = ["PETSc", "Ghosts", "coo_matrix", "direct_solver", "iterative_solver", "linear_solver", "vector"]
+
+#: the PC lu packages of the wheel's PETSc, and the iterative solver
+DIRECT, ITERATIVE = ("mumps", "superlu_dist"), ("gamg",)
 
 
 def vector(comm, owned: int, size: int) -> PETSc.Vec:
@@ -68,3 +73,26 @@ def direct_solver(A: PETSc.Mat, package: str = "mumps") -> PETSc.KSP:
     pc.setFactorSolverType(package)
     ksp.setOperators(A)
     return ksp
+
+
+def iterative_solver(A: PETSc.Mat, rtol: float = 1e-13) -> PETSc.KSP:
+    """GMRES (restart 200) preconditioned by smoothed-aggregation algebraic multigrid (PC gamg), to the
+    relative residual ``rtol``: the preconditioner is set up once per `KSP.setOperators`. Suited to the
+    time step's matrix ``M / (theta dt) + kappa L + theta dt K`` (the mass term keeps it well conditioned
+    for small dt); a solve that does not reach ``rtol`` in 1000 iterations reports divergence."""
+    ksp = PETSc.KSP().create(comm=A.getComm())
+    ksp.setType(PETSc.KSP.Type.GMRES)
+    ksp.setGMRESRestart(200)
+    ksp.getPC().setType(PETSc.PC.Type.GAMG)
+    ksp.setTolerances(rtol=rtol, atol=0.0, max_it=1000)
+    ksp.setOperators(A)
+    return ksp
+
+
+def linear_solver(A: PETSc.Mat, solver: str) -> PETSc.KSP:
+    """`direct_solver` for a PC lu package of `DIRECT`, `iterative_solver` for ``"gamg"``."""
+    if solver in ITERATIVE:
+        return iterative_solver(A)
+    if solver not in DIRECT:
+        raise InputError(f"distributed solver must be one of {DIRECT + ITERATIVE}, got {solver!r}")
+    return direct_solver(A, solver)
