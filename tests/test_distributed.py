@@ -193,3 +193,19 @@ def test_bad_input_to_the_gradient_command_is_one_line_and_status_2(tmp_path, ca
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "tau" in err[0]
     assert not out.exists()
+
+
+def test_two_rank_gradient_with_the_iterative_solver_equals_the_serial_one(mpiexec, tmp_path, serial_gradient):
+    """GMRES + algebraic multigrid (relative residual 1e-13) in place of MUMPS: Newton and the adjoint's
+    transposed solves stay accurate enough for the gradient's criterion."""
+    dist = _on_two_ranks(mpiexec, tmp_path, "hyperoc.distributed.gradient", [*SMALL_VENTRICLE, "--solver", "gamg"])
+    _assert_same_gradient(dist, serial_gradient)
+
+
+def test_an_unknown_distributed_solver_is_an_input_error(tmp_path):
+    pytest.importorskip("dolfinx_solver")
+    pytest.importorskip("petsc4py")
+    from hyperoc.distributed.gradient import main
+
+    assert main([*SMALL_VENTRICLE, "--solver", "ilu", "--out", str(tmp_path / "g.json")]) == 2
+    assert not (tmp_path / "g.json").exists()
