@@ -16,8 +16,7 @@ import numpy as np
 import pytest
 
 from hyperoc.cardiac.land import beam_problem
-from hyperoc.distributed.local import local_dofs, restrict_follower, restrict_model
-from hyperoc.distributed.partition import Partition
+from hyperoc.distributed.partition import Partition, local_dofs
 from hyperoc.distributed.run import problem
 from hyperoc.dynamics.statics import solve_static
 from hyperoc.dynamics.stepper import Scheme
@@ -57,7 +56,8 @@ def test_restricted_kernels_sum_over_the_parts_to_the_serial_ones(beam, mixed):
     for r in range(2):
         cells = part.cells_of(r)
         dofs = local_dofs(model, cells)
-        local, fol = restrict_model(model, cells, dofs), restrict_follower(follower, model, cells, dofs)
+        local = model.restricted(cells, dofs)
+        fol = follower.restricted(model, local, cells, dofs)
         xl = x[dofs]
         # Compiled once per part, as the distributed solve does (op by op they take minutes).
         force[dofs] += np.asarray(jax.jit(lambda xl: local.internal_force(xl) - fol.force(xl, 0.5))(xl))
@@ -76,6 +76,37 @@ def test_restricted_kernels_sum_over_the_parts_to_the_serial_ones(beam, mixed):
     serial_K = model.pattern.matrix(np.asarray(jax.jit(
         lambda x: follower.add_stiffness(model.tangent_blocks(x, 1.0, 0.3), x, 0.5))(x)))
     assert np.abs(K - serial_K.toarray()).max() <= 1e-13 * np.abs(K).max()
+
+
+def test_restriction_slices_the_per_cell_data_and_rebuilds_every_cache(beam):
+    """Caches computed on the serial model before restricting (mass and Laplace blocks, compiled kernels,
+    the sparsity pattern and the assembled operators) do not reach the restricted copy: its per-cell data
+    have the part's cells, the rest is rebuilt from them, and the parts' mass matrices add up to the serial one."""
+    import inspect
+    from functools import cached_property
+
+    model, _ = beam
+    x = np.random.default_rng(1).normal(size=model.n)
+    for name in ("mass_blocks", "laplace_blocks", "jitted", "pattern", "mass", "jax_operators"):
+        getattr(model, name)
+    part = Partition.build(model.mesh.cells, model.cell_dofs, model.n, 2)
+    Mx = np.zeros(model.n)
+    cached = [n for n in dir(type(model)) if isinstance(inspect.getattr_static(type(model), n), cached_property)]
+    for r in range(2):
+        cells = part.cells_of(r)
+        dofs = local_dofs(model, cells)
+        local = model.restricted(cells, dofs)
+        for name in cached:
+            if name in local.__dict__:
+                assert local.__dict__[name] is not model.__dict__.get(name), name
+        for name in type(model).PER_CELL:
+            value = getattr(local, name)
+            if value is not None:
+                assert value.shape[0] == cells.size, name
+                np.testing.assert_array_equal(np.asarray(value), np.asarray(getattr(model, name))[cells])
+        assert local.mass.shape == (dofs.size, dofs.size) and local.control is None
+        Mx[dofs] += local.mass @ x[dofs]
+    assert np.abs(Mx - model.mass @ x).max() <= 1e-14 * np.abs(model.mass @ x).max()
 
 
 def _mpiexec():
@@ -110,12 +141,14 @@ P_TOL = 1e-8
 
 
 @pytest.mark.parametrize("args", [["--problem", "beam", "--n", "1", "--constrained"],
-                                  ["--problem", "ventricle", "--refinements", "0"]], ids=["beam-volume", "ventricle"])
+                                  ["--problem", "ventricle", "--refinements", "0"],
+                                  ["--problem", "contraction", "--refinements", "0"]],
+                         ids=["beam-volume", "ventricle", "contraction"])
 def test_two_ranks_equal_the_serial_solve(mpiexec, tmp_path, args):
     """`mpiexec -n 2 python -m hyperoc.distributed.run` (MUMPS) against `solve_static` in this process:
     displacement, multiplier, the benchmark's apex / tip positions, and the Newton iterations per load step."""
     dist = _on_two_ranks(mpiexec, tmp_path, "hyperoc.distributed.run", args)
-    opts = SimpleNamespace(problem=args[1], n=1, refinements=0)
+    opts = SimpleNamespace(problem=args[1], n=1, refinements=0)  # as run.problem reads them
     model, load, _ = problem(opts)
     sol = solve_static(model, follower=load, constrained="--constrained" in args, steps=20, line_search=False,
                        cutbacks=40)
@@ -132,7 +165,7 @@ def test_a_load_that_is_not_distributed_is_an_input_error(beam):
     pytest.importorskip("petsc4py")
     from hyperoc.distributed.statics import DistributedStatics
 
-    with pytest.raises(InputError, match="not distributed"):
+    with pytest.raises(InputError, match="is not distributed"):
         DistributedStatics(beam[0], [beam[1], object()])
 
 

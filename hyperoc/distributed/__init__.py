@@ -1,13 +1,15 @@
-"""Distributed static solves on MPI + PETSc with the package's JAX element kernels.
+"""Distributed static solves, time stepping and exact gradients on MPI + PETSc with the package's JAX
+element kernels.
 
 Each rank assembles the cells of its part of a graph partition of the mesh (`partition`) with the
-model's own element kernels restricted to those cells (`local`); PETSc holds the distributed
-tangent and vectors and solves with KSP/PC (`petsc`); the Newton load stepping and the volume
-constraint's bordered solve run on them (`statics`). Needs the ``mpi`` extra (petsc4py, Python >= 3.12):
-see docs/distributed.md. The mesh and the model are built on every rank (replicated set-up); the
-unknowns, the assembly and the linear solves are distributed.
+model's own element kernels restricted to those cells (`hyperoc.mechanics.model.StateModel.restricted`);
+PETSc holds the distributed tangent and vectors and solves with KSP/PC (`petsc`); `layout` joins them
+for one rank, `newton` solves on it; the load stepping (`statics`), the theta scheme and its adjoint
+(`dynamics`) run on that Newton; `gradient` and `run` are command lines. Needs the ``mpi`` extra
+(petsc4py, Python >= 3.12): see docs/distributed.md. The mesh and the model are built on every rank
+(replicated set-up); the unknowns, the assembly and the linear solves are distributed.
 """
 
-from .partition import Partition, partition_cells
+from .partition import Partition, local_dofs, partition_cells
 
-__all__ = ["Partition", "partition_cells"]
+__all__ = ["Partition", "local_dofs", "partition_cells"]

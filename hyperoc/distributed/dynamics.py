@@ -37,7 +37,6 @@ from ..mechanics.model import StateModel
 from ..solvers.linsolve import _eliminate
 from ..solvers.newton import NewtonStatus
 from .layout import Layout
-from .local import restrict_model
 from .newton import newton
 
 __all__ = ["DistributedStepper", "DistributedAdjoint"]
@@ -60,11 +59,8 @@ class DistributedStepper(TimeStepper):
             raise InputError("DistributedStepper: multiplier must be 'step' (the adjoint's scheme)")
         self.model, self.scheme, self.chord = model, scheme, False
         self.layout = self.solver = Layout(model, comm, solver)
-        local = restrict_model(model, self.layout.cells, self.layout.dofs)
-        local.control = None  # B xi + f is assembled: it enters on the owned rows
-        local.__dict__["mass_blocks"] = model.mass_blocks[self.layout.cells]  # TEMP until restricted()
-        local.__dict__["laplace_blocks"] = model.laplace_blocks[self.layout.cells]
-        self.local = TimeStepper(local, scheme, solver=None)
+        # the restricted model has no control or traction: B xi + f is assembled, it enters on the owned rows
+        self.local = TimeStepper(model.restricted(self.layout.cells, self.layout.dofs), scheme, solver=None)
         owned = self.layout.owned_serial
         self._B = model.control.load[owned] if model.control is not None else None
 

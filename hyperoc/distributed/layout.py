@@ -22,8 +22,7 @@ import numpy as np
 from mpi4py import MPI
 
 from ..mechanics.model import StateModel
-from .local import local_dofs
-from .partition import Partition
+from .partition import Partition, local_dofs
 from .petsc import Ghosts, PETSc, coo_matrix, linear_solver, vector
 
 __all__ = ["Layout"]

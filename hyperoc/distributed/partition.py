@@ -14,7 +14,14 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["Partition", "partition_cells"]
+__all__ = ["Partition", "local_dofs", "partition_cells"]
+
+
+def local_dofs(model, cells: np.ndarray) -> np.ndarray:
+    """The serial indices (m,) of the unknowns of ``cells`` of ``model`` (its ``cell_dofs``), increasing:
+    a rank's local unknowns, on which ``model.restricted(cells, dofs)`` works."""
+    dofs = model.cell_dofs[cells]
+    return np.unique(dofs[dofs >= 0])
 
 
 def partition_cells(cells: np.ndarray, parts: int) -> np.ndarray:

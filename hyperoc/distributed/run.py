@@ -3,15 +3,18 @@
     mpiexec -n 2 python -m hyperoc.distributed.run --problem ventricle --refinements 0 --out p2.json
     python -m hyperoc.distributed.run --problem ventricle --refinements 0 --serial --out p2-serial.json
     mpiexec -n 2 python -m hyperoc.distributed.run --problem beam --n 1 --constrained --out beam.json
+    mpiexec -n 2 python -m hyperoc.distributed.run --problem contraction --refinements 0 --out p3.json
 
 ``ventricle``: problem 2 (`hyperoc.cardiac.land.ventricle_problem`), Taylor-Hood P2-P1, incompressible,
 Guccione on the isochoric strain, base clamped, h = 6 mm with ``refinements`` uniform refinements, no
-volume constraint. ``beam``: problem 1 (`hyperoc.cardiac.land.beam_problem`, n), P2, bulk modulus 1000 kPa;
-``--constrained`` adds the global volume constraint (volume kept at the reference one). Both: full
-Newton steps with load stepping, as `hyperoc.cardiac.land`. The JSON (written by rank 0) holds the solution
-u (serial numbering), the multiplier p, the z of the benchmark's points, Newton iterations, the wall
-time of the set-up and of the solve (JIT compilation included), and the peak resident memory of
-each rank (MB), and on the distributed path the solve's split (`DistributedSolution.split`).
+volume constraint. ``contraction``: problem 3 (`hyperoc.cardiac.land.contraction_problem`) in the same
+formulation, the endocardial pressure and the active fibre tension. ``beam``: problem 1
+(`hyperoc.cardiac.land.beam_problem`, n), P2, bulk modulus 1000 kPa; ``--constrained`` adds the global
+volume constraint (volume kept at the reference one). All: full Newton steps with load stepping, as
+`hyperoc.cardiac.land`. The JSON (written by rank 0) holds the solution u (serial numbering), the
+multiplier p, the z of the benchmark's points, Newton iterations, the wall time of the set-up and of the
+solve (JIT compilation included), and the peak resident memory of each rank (MB), and on the distributed
+path the solve's split (`DistributedSolution.split`).
 """
 
 from __future__ import annotations
@@ -23,16 +26,17 @@ import time
 
 import numpy as np
 
-from ..cardiac.land import BEAM, VENTRICLE, beam_problem, node_position, ventricle_problem
+from ..cardiac.land import BEAM, VENTRICLE, beam_problem, contraction_problem, node_position, ventricle_problem
 from ..dynamics.statics import solve_static
 from ..io import write_json
 
 
 def problem(args):
     """``(model, follower, {name: point})`` of the command line."""
-    if args.problem == "ventricle":
-        model, load = ventricle_problem(6.0, bulk_modulus=math.inf, volumetric="taylor-hood", isochoric=True,
-                                        refinements=args.refinements)
+    if args.problem in ("ventricle", "contraction"):
+        build = ventricle_problem if args.problem == "ventricle" else contraction_problem
+        model, load = build(6.0, bulk_modulus=math.inf, volumetric="taylor-hood", isochoric=True,
+                            refinements=args.refinements)
         return model, load, {"z_endo": VENTRICLE["endo_apex"], "z_epi": VENTRICLE["epi_apex"]}
     model, load = beam_problem(args.n, bulk_modulus=1000.0)
     return model, load, {"z_tip": BEAM["point"]}
@@ -45,7 +49,7 @@ def peak_mb() -> float:
 
 def main(argv=None):
     parser = argparse.ArgumentParser(prog="python -m hyperoc.distributed.run", description=__doc__.split("\n")[0])
-    parser.add_argument("--problem", choices=("ventricle", "beam"), default="ventricle")
+    parser.add_argument("--problem", choices=("ventricle", "contraction", "beam"), default="ventricle")
     parser.add_argument("--refinements", type=int, default=0, help="ventricle: uniform refinements of h = 6 mm")
     parser.add_argument("--n", type=int, default=1, help="beam: 10 n x n x n cubes")
     parser.add_argument("--steps", type=int, default=20)

@@ -30,11 +30,11 @@ from mpi4py import MPI
 from ..dynamics.statics import _step_load
 from ..dynamics.stepper import Scheme
 from ..errors import InputError
+from ..mechanics.active import FibreTension
 from ..mechanics.follower import FollowerPressure
 from ..mechanics.model import StateModel
 from ..solvers.newton import NewtonStatus
 from .layout import Layout
-from .local import restrict_follower, restrict_model
 from .newton import newton
 
 __all__ = ["DistributedStatics", "DistributedSolution"]
@@ -58,7 +58,8 @@ class DistributedSolution:
 
 class DistributedStatics:
     """``model`` (a `StateModel` or `hyperoc.mechanics.mixed.TaylorHoodModel`, built on every rank) and its
-    follower loads, distributed over ``comm`` by a METIS partition of the cells (`Layout`).
+    loads (`FollowerPressure`, `FibreTension`: ``follower`` as in `hyperoc.dynamics.statics.solve_static`),
+    distributed over ``comm`` by a METIS partition of the cells (`Layout`).
 
     ``solver``: the PETSc direct solver package of PC lu (``"mumps"``, ``"superlu_dist"``).
     """
@@ -68,13 +69,13 @@ class DistributedStatics:
         self.model, self.comm, self.constrained = model, comm, constrained
         followers = (follower,) if not isinstance(follower, (tuple, list)) else tuple(follower)
         for f in followers:
-            if not isinstance(f, FollowerPressure):
-                raise InputError(f"DistributedStatics: the loads are follower pressures; {type(f).__name__} "
-                                 "is not distributed yet")
+            if not isinstance(f, (FollowerPressure, FibreTension)):
+                raise InputError(f"DistributedStatics: the loads are follower pressures and fibre tensions; "
+                                 f"{type(f).__name__} is not distributed")
         self.layout = Layout(model, comm, solver)
         cells, dofs = self.layout.cells, self.layout.dofs
-        self.local = restrict_model(model, cells, dofs)
-        self.followers = tuple(restrict_follower(f, model, cells, dofs) for f in followers)
+        self.local = model.restricted(cells, dofs)
+        self.followers = tuple(f.restricted(model, self.local, cells, dofs) for f in followers)
 
     # --- local kernels ---------------------------------------------------------------------------
     @cached_property

@@ -31,6 +31,15 @@ def dump_index(reduced: np.ndarray, n: int) -> np.ndarray:
     return np.where(reduced < 0, n, reduced)
 
 
+def relabel_index(index: np.ndarray, n: int, dofs: np.ndarray) -> np.ndarray:
+    """A gather ``index`` over n unknowns (dump slot n, `dump_index`) relabelled onto the subset ``dofs``
+    (m,) of them, increasing: entry i becomes the position of ``index`` in ``dofs``, and the dump slot,
+    or an unknown not in ``dofs``, becomes m."""
+    to_subset = np.full(n + 1, dofs.size, dtype=np.int64)
+    to_subset[dofs] = np.arange(dofs.size)
+    return to_subset[np.asarray(index)]
+
+
 class SparsePattern:
     """CSR structure of a matrix assembled from element blocks.
 

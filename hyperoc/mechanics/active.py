@@ -20,6 +20,7 @@ the state equation as a load).
 
 from __future__ import annotations
 
+import copy
 import math
 
 import jax
@@ -57,6 +58,15 @@ class FibreTension:
         self._f0 = jnp.asarray(f0)
         g = np.einsum("cqaj,cqj->cqa", q.dN, f0)  # grad N_a . f0
         self._G = jnp.asarray(np.einsum("cq,cqa,cqb->cab", w, g, g))  # (nc, nloc, nloc)
+
+    def restricted(self, model, local, cells: np.ndarray, dofs: np.ndarray) -> "FibreTension":
+        """This tension on ``cells`` of ``model`` only, acting on ``local = model.restricted(cells, dofs)``:
+        forces on its unknowns (m,), stiffness added to its element blocks (`FollowerPressure.restricted`'s
+        interface)."""
+        restricted = copy.copy(self)
+        restricted.model, restricted.n = local, local.n
+        restricted._w, restricted._f0, restricted._G = self._w[cells], self._f0[cells], self._G[cells]
+        return restricted
 
     def fibre_strain(self, u):
         """``E_ff = (|F f0|^2 - 1) / 2`` at every quadrature point, (nc, nq)."""

@@ -34,13 +34,15 @@ pressure on a closed surface).
 
 from __future__ import annotations
 
+import copy
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .. import _jax  # noqa: F401
 from ..errors import InputError
-from ..fem.assembly import dump_index
+from ..fem.assembly import dump_index, relabel_index
 from ..fem.quadrature import simplex_rule
 from ..fem.spaces import reference_shape
 from .kernels import gather, scatter
@@ -114,6 +116,21 @@ class FollowerPressure:
         xi, w = simplex_rule(dim - 1, k + (dim - 1) * (k - 1))
         N, dN = reference_shape(dim - 1, k, xi)
         self._w, self._N, self._dN = jnp.asarray(w), jnp.asarray(N), jnp.asarray(dN)  # (nq,), (nq, m), (nq, m, d-1)
+
+    def restricted(self, model, local, cells: np.ndarray, dofs: np.ndarray) -> "FollowerPressure":
+        """This load on the facets whose owner cell is among ``cells`` of the serial ``model`` (the one
+        it was built on), its unknowns the serial ``dofs`` (m,), increasing: the load of
+        ``local = model.restricted(cells, dofs)``, forces (m,), stiffness added to its element blocks
+        (the interface of a load a distributed solve restricts, `hyperoc.distributed.statics`)."""
+        local = copy.copy(self)
+        position = np.full(model.mesh.num_cells, -1, dtype=np.int64)
+        position[cells] = np.arange(cells.size)
+        owner = position[np.asarray(self._owner)]
+        mine = np.flatnonzero(owner >= 0)
+        local._owner, local._local, local._X = jnp.asarray(owner[mine]), self._local[mine], self._X[mine]
+        local._gather = jnp.asarray(relabel_index(np.asarray(self._gather)[mine], model.n, dofs))
+        local.num_facets, local.n = mine.size, dofs.size
+        return local
 
     # --- per facet ------------------------------------------------------------------------------
     def _area_vectors(self, x):

@@ -35,6 +35,7 @@ import numpy as np
 
 from .. import _jax  # noqa: F401
 from ..errors import InputError
+from ..fem.assembly import relabel_index
 from ..fem.mesh import Mesh
 from ..fem.spaces import VectorSpace, prolong, reference_shape
 from .kernels import at_points, element_F, element_tangent
@@ -123,6 +124,18 @@ class TaylorHoodModel(StateModel):
         p1 = lambda mesh: VectorSpace(mesh, 1, components=1)
         return self.unknowns(super().prolong(coarse, x)[: self.n_u],
                              prolong(p1(coarse.mesh), p1(self.mesh), coarse.pressure(np.asarray(x))))
+
+    #: quasi-static: no mass or damping blocks
+    PER_CELL = ("_dN", "_w", "_frames", "_cell_volume")
+
+    def restricted(self, cells: np.ndarray, dofs: np.ndarray) -> "TaylorHoodModel":
+        """`StateModel.restricted`; among ``dofs`` the displacements come first (serial order), then the
+        pressures, so that `displacement_part` and `pressure` split the m local unknowns as they split n."""
+        local = super().restricted(cells, dofs)
+        displacements = dofs[dofs < self.n_u]
+        local.n_u, local.n_p = displacements.size, dofs.size - displacements.size
+        local._gather = jnp.asarray(relabel_index(np.asarray(self._gather)[cells], self.n_u, displacements))
+        return local
 
     @property
     def mass_blocks(self):

@@ -22,6 +22,8 @@ the volume constraint), `hyperoc.mechanics.kernels` (the element energy and tang
 
 from __future__ import annotations
 
+import copy
+import inspect
 from functools import cached_property
 
 import jax
@@ -31,7 +33,7 @@ import scipy.sparse.linalg as spla
 
 from .. import _jax  # noqa: F401
 from ..errors import InputError
-from ..fem.assembly import SparsePattern, dump_index
+from ..fem.assembly import SparsePattern, dump_index, relabel_index
 from ..fem.mesh import Mesh
 from ..fem.spaces import VectorSpace, prolong
 from . import constraints, diagnostics, kernels, operators
@@ -123,6 +125,11 @@ class StateModel:
         # the displacement's gather (`deformation_gradient`); a subclass appending unknowns to the
         # element (Taylor-Hood's pressures) resets `_element_gather` only, so this one stays the displacement's
         self._gather = self._element_gather
+
+    #: per-cell data (leading axis the cells) that `restricted` slices: attributes and cached properties
+    PER_CELL = ("_dN", "_w", "_frames", "_cell_volume", "mass_blocks", "laplace_blocks")
+    #: the compiled kernels and solvers cached on the model (`release_kernels`)
+    KERNEL_CACHES = ("jitted", "_ellipticity_fn", "_static_solves", "_static_solvers")
 
     def _set_cell_dofs(self, cell_dofs: np.ndarray) -> None:
         """Set ``cell_dofs`` (nc, k) (-1 = constrained) and ``_element_gather``, the same with constrained
@@ -317,5 +324,29 @@ class StateModel:
         factorization. They are rebuilt on next use. For a model kept only for its mesh and state,
         e.g. the coarse level of a nested solve, whose factorization would otherwise sit beside the
         fine level's."""
-        for name in ("jitted", "_ellipticity_fn", "_static_solves", "_static_solvers"):
+        for name in self.KERNEL_CACHES:
             self.__dict__.pop(name, None)
+
+    def restricted(self, cells: np.ndarray, dofs: np.ndarray) -> "StateModel":
+        """This model on ``cells`` only, its unknowns the serial ``dofs`` (m,), increasing (the unknowns of
+        those cells, `hyperoc.distributed.partition.local_dofs`): a shallow copy whose `PER_CELL` data keep
+        the rows of ``cells`` and whose gathers index the m unknowns. Its kernels (`internal_force`,
+        `tangent_blocks`, `volume`, ...) are this model's, on those cells: forces (m,), element blocks
+        (len(cells), k, k). Every other cached property and the `KERNEL_CACHES` (the sparsity pattern, the
+        assembled operators, compiled kernels) are left out, to be rebuilt from the restricted data on
+        first use. It carries no control and no traction: assembled loads belong to the serial unknowns
+        (a distributed solve applies them on the rows each rank owns)."""
+        cached = {name for name in dir(type(self))
+                  if isinstance(inspect.getattr_static(type(self), name), cached_property)}
+        local = copy.copy(self)
+        local.__dict__ = {k: v for k, v in self.__dict__.items() if k not in cached and k not in self.KERNEL_CACHES}
+        for name in self.PER_CELL:
+            if name in cached:  # computed for the whole mesh only if not yet, and then not kept on this model
+                value = self.__dict__[name] if name in self.__dict__ else getattr(type(self), name).func(self)
+            else:
+                value = getattr(self, name)
+            local.__dict__[name] = None if value is None else value[cells]
+        local._gather = jnp.asarray(relabel_index(np.asarray(self._gather)[cells], self.n, dofs))
+        local.n, local.control, local.traction_load = dofs.size, None, np.zeros(dofs.size)
+        local._set_cell_dofs(np.where(self.cell_dofs[cells] >= 0, np.searchsorted(dofs, self.cell_dofs[cells]), -1))
+        return local
