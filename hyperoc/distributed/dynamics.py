@@ -37,16 +37,18 @@ from ..mechanics.model import StateModel
 from ..solvers.linsolve import _eliminate
 from ..solvers.newton import NewtonStatus
 from .layout import Layout
-from .newton import newton
+from .newton import KeptJacobian, newton
 
 __all__ = ["DistributedStepper", "DistributedAdjoint"]
 
 
 class DistributedStepper(TimeStepper):
     """`TimeStepper` for ``model`` (a `StateModel`, built on every rank) with Newton on PETSc over
-    ``comm`` (`Layout`; ``solver`` the PC lu package). Full Newton steps with the serial stopping test
-    of ``scheme`` (multiplier "step"); `run`, `march_stepwise`, `solution` and the monitors are the
-    serial ones, driven one `advance` at a time.
+    ``comm`` (`Layout`; ``solver`` the PC lu package or ``"gamg"``). ``scheme`` as in one process
+    (multiplier "step"): with ``newton="auto"`` (default) or ``"chord"`` chord Newton keeps a
+    factorization across iterations and steps, ``"full"`` factors at every iteration; Newton takes full
+    steps (no line search). `run`, `march_stepwise`, `solution` and the monitors are the serial ones,
+    driven one `advance` at a time.
 
     local : the serial `TimeStepper` of the model restricted to the rank's cells, without control
         and loads (they enter on the owned rows): the single source of the step's element terms.
@@ -57,8 +59,10 @@ class DistributedStepper(TimeStepper):
             raise InputError("DistributedStepper: the dynamics of a Taylor-Hood model is not implemented")
         if scheme.multiplier != "step":
             raise InputError("DistributedStepper: multiplier must be 'step' (the adjoint's scheme)")
-        self.model, self.scheme, self.chord = model, scheme, False
+        self.model, self.scheme = model, scheme
         self.layout = self.solver = Layout(model, comm, solver)
+        self.chord = scheme.chord_with(self.layout, auto=True)
+        self._kept = KeptJacobian()  # chord Newton's Jacobian, kept across iterations and steps
         # the restricted model has no control or traction: B xi + f is assembled, it enters on the owned rows
         self.local = TimeStepper(model.restricted(self.layout.cells, self.layout.dofs), scheme, solver=None)
         owned = self.layout.owned_serial
@@ -130,7 +134,7 @@ class DistributedStepper(TimeStepper):
             return blocks, L.add(col), L.add(row)
 
         x, it, status = newton(residual, jacobian, L, np.append(y0[o] + dt * y1[o], float(p_prev)), rtol=sch.rtol,
-                               atol=sch.atol, max_iter=sch.max_iter)
+                               atol=sch.atol, max_iter=sch.max_iter, kept=self._kept if self.chord else None)
         y0n, pn = L.serial(x[:-1]), float(x[-1])
         with L.clock("kernels"):
             mindet, maxgrad = (f(k[name](jnp.asarray(y0n[d]))) for f, name in ((L.min, "min_det_F"),

@@ -40,10 +40,10 @@ class Layout:
     None (the blocks of `hyperoc.solvers.newton._small`; every rank has the same number of them).
     """
 
-    #: as a stepper's solver (`hyperoc.dynamics.stepper.TimeStepper.solver`): solves on the host,
-    #: one step at a time, no kept factorization across Newton iterations
+    #: as a stepper's solver (`hyperoc.dynamics.stepper.TimeStepper.solver`): solves on the host, one
+    #: step at a time, and can keep a factorization for chord Newton (`hyperoc.distributed.newton`)
     traced = False
-    chord = False
+    chord = True
 
     def __init__(self, model: StateModel, comm=MPI.COMM_WORLD, solver: str = "mumps"):
         self.comm, self.n = comm, model.n
@@ -63,6 +63,7 @@ class Layout:
         self.owned_serial = np.argsort(self.part.to_global)[start:stop]
         self.n_u = int(np.sum(self.owned_serial < model.n_u)) if hasattr(model, "n_u") else None
         self.split: dict[str, float] = {}
+        self.factorizations = 0  # the number of `factor` calls: which factorization the solver holds
 
     @property
     def owned_size(self) -> int:
@@ -121,6 +122,7 @@ class Layout:
             self.A.assemble()
         with self.clock("solve"):
             self.ksp.setOperators(self.A)
+        self.factorizations += 1
 
     def solve(self, *rhs: np.ndarray) -> np.ndarray:
         """``K^-1 r`` for each right-hand side's owned part r (m_o,), with the last factorization, as the

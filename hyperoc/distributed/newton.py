@@ -1,5 +1,6 @@
-"""Newton's method on a `Layout`: full steps, the bordered step by the serial Schur elimination with
-inner products over the ranks, the serial stopping test with maxima over the ranks.
+"""Newton's method on a `Layout`: the bordered step by the serial Schur elimination with inner
+products over the ranks, the serial stopping test with maxima over the ranks, and, as in the serial
+time stepper, chord Newton with a kept factorization.
 
 The unknown is ``x = (owned values (m_o,), q)`` with q the multiplier of the volume constraint
 (``constrained``) or ``x = owned values`` alone. Each iteration solves
@@ -8,48 +9,111 @@ The unknown is ``x = (owned values (m_o,), q)`` with q the multiplier of the vol
     [ row^T  0  ] [dq] = [ -r_c ]
 
 as `hyperoc.solvers.linsolve._eliminate` does (``K a = -r_u``, ``K b = col`` against one factorization),
-unconstrained ``K du = -r_u``, and stops when ``|du_b|_inf <= rtol |u_b + du_b|_inf + atol`` on each block b
-(displacements, then Taylor-Hood pressures: `hyperoc.solvers.newton._small`). Every rank makes the same
-sequence of collective calls: the decisions are taken on reduced values, equal on all ranks.
+unconstrained ``K du = -r_u``. Full Newton (``kept=None``) factors K at every iteration, takes full steps
+and stops when ``|du_b|_inf <= rtol |u_b + du_b|_inf + atol`` on each block b (displacements, then
+Taylor-Hood pressures: `hyperoc.solvers.newton._small`). Chord Newton (a `KeptJacobian`) is the serial
+``newton(..., chord=True)`` (`hyperoc.solvers.newton`): it solves with the Jacobian of an earlier
+iterate, of this solve or of an earlier one, takes the step if it decreases ``|r|^2`` (sufficient
+decrease 1e-4), refreshes the Jacobian after a rejected step or when the contraction rate exceeds
+`CHORD_RATE`, and stops on the error left after the update, ``rate / (1 - rate) |du|``, against the
+tolerances scaled by `CHORD_MARGIN`. Every rank makes the same sequence of collective calls: the
+decisions are taken on reduced values, equal on all ranks.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..solvers.linsolve import _eliminate
-from ..solvers.newton import NewtonStatus, _small
+from ..solvers.newton import CHORD_MARGIN, CHORD_RATE, NewtonStatus, _small
 from .layout import Layout
 
-__all__ = ["newton"]
+__all__ = ["KeptJacobian", "newton"]
+
+
+@dataclass
+class KeptJacobian:
+    """The Jacobian chord Newton keeps between iterations and solves: the layout's factorization number
+    it was factored as (`Layout.factorizations`; another factorization since, e.g. an adjoint step's,
+    makes it stale) and the owned parts of ``K^-1 col`` and ``row`` of its border (None unconstrained)."""
+
+    factorization: int = -1
+    b: np.ndarray | None = None
+    row: np.ndarray | None = None
+
+    def current(self, layout: Layout) -> bool:
+        return self.factorization == layout.factorizations
 
 
 def newton(residual, jacobian, layout: Layout, x0: np.ndarray, *, rtol: float, atol: float, max_iter: int,
-           constrained: bool = True):
+           constrained: bool = True, kept: KeptJacobian | None = None):
     """Solve ``residual(x) = 0`` from x0; ``(x, iterations, NewtonStatus)``.
 
     ``residual(xl, q)`` and ``jacobian(xl, q)`` take the local values xl (m,) of the iterate's owned
     part (ghosts filled) and its multiplier q (0 unconstrained). ``residual`` returns the owned rows
     r_u (m_o,) and, constrained, the constraint's value r_c (so (m_o + 1,)); ``jacobian`` the element
     blocks (nc_local, k, k) of K on the rank's cells and the owned parts of ``col`` and ``row`` (None
-    unconstrained).
+    unconstrained). ``kept``: chord Newton with this kept Jacobian (updated in place), else full Newton.
     """
     m_o = layout.owned_size
     x = np.array(x0, dtype=np.float64)
-    for it in range(1, max_iter + 1):
-        xl, q = layout.local_of_owned(x[:m_o]), (x[m_o] if constrained else 0.0)
-        r = residual(xl, q)
-        blocks, col, row = jacobian(xl, q)
-        layout.factor(blocks)
-        if constrained:
-            du, dq = _eliminate(layout.solve(-r[:m_o], col), row, -r[m_o], dot=layout.dot)
-            dx = np.append(du, dq)
+    at = lambda x: (layout.local_of_owned(x[:m_o]), x[m_o] if constrained else 0.0)
+    merit = lambda r: layout.dot(r[:m_o], r[:m_o]) + (r[m_o] ** 2 if constrained else 0.0)
+    r, previous, it = residual(*at(x)), np.inf, 0
+    refresh = kept is None or not kept.current(layout)
+    while it < max_iter:
+        if refresh:
+            dx = _fresh_step(jacobian, layout, at(x), r, constrained, kept)
         else:
-            dx = du = layout.solve(-r)[:, 0]
-        if not layout.all_finite(dx):
+            dx = _kept_step(layout, r, constrained, kept)
+        du = dx[:m_o]
+        solved = layout.all_finite(dx)
+        it += 1 if refresh or solved else 0  # a kept solve that failed only asks for a refresh
+        if refresh and not solved:
             return x, it, NewtonStatus.NON_FINITE
-        converged = bool(_small(x[:m_o], du, layout.n_u, rtol, atol, inf_norm=layout.inf_norm))
-        x = x + dx
+        increment = layout.inf_norm(du) if solved else np.inf
+        rate = increment / previous
+        chord = kept is not None
+        left = rate / (1 - rate) if chord and np.isfinite(previous) and rate < CHORD_RATE else 1.0
+        margin = CHORD_MARGIN if chord else 1.0
+        at_floor = chord and rate > CHORD_RATE and bool(_small(x[:m_o], du, layout.n_u, rtol, atol,
+                                                                inf_norm=layout.inf_norm))
+        converged = solved and (bool(_small(x[:m_o], left * du, layout.n_u, margin * rtol, margin * atol,
+                                            inf_norm=layout.inf_norm)) or at_floor)
         if converged:
-            return x, it, NewtonStatus.CONVERGED
+            return x + dx, it, NewtonStatus.CONVERGED
+        r1 = residual(*at(x + dx)) if solved else None
+        accepted = solved and (refresh or merit(r1) <= (1 - 1e-4) * merit(r))
+        if accepted:
+            x, r = x + dx, r1
+            if not layout.all_finite(r):
+                return x, it, NewtonStatus.NON_FINITE
+        previous = increment if accepted else np.inf
+        refresh = not chord or not accepted or rate > CHORD_RATE
     return x, max_iter, NewtonStatus.MAX_ITERATIONS
+
+
+def _fresh_step(jacobian, layout: Layout, xl_q, r, constrained: bool, kept: KeptJacobian | None) -> np.ndarray:
+    """The Newton step with the Jacobian at the iterate, factored now (and kept, for chord Newton)."""
+    m_o = layout.owned_size
+    blocks, col, row = jacobian(*xl_q)
+    layout.factor(blocks)
+    if not constrained:
+        return layout.solve(-r)[:, 0]
+    ab = layout.solve(-r[:m_o], col)
+    if kept is not None:
+        kept.factorization, kept.b, kept.row = layout.factorizations, ab[:, 1].copy(), row
+    du, dq = _eliminate(ab, row, -r[m_o], dot=layout.dot)
+    return np.append(du, dq)
+
+
+def _kept_step(layout: Layout, r, constrained: bool, kept: KeptJacobian) -> np.ndarray:
+    """The chord step with the kept factorization and border."""
+    m_o = layout.owned_size
+    a = layout.solve(-r[:m_o])
+    if not constrained:
+        return a[:, 0]
+    du, dq = _eliminate(np.column_stack([a[:, 0], kept.b]), kept.row, -r[m_o], dot=layout.dot)
+    return np.append(du, dq)
