@@ -24,17 +24,13 @@ Writes ``bench/results/bench_distributed.json`` (`bench/results.py`), or ``--res
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import shutil
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from results import Table, command_line, write_results
+from results import Table, command_line, run_json, write_results
 
 COLUMNS = ["level", "unknowns", "path", "ranks", "set-up (s)", "solve (s)", "speed-up vs 1 rank", "Newton iterations",
            "peak RSS per rank, max (MB)",
@@ -46,13 +42,7 @@ def run(refinements: int, ranks: int | None, folder: Path) -> dict:
     out = folder / f"L{refinements}-{ranks or 'serial'}.json"
     cmd = [sys.executable, "-m", "hyperoc.distributed.run", "--problem", "ventricle", "--refinements",
            str(refinements), "--out", str(out)]
-    if ranks is None:
-        cmd.append("--serial")
-    else:
-        mpiexec = shutil.which("mpiexec", path=os.path.dirname(sys.executable)) or "mpiexec"
-        cmd = [mpiexec, "-n", str(ranks), *cmd]
-    subprocess.run(cmd, check=True)
-    return json.loads(out.read_text())
+    return run_json(cmd, out, ranks)
 
 
 def differences(record: dict, serial: dict | None) -> tuple:

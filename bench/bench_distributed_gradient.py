@@ -22,17 +22,13 @@ Writes ``bench/results/bench_distributed_gradient.json`` (`bench/results.py`).
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import shutil
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from results import Table, command_line, write_results
+from results import Table, command_line, run_json, write_results
 
 CONFIG = Path(__file__).resolve().parents[1] / "examples" / "ventricle-3d.toml"
 COLUMNS = ["unknowns", "steps", "path", "solver", "ranks", "value + gradient, first (s)", "value + gradient (s)",
@@ -46,13 +42,7 @@ def run(h: float, ranks: int | None, solver: str, taylor: bool, folder: Path) ->
     out = folder / f"{ranks or 'serial'}-{solver}.json"
     cmd = [sys.executable, "-m", "hyperoc.distributed.gradient", str(CONFIG), "--set", f"mesh.h={h}", "--solver",
            solver, "--out", str(out)] + ["--taylor"] * taylor
-    if ranks is None:
-        cmd.append("--serial")
-    else:
-        mpiexec = shutil.which("mpiexec", path=os.path.dirname(sys.executable)) or "mpiexec"
-        cmd = [mpiexec, "-n", str(ranks), *cmd]
-    subprocess.run(cmd, check=True)
-    return json.loads(out.read_text())
+    return run_json(cmd, out, ranks)
 
 
 def differences(record: dict, serial: dict) -> tuple:

@@ -16,6 +16,8 @@ import json
 import math
 import os
 import shlex
+import shutil
+import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -101,6 +103,19 @@ def command_line() -> str:
     if len(allowed) < total:  # the run was bound to some CPUs (taskset): part of how it was measured
         words = ["taskset", "-c", ",".join(map(str, allowed)), *words]
     return shlex.join(words)
+
+
+def run_json(cmd: list[str], out: Path, ranks: int | None) -> dict:
+    """Run the command line ``cmd`` (``python -m module ...``, writing its JSON to ``out``) with ``--serial``
+    in one process (``ranks`` None) or under ``mpiexec -n ranks`` (the mpiexec beside this interpreter, as
+    the ``mpi`` extra installs it), and read that JSON."""
+    if ranks is None:
+        cmd = [*cmd, "--serial"]
+    else:
+        mpiexec = shutil.which("mpiexec", path=os.path.dirname(sys.executable)) or "mpiexec"
+        cmd = [mpiexec, "-n", str(ranks), *cmd]
+    subprocess.run(cmd, check=True)
+    return json.loads(Path(out).read_text())
 
 
 def write_results(name: str, command: str, tables: list[dict]) -> Path:
