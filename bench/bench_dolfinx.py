@@ -33,9 +33,13 @@ iteration, the split of the solve into residual and tangent evaluation (JAX kern
 DOLFINx form assembly) and the factorizations and solves (largest over the ranks), the largest peak
 resident memory over the ranks, the z of the deformed endocardial apex (0, 0, -17) and epicardial
 apex (0, 0, -20), and the differences from the serial path: of the apex positions and of the nodal
-displacements relative to the largest one. DOLFINx's forms are compiled into a fresh cache directory
-in every run (``--warm-cache`` keeps FFCx's default cache), as hyperoc's JAX kernels are compiled in
-every run. Writes ``bench/results/bench_dolfinx.json`` (`bench/results.py`), or ``--results NAME``.
+displacements relative to the largest one. A second table times one Newton iteration's parts
+compiled, at u = 0 and the full load, on the distributed paths (hyperoc's kernels and DOLFINx's
+forms, MUMPS for both): the residual + tangent evaluation and assembly against the factorization +
+solve, the mean of ``--repeat`` repetitions, and the compilation of the kernels. DOLFINx's forms are
+compiled into a fresh cache directory in every run (``--warm-cache`` keeps FFCx's default cache), as
+hyperoc's JAX kernels are compiled in every run. Writes ``bench/results/bench_dolfinx.json``
+(`bench/results.py`), or ``--results NAME``.
 """
 
 from __future__ import annotations
@@ -199,20 +203,70 @@ class _Clock:
         return Span()
 
 
+class _Linear:
+    """The tangent, residual and increment vectors and MUMPS (PC lu) of a DOLFINx solve."""
+
+    def __init__(self, comm, W, K):
+        import dolfinx.fem.petsc as fpetsc
+        from petsc4py import PETSc
+
+        self.A, self.b, self.du = fpetsc.create_matrix(K), fpetsc.create_vector(W), fpetsc.create_vector(W)
+        self.ksp = PETSc.KSP().create(comm)
+        self.ksp.setType(PETSc.KSP.Type.PREONLY)
+        self.ksp.getPC().setType(PETSc.PC.Type.LU)
+        self.ksp.getPC().setFactorSolverType("mumps")
+
+    def assemble(self, R, K, bc) -> None:
+        """The tangent and minus the residual at the current ``w`` (0 on the clamped rows)."""
+        import dolfinx.fem.petsc as fpetsc
+        from petsc4py import PETSc
+
+        self.A.zeroEntries()
+        fpetsc.assemble_matrix(self.A, K, bcs=[bc])
+        self.A.assemble()
+        with self.b.localForm() as bl:
+            bl.set(0.0)
+        fpetsc.assemble_vector(self.b, R)
+        self.b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        fpetsc.set_bc(self.b, [bc])  # u = 0 on the base: the increment is 0 there
+        self.b.scale(-1.0)
+
+    def solve(self) -> bool:
+        """Factor the tangent and solve for the increment ``du``; False if MUMPS failed."""
+        self.ksp.setOperators(self.A)
+        self.ksp.solve(self.b, self.du)
+        return self.ksp.getConvergedReason() >= 0
+
+    def destroy(self) -> None:
+        for obj in (self.ksp, self.A, self.b, self.du):
+            obj.destroy()
+
+
+def _steady(comm, W, w, load, R, K, bc, repeat: int) -> dict:
+    """Seconds of one residual + tangent assembly and of one factorization + solve, compiled, at the
+    current ``w`` and the full load: the mean of ``repeat`` repetitions, the largest over the ranks."""
+    from mpi4py import MPI
+
+    lin, load.value, parts = _Linear(comm, W, K), 1.0, {"residual + tangent": 0.0, "factor + solve": 0.0}
+    for _ in range(repeat + 1):  # the first one sets up MUMPS's symbolic factorization: not counted
+        t0 = time.perf_counter()
+        lin.assemble(R, K, bc)
+        t1 = time.perf_counter()
+        lin.solve()
+        t2 = time.perf_counter()
+        if _:
+            parts["residual + tangent"] += t1 - t0
+            parts["factor + solve"] += t2 - t1
+    lin.destroy()
+    return {k: comm.allreduce(v / repeat, op=MPI.MAX) for k, v in parts.items()}
+
+
 def _solve(comm, W, w, load, R, K, bc, clock):
     """Load stepping (`hyperoc.dynamics.statics._step_load`'s: halve a failed increment, grow back after a
     success) with full Newton steps; ``(Newton iterations per accepted increment, rejected iterations)``."""
-    import dolfinx.fem.petsc as fpetsc
     from mpi4py import MPI
-    from petsc4py import PETSc
 
-    A = fpetsc.create_matrix(K)
-    b = fpetsc.create_vector(W)
-    du = fpetsc.create_vector(W)
-    ksp = PETSc.KSP().create(comm)
-    ksp.setType(PETSc.KSP.Type.PREONLY)
-    ksp.getPC().setType(PETSc.PC.Type.LU)
-    ksp.getPC().setFactorSolverType("mumps")
+    lin = _Linear(comm, W, K)
     owned = W.dofmap.index_map.size_local * W.dofmap.index_map_bs
     blocks = []
     for k in range(2):
@@ -225,21 +279,12 @@ def _solve(comm, W, w, load, R, K, bc, clock):
         load.value = s
         for it in range(1, MAX_ITER + 1):
             with clock("assembly"):
-                A.zeroEntries()
-                fpetsc.assemble_matrix(A, K, bcs=[bc])
-                A.assemble()
-                with b.localForm() as bl:
-                    bl.set(0.0)
-                fpetsc.assemble_vector(b, R)
-                b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-                fpetsc.set_bc(b, [bc])  # u = 0 on the base: the increment is 0 there
-                b.scale(-1.0)
+                lin.assemble(R, K, bc)
             with clock("solve"):
-                ksp.setOperators(A)
-                ksp.solve(b, du)
-            if ksp.getConvergedReason() < 0:
+                solved = lin.solve()
+            if not solved:
                 return it, False
-            d, x = du.getArray(readonly=True), w.x.array[:owned]
+            d, x = lin.du.getArray(readonly=True), w.x.array[:owned]
             if not comm.allreduce(bool(np.all(np.isfinite(d))), op=MPI.LAND):
                 return it, False
             small = all(inf(d, i) <= RTOL * inf(x + d, i) + ATOL for i in blocks)
@@ -262,7 +307,7 @@ def _solve(comm, W, w, load, R, K, bc, clock):
             ds, cuts, rejected = ds / 2, cuts + 1, rejected + it
         else:
             raise RuntimeError(f"Newton failed at load factor {s}")
-    ksp.destroy(), A.destroy(), b.destroy(), du.destroy()
+    lin.destroy()
     return iters, rejected
 
 
@@ -311,7 +356,9 @@ def worker(args) -> None:
     t0 = time.perf_counter()
     domain, tags, mesh, space = _dolfinx_mesh(comm, args.refinements)
     t_mesh = time.perf_counter() - t0
+    t1 = time.perf_counter()
     W, w, load, R, K, bc = _forms(domain, tags, options)
+    t_forms = comm.allreduce(time.perf_counter() - t1, op=MPI.MAX)
     setup = comm.allreduce(time.perf_counter() - t0, op=MPI.MAX)
     t_mesh = comm.allreduce(t_mesh, op=MPI.MAX)
     clock = _Clock()
@@ -322,6 +369,8 @@ def worker(args) -> None:
     split = {k: comm.allreduce(v, op=MPI.MAX) for k, v in clock.parts.items()}
     memory = comm.gather(_peak_mb(), root=0)
     x, n_u, u = _hyperoc_layout(W, w, space, comm)
+    w.x.array[:] = 0.0
+    steady = _steady(comm, W, w, load, R, K, bc, args.repeat)
     size = W.dofmap.index_map.size_global * W.dofmap.index_map_bs
     if comm.rank == 0:
         if cache is not None:
@@ -337,7 +386,47 @@ def worker(args) -> None:
                   "ranks": comm.size, "unknowns": int(x.size), "n_u": n_u, "system_size": int(size),
                   "values": values, "newton_iterations": iters, "rejected_iterations": rejected,
                   "setup_seconds": setup, "mesh_seconds": t_mesh, "solve_seconds": seconds, "peak_mb": memory,
-                  "split_seconds": split, "u": x.tolist()}
+                  "forms_seconds": t_forms, "split_seconds": split, "steady": steady, "u": x.tolist()}
+        Path(args.out).write_text(json.dumps(record))
+
+
+def steady_hyperoc(args) -> None:
+    """hyperoc's distributed kernels and MUMPS on MPI.COMM_WORLD (`hyperoc.distributed.statics`), at u = 0
+    and the full load: the first residual + tangent evaluation (JAX compilation included), then the
+    mean of ``args.repeat`` compiled ones (kernels, assembly) and of as many factorizations + solves;
+    rank 0 writes the JSON record ``args.out``."""
+    import math
+
+    from mpi4py import MPI
+
+    from hyperoc.cardiac.land import ventricle_problem
+    from hyperoc.distributed.statics import DistributedStatics
+
+    comm = MPI.COMM_WORLD
+    model, follower = ventricle_problem(MESH_SIZE, bulk_modulus=math.inf, volumetric="taylor-hood", isochoric=True,
+                                        refinements=args.refinements)
+    dist = DistributedStatics(model, follower, comm=comm, constrained=False)
+    kernels, layout = dist._kernels, dist.layout
+    xl = np.zeros(dist.local.n)
+    evaluate = lambda: (np.asarray(kernels["force"](xl, 1.0)), np.asarray(kernels["blocks"](xl, 0.0, 1.0)))
+    comm.Barrier()
+    t0 = time.perf_counter()
+    f, blocks = evaluate()
+    first = comm.allreduce(time.perf_counter() - t0, op=MPI.MAX)
+    layout.factor(blocks)  # MUMPS's symbolic factorization: not counted
+    layout.solve(-layout.add(f))
+    layout.split = {}
+    for _ in range(args.repeat):
+        with layout.clock("kernels"):
+            f, blocks = evaluate()
+        r = layout.add(f)
+        layout.factor(blocks)
+        layout.solve(-r)
+    split = {k: v / args.repeat for k, v in layout.slowest_split().items()}
+    if comm.rank == 0:
+        record = {"path": "hyperoc", "ranks": comm.size, "unknowns": int(model.n), "first_seconds": first,
+                  "steady": {"residual + tangent": split["kernels"] + split["assembly"], "kernels": split["kernels"],
+                             "factor + solve": split["solve"]}}
         Path(args.out).write_text(json.dumps(record))
 
 
@@ -345,6 +434,10 @@ def worker(args) -> None:
 
 def _mpiexec() -> str:
     return shutil.which("mpiexec", path=os.path.dirname(sys.executable)) or "mpiexec"
+
+
+STEADY_COLUMNS = ["level", "unknowns", "path", "ranks", "kernel compilation (s)", "residual + tangent (s)",
+                  "of which JAX kernels (s)", "factor + solve (s)", "residual + tangent / factor + solve"]
 
 
 def _environment() -> dict:
@@ -355,13 +448,13 @@ def _environment() -> dict:
     return env
 
 
-def run(level: int, path: str, ranks: int | None, folder: Path, warm_cache: bool) -> dict:
-    """One solve in its own process tree: hyperoc serial (ranks None), hyperoc distributed or DOLFINx
-    on ``ranks`` MPI ranks."""
+def run(level: int, path: str, ranks: int | None, folder: Path, args) -> dict:
+    """One run in its own process tree: a hyperoc solve, serial (ranks None) or distributed on ``ranks``
+    MPI ranks, a DOLFINx solve (``path`` "dolfinx") or hyperoc's steady-state timing ("hyperoc-steady")."""
     out = folder / f"L{level}-{path}-{ranks or 'serial'}.json"
-    if path == "dolfinx":
-        cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", "--refinements", str(level),
-               "--out", str(out)] + (["--warm-cache"] if warm_cache else [])
+    if path in ("dolfinx", "hyperoc-steady"):
+        cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", path, "--refinements", str(level),
+               "--repeat", str(args.repeat), "--out", str(out)] + (["--warm-cache"] if args.warm_cache else [])
     else:
         cmd = [sys.executable, "-m", "hyperoc.distributed.run", "--problem", "ventricle", "--refinements",
                str(level), "--out", str(out)] + (["--serial"] if ranks is None else [])
@@ -393,12 +486,14 @@ def main():
     parser.add_argument("--warm-cache", action="store_true",
                         help="DOLFINx: use FFCx's default cache (forms compiled once for all runs)")
     parser.add_argument("--results", default="bench_dolfinx", help="results file stem")
-    parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--repeat", type=int, default=5,
+                        help="compiled residual + tangent evaluations and factorizations timed per run (second table)")
+    parser.add_argument("--worker", choices=("dolfinx", "hyperoc-steady"), help=argparse.SUPPRESS)
     parser.add_argument("--out", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
         args.refinements = int(args.refinements)
-        worker(args)
+        (worker if args.worker == "dolfinx" else steady_hyperoc)(args)
         return
     from results import Table, command_line, write_results
 
@@ -414,12 +509,21 @@ def main():
                            check=True, capture_output=True, text=True).stdout.strip()
     if not Path(where).resolve().is_relative_to(ROOT):
         raise SystemExit(f"the runs would import hyperoc from {where}, not from {ROOT}")
+    steady = Table("One Newton iteration, compiled: residual + tangent against factorization + solve (u = 0, full "
+                   "load)", STEADY_COLUMNS,
+                   f"The mean of {args.repeat} repetitions after a first one, the largest over the ranks. Kernel "
+                   "compilation: hyperoc, the first residual + tangent evaluation less a compiled one (JAX tracing "
+                   "and XLA); DOLFINx, building the Taylor-Hood space and the two forms (UFL, FFCx, the C compiler). "
+                   "Residual + tangent: hyperoc, its JAX kernels on the rank's cells, the ghost scatter and the COO "
+                   "insertion into the PETSc matrix; DOLFINx, assemble_vector and assemble_matrix (its generated "
+                   "kernels and the insertion). Factor + solve: PETSc MUMPS, numeric factorization and one solve.")
     with tempfile.TemporaryDirectory() as tmp:
         for level in map(int, args.refinements.split(",")):
-            serial = run(level, "hyperoc", None, Path(tmp), args.warm_cache)
+            serial = run(level, "hyperoc", None, Path(tmp), args)
             records = [("hyperoc serial", serial)]
-            records += [("hyperoc distributed", run(level, "hyperoc", r, Path(tmp), args.warm_cache)) for r in ranks]
-            records += [("DOLFINx", run(level, "dolfinx", r, Path(tmp), args.warm_cache)) for r in ranks]
+            records += [("hyperoc distributed", run(level, "hyperoc", r, Path(tmp), args)) for r in ranks]
+            records += [("DOLFINx", run(level, "dolfinx", r, Path(tmp), args)) for r in ranks]
+            timings = [run(level, "hyperoc-steady", r, Path(tmp), args) for r in ranks]
             n_u = next(r["n_u"] for _, r in records if "n_u" in r)
             for name, r in records:
                 its = int(sum(r["newton_iterations"])) + int(r["rejected_iterations"])
@@ -427,7 +531,13 @@ def main():
                 table.add(level, r["unknowns"], name, r["ranks"], r["setup_seconds"], r["solve_seconds"], its,
                           r["solve_seconds"] / its, split(r), max(r["peak_mb"]), r["values"]["z_endo"],
                           r["values"]["z_epi"], dz, du)
-    write_results(args.results, command_line(), [table.as_dict()])
+            for name, r in [("hyperoc distributed", t) for t in timings] + \
+                    [(name, r) for name, r in records if name == "DOLFINx"]:
+                t = r["steady"]
+                compile_ = r["first_seconds"] - t["kernels"] if "first_seconds" in r else r["forms_seconds"]
+                steady.add(level, r["unknowns"], name, r["ranks"], compile_, t["residual + tangent"], t.get("kernels"),
+                           t["factor + solve"], t["residual + tangent"] / t["factor + solve"])
+    write_results(args.results, command_line(), [table.as_dict(), steady.as_dict()])
 
 
 if __name__ == "__main__":
