@@ -517,13 +517,16 @@ def main():
                    "Residual + tangent: hyperoc, its JAX kernels on the rank's cells, the ghost scatter and the COO "
                    "insertion into the PETSc matrix; DOLFINx, assemble_vector and assemble_matrix (its generated "
                    "kernels and the insertion). Factor + solve: PETSc MUMPS, numeric factorization and one solve.")
+    loads = []  # the machine's load average (1 min) at the start and the end of each level
     with tempfile.TemporaryDirectory() as tmp:
         for level in map(int, args.refinements.split(",")):
+            loads.append([level, os.getloadavg()[0]])
             serial = run(level, "hyperoc", None, Path(tmp), args)
             records = [("hyperoc serial", serial)]
             records += [("hyperoc distributed", run(level, "hyperoc", r, Path(tmp), args)) for r in ranks]
             records += [("DOLFINx", run(level, "dolfinx", r, Path(tmp), args)) for r in ranks]
             timings = [run(level, "hyperoc-steady", r, Path(tmp), args) for r in ranks]
+            loads[-1].append(os.getloadavg()[0])
             n_u = next(r["n_u"] for _, r in records if "n_u" in r)
             for name, r in records:
                 its = int(sum(r["newton_iterations"])) + int(r["rejected_iterations"])
@@ -537,6 +540,10 @@ def main():
                 compile_ = r["first_seconds"] - t["kernels"] if "first_seconds" in r else r["forms_seconds"]
                 steady.add(level, r["unknowns"], name, r["ranks"], compile_, t["residual + tangent"], t.get("kernels"),
                            t["factor + solve"], t["residual + tangent"] / t["factor + solve"])
+    cpus = len(os.sched_getaffinity(0))
+    table.notes += f" Load average (1 min) on the {cpus} CPUs at the start and the end of each level: " + \
+        ", ".join(f"level {level}: {start:.1f}, {end:.1f}" for level, start, end in loads) + \
+        " (the runs share the machine with whatever else runs on it)."
     write_results(args.results, command_line(), [table.as_dict(), steady.as_dict()])
 
 
