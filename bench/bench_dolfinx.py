@@ -4,21 +4,21 @@ JAX kernels (serial, and distributed on MPI + PETSc), the same discrete problem 
 The problem is `hyperoc.distributed.run`'s ``ventricle``: the idealized LV of
 `hyperoc.cardiac.land.ventricle_problem` (h = 6 mm, ``--refinements`` uniform refinements; 0: 1,706
 unknowns, 1: 11,569), Taylor-Hood P2-P1, incompressible (``L = int W(Ebar) + p (J - 1) dX``,
-`hyperoc.mechanics.mixed.TaylorHoodModel`), isotropic Guccione on the isochoric strain ``Ebar``
-(C = 10 kPa, bf = bt = bfs = 1), base clamped, endocardial pressure 10 kPa on the deformed
-endocardium (the follower load ``-p J F^-T N dA`` of `hyperoc.mechanics.follower`), 20 load steps, full
-Newton steps, each stopped when ``|du|_inf <= 1e-11 |u|_inf`` on the displacements and on the
-pressures apart. The DOLFINx solve is built from hyperoc's mesh: its vertices and the P2 nodes of its
-curved cells become a DOLFINx mesh with a P2 coordinate element, the base and endocardium facets its
-facet tags; the energy is written in UFL and differentiated by UFL; the cell integrals use hyperoc's
-quadrature rule (the 27-point collapsed Gauss-Jacobi rule of degree 4, as an FFCx custom rule), the
-facet integrals a rule of degree 4 (the follower integrand ``v . cof(F) N dA`` is a polynomial of
-degree 4 on the curved facets: exact for both); the Newton loop (own, in this file) factors the
-tangent with MUMPS (PC lu) at every iteration.
+`hyperoc.mechanics.mixed.TaylorHoodModel`), isotropic Guccione on the isochoric strain ``Ebar`` (C = 10
+kPa, bf = bt = bfs = 1), base clamped, endocardial pressure 10 kPa on the deformed endocardium (the
+follower load ``-p J F^-T N dA`` of `hyperoc.mechanics.follower`), 20 load steps, full Newton steps,
+each stopped when ``|du|_inf <= 1e-11 |u + du|_inf + 1e-15`` on the displacements and on the pressures
+apart. The DOLFINx solve is built from hyperoc's mesh (made by Gmsh on rank 0): its vertices and the P2
+nodes of its curved cells become a distributed DOLFINx mesh with a P2 coordinate element, the base and
+endocardium facets its facet tags; the energy is written in UFL and differentiated by UFL; the cell
+integrals use hyperoc's quadrature rule (the 27-point collapsed Gauss-Jacobi rule of degree 4, as an
+FFCx custom rule), the facet integrals a rule of degree 4 (the follower integrand ``v . cof(F) N dA`` is
+a polynomial of degree 4 on the curved facets: exact for both); the Newton loop (own, in this file)
+factors the tangent with MUMPS (PC lu) at every iteration.
 
 Each row is one process tree: hyperoc's serial path (``python -m hyperoc.distributed.run --serial``,
 `hyperoc.dynamics.statics.solve_static` with its sparse LU), hyperoc's distributed path on 1 and 2 ranks,
-and the DOLFINx solve on 1 and 2 ranks (``mpiexec -n k python bench/bench_dolfinx.py --worker``).
+and the DOLFINx solve on 1 and 2 ranks (``mpiexec -n k python bench/bench_dolfinx.py --worker dolfinx``).
 Run it with the ``mpi`` environment's python (docs/distributed.md), which also holds DOLFINx
 (the ``dolfinx-solver-real`` wheel) and mpiexec, from the repository root:
 
