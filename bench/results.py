@@ -107,13 +107,15 @@ def command_line() -> str:
 
 def run_json(cmd: list[str], out: Path, ranks: int | None) -> dict:
     """Run the command line ``cmd`` (``python -m module ...``, writing its JSON to ``out``) with ``--serial``
-    in one process (``ranks`` None) or under ``mpiexec -n ranks`` (the mpiexec beside this interpreter, as
-    the ``mpi`` extra installs it), and read that JSON."""
+    in one process (``ranks`` None) or under ``mpiexec -n ranks -bind-to core`` (the mpiexec beside this
+    interpreter, as the ``mpi`` extra installs it), and read that JSON. Each rank is bound to a core of
+    its own, one rank per core as on a cluster: its threads (XLA's, the BLAS's) share that core, so
+    that one rank uses one core and k ranks k, and the speed-up over one rank is the strong scaling."""
     if ranks is None:
         cmd = [*cmd, "--serial"]
     else:
         mpiexec = shutil.which("mpiexec", path=os.path.dirname(sys.executable)) or "mpiexec"
-        cmd = [mpiexec, "-n", str(ranks), *cmd]
+        cmd = [mpiexec, "-n", str(ranks), "-bind-to", "core", *cmd]
     subprocess.run(cmd, check=True)
     return json.loads(Path(out).read_text())
 
