@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import resource
 import sys
 import time
 
@@ -34,11 +33,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..io import write_json
-
-
-def peak_mb() -> float:
-    """This process's peak resident memory, MB (Linux reports kB)."""
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+from .run import peak_mb
 
 
 def parse(argv):
