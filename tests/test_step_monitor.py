@@ -14,7 +14,7 @@ import math
 import numpy as np
 import pytest
 
-from hyperoc.dynamics.stepper import PROGRESS_CHUNKS, Scheme, TimeStepper
+from hyperoc.dynamics.stepper import MARCH_BLOCK, Scheme, TimeStepper
 from hyperoc.dynamics.timegrid import uniform_grid
 from hyperoc.errors import SolverError
 from hyperoc.fem import geometry
@@ -48,18 +48,27 @@ def check_records_match(records, sol, grid, volume_tol):
     np.testing.assert_allclose([r.volume_drift for r in records], drift, rtol=0, atol=volume_tol)
 
 
-def test_progress_bar_blocks_share_one_compiled_loop_and_change_nothing(bar_1d):
-    """With ``progress`` the compiled loop runs in PROGRESS_CHUNKS blocks; 101 steps do not divide into
-    20 blocks, so the last block is padded with inactive steps: one compiled loop for every block, and
-    the same arithmetic as the whole scan (bitwise equal)."""
-    grid = uniform_grid(2.02, 0.02)
-    assert grid.num_steps % PROGRESS_CHUNKS != 0
+def test_marches_of_any_length_share_one_compiled_loop_and_change_nothing(bar_1d):
+    """Every traced march runs in blocks of MARCH_BLOCK steps, the last padded with inactive steps: solves of
+    two lengths that are not multiples of it, with and without a progress bar, compile one loop; a solve split
+    at a level that is not a block boundary (as a shorter horizon and its continuation) gives the same
+    levels bit for bit."""
+    N = 2 * MARCH_BLOCK + 5
+    grid = uniform_grid(N * 0.02, 0.02)
     xi = constant_control(bar_1d, grid, 0.05)
-    scanned = bar_1d.run(grid, xi)
-    blocked = bar_1d.run(grid, xi, progress=True)
+    whole = bar_1d.run(grid, xi)
+    shorter = bar_1d.run(uniform_grid((N - 7) * 0.02, 0.02), xi[:N - 6])
+    with_bar = bar_1d.run(grid, xi, progress=True)
     for name in ("y0", "y1", "p_steps", "newton_iterations", "min_det_F"):
-        np.testing.assert_array_equal(getattr(blocked, name), getattr(scanned, name))
-    assert bar_1d._scan_from._cache_size() == 1
+        np.testing.assert_array_equal(getattr(with_bar, name), getattr(whole, name))
+        np.testing.assert_array_equal(getattr(shorter, name), getattr(whole, name)[:len(getattr(shorter, name))])
+    assert bar_1d._block_scan._cache_size() == 1
+    k = MARCH_BLOCK + 3  # continue from level k with its multiplier as Newton's first guess
+    rest = bar_1d.march(whole.y0[k], whole.y1[k], whole.p_steps[k - 1], xi[k:], np.zeros((N + 1 - k, bar_1d.model.n)),
+                        grid.dt[k:], bar_1d.deformed_volume(whole.y0[0]))
+    np.testing.assert_array_equal(rest[0], whole.y0[k + 1:])
+    np.testing.assert_array_equal(rest[2], whole.p_steps[k:])
+    assert bar_1d._block_scan._cache_size() == 1
 
 
 def test_monitor_sees_every_step_and_leaves_the_scanned_solve_unchanged(bar_1d):

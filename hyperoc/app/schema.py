@@ -344,6 +344,9 @@ class Optimize(Section):
         None, description="adjoint memory: keep every k-th level state (recompute the others)")
     checkpoint_snapshots: Optional[Count] = Field(
         None, description="adjoint memory: a binomial schedule with s snapshots")
+    horizon: Literal["objective", "full"] = Field(
+        "objective", description="solve J up to the last step the objective reads (the same J and gradient), "
+                                 "or over [0, T] (controls whose state fails after it are rejected)")
 
     @model_validator(mode="after")
     def _exclusive(self):

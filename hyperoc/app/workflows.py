@@ -88,7 +88,7 @@ def build_reduced(cfg: Config, tau0: float, model=None) -> ReducedFunctional:
     return ReducedFunctional(model, cfg.transform(tau0), cfg.objective(), scheme=cfg.scheme(),
                              solver=cfg["dynamics"]["solver"], gradient=o["gradient"],
                              checkpoint_every=o.get("checkpoint_every"),
-                             checkpoint_snapshots=o.get("checkpoint_snapshots"))
+                             checkpoint_snapshots=o.get("checkpoint_snapshots"), horizon=o["horizon"])
 
 
 def optimize_single(cfg: Config, tau0: float, *, cache_dir=None, progress: bool = False,

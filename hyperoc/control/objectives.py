@@ -22,7 +22,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from ..dynamics.stepper import level_pressure
+from ..dynamics.stepper import level_pressure, level_pressure_steps
 from ..errors import InputError
 from ..mechanics.materials import det
 
@@ -61,6 +61,13 @@ class Term:
     def value(self, traj: Trajectory):  # pragma: no cover - interface
         raise NotImplementedError
 
+    def steps_read(self, tau_index: int, eps_index: int, num_steps: int) -> int:
+        """How many leading time steps the term reads the results of: k means that ``value`` depends on
+        the level states ``y0, y1`` at the levels 0 .. k and the multipliers ``p_steps[:k]`` only (0: on
+        no state). The forward solve of a gradient stops after the largest k of the objective's terms.
+        By default every step (``num_steps``): a term that reads less may say so."""
+        return num_steps
+
 
 class Running(Term):
     """``int_0^T c dt`` with ``density(traj) -> (N+1,)`` the integrand at the levels (trapezoid rule)."""
@@ -91,6 +98,9 @@ class ControlCost(Running):
         Mxi = (traj.control_mass @ traj.xi.T).T
         return -0.5 * self.alpha * jnp.sum(traj.xi * Mxi, axis=1)
 
+    def steps_read(self, tau_index, eps_index, num_steps):
+        return 0
+
 
 @dataclass(frozen=True)
 class ControlRateCost(Term):
@@ -110,6 +120,9 @@ class ControlRateCost(Term):
         dxi = traj.xi[1:] - traj.xi[:-1]
         Mdxi = (traj.control_mass @ dxi.T).T
         return -0.5 * self.beta * jnp.sum(jnp.sum(dxi * Mdxi, axis=1) / traj.dt)
+
+    def steps_read(self, tau_index, eps_index, num_steps):
+        return 0
 
 
 @dataclass(frozen=True)
@@ -141,6 +154,9 @@ class PressureAt(AtTau):
     def value(self, traj):
         return traj.pressure[traj.tau_index]
 
+    def steps_read(self, tau_index, eps_index, num_steps):
+        return level_pressure_steps(tau_index, num_steps)
+
 
 @dataclass(frozen=True)
 class PressureMean(AtTau):
@@ -158,6 +174,9 @@ class PressureMean(AtTau):
         window = slice(traj.tau_index, traj.eps_index)
         return jnp.sum(traj.dt[window] * traj.p_steps[window]) / self.eps
 
+    def steps_read(self, tau_index, eps_index, num_steps):
+        return eps_index
+
 
 @dataclass(frozen=True)
 class PressureRise(AtTau):
@@ -168,6 +187,9 @@ class PressureRise(AtTau):
     def value(self, traj):
         p = traj.pressure
         return (p[traj.eps_index] - p[traj.tau_index]) / self.eps
+
+    def steps_read(self, tau_index, eps_index, num_steps):
+        return level_pressure_steps(eps_index, num_steps)
 
 
 @dataclass(frozen=True)
@@ -194,6 +216,11 @@ class Objective:
         for term in self.running + self.terminal:
             total = total + term.value(traj)
         return total
+
+    def steps_read(self, tau_index: int, eps_index: int, num_steps: int) -> int:
+        """The most leading steps any term reads (`Term.steps_read`): the state after them changes neither
+        J nor its gradient."""
+        return max(t.steps_read(tau_index, eps_index, num_steps) for t in (self.at_tau, *self.running, *self.terminal))
 
     def parts(self, traj: Trajectory) -> dict:
         """Each term's value (JAX scalars, traceable), by its class name, for reports."""

@@ -15,6 +15,13 @@ segment from its checkpoint (`hyperoc.control.revolve.EveryK`). With ``checkpoin
 follows the binomial schedule instead (s snapshots, the least number of recomputed steps;
 `hyperoc.control.revolve.Binomial`).
 
+The forward solve of the value and the gradient stops after the last step the objective reads
+(``horizon="objective"``, `hyperoc.control.objectives.Objective.steps_read`): for ``p(tau)`` the step
+after tau, so about tau / T of the steps. The state after that step changes neither J nor its gradient
+(the time stepping is causal and the adjoint vanishes there), so both equal those of the whole solve.
+What changes is which controls are admissible: one whose state fails after that step has a value and a
+gradient; with ``horizon="full"`` the solve covers [0, T] and such a control is rejected.
+
 The forward solves of the last point are kept (`ReducedFunctional.record` and `ReducedFunctional.state`
 share them): the record made for the value and the gradient, and the whole state trajectory, which
 is read from that record when it holds every level (no checkpointing) and costs one more solve
@@ -162,6 +169,9 @@ class ReducedFunctional:
         s = 1, N for s >= N - 1) against N when storing everything, e.g. 4.5 N for N = 3000, s = 10
         and 3.3 N for s = 20. Same requirements as ``checkpoint_every``, which it excludes; the
         gradient equals the stored one to round-off.
+    horizon : "objective" (default): the value and the gradient solve the steps the objective reads
+        (`steps_solved`), "full": all N steps (the state must exist on [0, T]). The gradient is the
+        same; `state` always solves all N steps.
     adjoint : the state solver and its adjoint recursion, an `Adjoint` of a stepper of ``model``
         (default ``Adjoint(TimeStepper(model, scheme, solver))``; ``scheme`` and ``solver`` are not
         used when it is given); e.g. `hyperoc.distributed.dynamics.DistributedAdjoint` to solve on MPI ranks.
@@ -170,9 +180,12 @@ class ReducedFunctional:
     def __init__(self, model: StateModel, transform: TimeTransform, objective: Objective, *,
                  scheme: Scheme = Scheme(), solver="auto", u0=None, v0=None, gradient: str = "exact",
                  checkpoint_every: int | None = None, checkpoint_snapshots: int | None = None,
-                 space: ControlSpace | None = None, adjoint: Adjoint | None = None):
+                 space: ControlSpace | None = None, adjoint: Adjoint | None = None, horizon: str = "objective"):
         if gradient not in ("exact", "continuous"):
             raise InputError(f"gradient must be 'exact' or 'continuous', got {gradient!r}")
+        if horizon not in ("objective", "full"):
+            raise InputError(f"horizon must be 'objective' or 'full', got {horizon!r}")
+        self.horizon = horizon
         self.gradient_method = gradient
         if model.control is None:
             raise InputError("the optimal control problem needs a model with a control operator")
@@ -238,6 +251,15 @@ class ReducedFunctional:
                              "gradient only")
         self._checkpoint_every, self._checkpoint_snapshots = every, snapshots
         self._solves.record = None  # made under the previous schedule
+
+    @cached_property
+    def steps_solved(self) -> int:
+        """K, the steps the value and the gradient solve: those the objective reads (``horizon="objective"``)
+        or all N. Fixed for the transform (tau moves the levels, not their indices)."""
+        if self.horizon == "full":
+            return self.N
+        n1, n2, _ = self.transform.steps
+        return max(1, self.objective.steps_read(n1, n1 + n2, self.N))
 
     # --- geometry of the control space -----------------------------------------------------------
     @property
@@ -362,33 +384,45 @@ class ReducedFunctional:
         of them without checkpointing); cached for the last point."""
         solves = self._solves_at(m)
         if solves.record is None:
-            grid = self.transform.grid(m.tau)
+            K = self.steps_solved
+            grid = self.transform.grid(m.tau).first(K)
             loads = self.stepper.external_loads(None, grid)
-            solves.record = self.adjoint.record(grid, m.xi, loads, self.u0, self.v0, self.schedule, self._read_levels)
+            solves.record = self.adjoint.record(grid, m.xi[:K + 1], loads, self.u0, self.v0, self.schedule,
+                                                self._solved_reads)
             self.counts["state"] += 1
         return solves.record
 
-    def _record_arrays(self, rec: Record):
+    @property
+    def _solved_reads(self) -> tuple[int, ...]:
+        """The `_read_levels` among the solved ones (0 .. `steps_solved`)."""
+        return tuple(k for k in self._read_levels if k <= self.steps_solved)
+
+    def _record_arrays(self, rec: Record, m: ControlPoint):
         """The arguments ``(y0, y1, p, xi, dt)`` of the objective functions: the states at `_read_levels`,
-        (len, n) each, the step multipliers (N,), the controls (N+1, n_ctrl) and the steps (N,)."""
-        Y0, Y1 = rec.at(self._read_levels)
-        return jnp.asarray(Y0), jnp.asarray(Y1), jnp.asarray(rec.p_steps), jnp.asarray(rec.xi), jnp.asarray(rec.dt)
+        (len, n) each, the step multipliers (N,), the controls (N+1, n_ctrl) and the steps (N,); states and
+        multipliers after the solved steps, which the objective does not read, are zeros."""
+        Y0, Y1 = (np.pad(Y, ((0, len(self._read_levels) - len(Y)), (0, 0))) for Y in rec.at(self._solved_reads))
+        p = np.pad(rec.p_steps, (0, self.N - rec.grid.num_steps))
+        return (jnp.asarray(Y0), jnp.asarray(Y1), jnp.asarray(p), jnp.asarray(m.xi),
+                jnp.asarray(self.transform.grid(m.tau).dt))
 
     def __call__(self, m: ControlPoint) -> float:
         value, _ = self._objective_pair
         if self.gradient_method == "continuous":  # its gradient reads `state`: the value from the same solve
             return float(value(*self._solution_arrays(self.state(m))))
-        return float(value(*self._record_arrays(self.record(m))))
+        return float(value(*self._record_arrays(self.record(m), m)))
 
     def value_and_derivative(self, m: ControlPoint) -> tuple[float, ControlPoint]:
         """J(m) and dJ(m) as a dual vector: ``dJ.dm = sum(d.xi * dm.xi) + d.tau dm.tau``."""
         rec = self.record(m)
         _, vg = self._objective_pair
-        J, (gY0, gY1, gP, gXi, gdt) = vg(*self._record_arrays(rec))
-        gXi_state, gdt_state = self.adjoint.backward(rec, (gY0, gY1), gP)
+        J, (gY0, gY1, gP, gXi, gdt) = vg(*self._record_arrays(rec, m))
+        K, kept = rec.grid.num_steps, len(rec.keep)
+        gXi_state, gdt_state = self.adjoint.backward(rec, (gY0[:kept], gY1[:kept]), gP[:K])
         self.counts["adjoint"] += 1
-        dxi = np.asarray(gXi) + gXi_state
-        ddt = np.asarray(gdt) + gdt_state
+        dxi, ddt = np.array(gXi), np.array(gdt)
+        dxi[:K + 1] += gXi_state
+        ddt[:K] += gdt_state
         dtau = float(ddt @ self.transform.ddt_dtau())
         return float(J), ControlPoint(dxi, dtau)
 

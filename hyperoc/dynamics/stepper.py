@@ -40,7 +40,8 @@ from ..solvers.linsolve import make_solver
 from ..solvers.newton import NewtonStatus, newton
 from .timegrid import TimeGrid
 
-__all__ = ["Scheme", "StateSolution", "StepRecord", "StepStatus", "TimeStepper", "solve_state", "level_pressure"]
+__all__ = ["Scheme", "StateSolution", "StepRecord", "StepStatus", "TimeStepper", "solve_state", "level_pressure",
+           "level_pressure_steps"]
 
 
 class StepStatus(IntEnum):
@@ -63,9 +64,10 @@ class StepStatus(IntEnum):
 _CAUSES = {StepStatus.OK: "ok", StepStatus.NEWTON: "newton", StepStatus.NON_FINITE: "nonfinite",
            StepStatus.DET_F: "detF", StepStatus.AFTER_FAILURE: "after a failed step"}
 
-# Blocks of steps a compiled time loop runs in when it shows progress (two compilations: the block
-# and the shorter last one).
-PROGRESS_CHUNKS = 20
+# Steps per block of the compiled time loop (`TimeStepper.march`): long enough that a block's dispatch is
+# small beside its steps, short enough that the padding of the last block (inactive steps, a few
+# microseconds each on the traced 1D path) is too, and that a progress bar moves.
+MARCH_BLOCK = 128
 
 
 @dataclass(frozen=True)
@@ -129,6 +131,13 @@ def level_pressure(p_steps, dt, multiplier: str = "step"):
     first = p_steps[0] - (p_steps[1] - p_steps[0]) * dt[0] / (dt[0] + dt[1])
     last = p_steps[-1] + (p_steps[-1] - p_steps[-2]) * dt[-1] / (dt[-1] + dt[-2])
     return xp.concatenate([first[None], interior, last[None]])
+
+
+def level_pressure_steps(level: int, num_steps: int) -> int:
+    """How many leading step multipliers the pressure at ``level`` depends on (`level_pressure`, "step"):
+    an interior level interpolates the steps on both sides of it, an end level extrapolates from the two
+    nearest."""
+    return min(max(level + 1, 2), num_steps)
 
 
 @dataclass(frozen=True)
@@ -341,28 +350,40 @@ class TimeStepper:
         failed = failed | (status != 0)
         return (y0n, y1n, pn, failed), (y0n, y1n, pn, it, status, mindet, maxgrad)
 
-    @cached_property
-    def march(self):
-        """The compiled loop over levels, ``march(y0, y1, p0, xis, fs, dts, V0)``: from the state
-        ``(y0, y1)`` (n,) with Newton's first multiplier guess p0, controls xis (L+1, n_ctrl), loads
-        fs (L+1, n), steps dts (L,) and the reference volume V0, the outputs of `step` stacked over
-        the L steps: (y0, y1 (L, n), p, iterations, status, min det F, max |grad u| (L,))."""
-        def run(y0, y1, p0, xis, fs, dts, V0):
-            V = jnp.full(dts.shape, V0)
-            _, out = jax.lax.scan(self.step, (y0, y1, p0, jnp.asarray(False)),
-                                  (xis[:-1], xis[1:], fs[:-1], fs[1:], dts, V))
-            return out
+    def march(self, y0, y1, p0, xis, fs, dts, V0, on_block=None):
+        """The compiled loop over levels: from the state ``(y0, y1)`` (n,) with Newton's first multiplier
+        guess p0, controls xis (L+1, n_ctrl), loads fs (L+1, n), steps dts (L,) and the reference volume
+        V0, the outputs of `step` stacked over the L steps (NumPy): (y0, y1 (L, n), p, iterations,
+        status, min det F, max |grad u| (L,)).
 
-        return jax.jit(run)
+        The steps run in blocks of `MARCH_BLOCK` (one block when fewer), the last block padded with
+        inactive steps, so that a whole solve, a gradient's shorter horizon and a progress bar's blocks
+        share one compiled loop (`_block_scan`). ``on_block(done)``: called after each block with the
+        steps done so far."""
+        L = len(dts)
+        size = min(L, MARCH_BLOCK)
+        carry = (jnp.asarray(y0), jnp.asarray(y1), jnp.asarray(p0, dtype=jnp.float64), jnp.asarray(False))
+        xis, fs, dts = np.asarray(xis), np.asarray(fs), np.asarray(dts)
+        outs = []
+        for start in range(0, L, size):
+            levels = np.minimum(np.arange(start, start + size + 1), L)  # the last level repeated as padding
+            steps = np.minimum(np.arange(start, start + size), L - 1)
+            carry, out = self._block_scan(carry, xis[levels], fs[levels], dts[steps], np.full(size, V0),
+                                          np.arange(start, start + size) < L)
+            outs.append(out)
+            if on_block is not None:
+                on_block(min(start + size, L))
+        return [np.concatenate([np.asarray(o[k]) for o in outs])[:L] for k in range(len(outs[0]))]
 
     @cached_property
-    def _scan_from(self):
-        """`march`'s loop from a given carry over one block of steps, returning the final carry too
-        (`_chunked_scan`); a step whose ``active`` entry is False is computed but leaves the carry as it
-        was, so that blocks padded to one length share one compiled loop."""
+    def _block_scan(self):
+        """`march`'s compiled loop over one block of steps from a carry, returning the final carry and the
+        outputs: ``(carry, xis (B+1, n_ctrl), fs (B+1, n), dts (B,), V (B,), active (B,))``. An inactive step
+        makes no Newton iteration (it is run as after a failure) and leaves the carry as it was."""
         def masked_step(carry, inputs):
             *step_inputs, active = inputs
-            new, out = self.step(carry, tuple(step_inputs))
+            y0, y1, p, failed = carry
+            new, out = self.step((y0, y1, p, failed | ~active), tuple(step_inputs))
             return jax.tree.map(lambda a, b: jnp.where(active, a, b), new, carry), out
 
         def run(carry, xis, fs, dts, V, active):
@@ -370,31 +391,23 @@ class TimeStepper:
 
         return jax.jit(run)
 
-    def _chunked_scan(self, y0, y1, p0, xis, fs, grid, V0):
-        """The compiled loop over ``PROGRESS_CHUNKS`` blocks of steps, with a bar updated between
-        blocks: "compiling" until the first block has run, then the steps. The last block is padded
-        with inactive repeats of its last step, so that every block has one length (one compilation)."""
+    def _march_with_bar(self, y0, y1, p0, xis, fs, grid, V0):
+        """`march` with a progress bar updated between its blocks: "compiling" until the first block has
+        run, then the steps."""
         from tqdm.auto import tqdm
 
-        N = grid.num_steps
-        size = -(-N // PROGRESS_CHUNKS)
-        carry = (jnp.asarray(y0), jnp.asarray(y1), jnp.asarray(p0, dtype=jnp.float64), jnp.asarray(False))
-        outs = []
-        bar = tqdm(total=N, desc="compiling", leave=False)
-        for start in range(0, N, size):
-            stop = min(start + size, N)
-            levels = np.minimum(np.arange(start, start + size + 1), N)  # the last level repeated as padding
-            steps = np.minimum(np.arange(start, start + size), N - 1)
-            carry, out = self._scan_from(carry, jnp.asarray(xis[levels]), jnp.asarray(fs[levels]),
-                                         jnp.asarray(grid.dt[steps]), jnp.full(size, V0),
-                                         jnp.asarray(np.arange(start, start + size) < N))
-            outs.append([np.asarray(o)[: stop - start] for o in out])
-            if start == 0:  # the ETA from here on counts steps, not the compilation
+        bar = tqdm(total=grid.num_steps, desc="compiling", leave=False)
+
+        def advanced(done):
+            if bar.n == 0:  # the ETA from here on counts steps, not the compilation
                 bar.set_description("time steps", refresh=False)
                 bar.reset()
-            bar.update(stop - start)
-        bar.close()
-        return [np.concatenate([o[k] for o in outs]) for k in range(len(outs[0]))]
+            bar.update(done - bar.n)
+
+        try:
+            return self.march(y0, y1, p0, xis, fs, grid.dt, V0, on_block=advanced)
+        finally:
+            bar.close()
 
     @cached_property
     def advance(self):
@@ -408,8 +421,7 @@ class TimeStepper:
         Python float, as `run` passes it, so that the compiled loops are shared); xi (L+1, n_ctrl),
         loads (L+1, n). Returns the outputs of `march` for the levels after the first."""
         if self.solver.traced:
-            return self.march(jnp.asarray(y0), jnp.asarray(y1), jnp.asarray(p_prev), jnp.asarray(xi),
-                              jnp.asarray(loads), jnp.asarray(np.diff(t)), V0)
+            return self.march(y0, y1, p_prev, xi, loads, np.diff(t), V0)
         return self.march_stepwise(y0, y1, p_prev, xi, loads, TimeGrid(t), V0, False)
 
     # --- driver ---------------------------------------------------------------------------------
@@ -442,7 +454,7 @@ class TimeStepper:
         dispatch per step instead of one compiled loop). ``progress``: a bar over the steps,
         labelled "compiling" until the first step has run; where the steps are driven from Python
         (a host solver, or a monitor) it shows the last record, where they are compiled it advances
-        by blocks of steps (`_chunked_scan`).
+        by blocks of steps (`march`).
 
         ``external``: external load vectors per level, (N+1, n), or a callable ``t -> (n,)``
         (e.g. ``lambda t: model.load_vector(traction=g, t=t)``); default: the model's constant traction.
@@ -458,11 +470,9 @@ class TimeStepper:
         p0 = self.initial_pressure(y0, y1, xis[0], fs[0]) if self.scheme.multiplier == "theta" else 0.0
         start = _time.perf_counter()
         if self.solver.traced and monitor is None and progress:
-            out = self._chunked_scan(y0, y1, p0, xis, fs, grid, V0)
+            out = self._march_with_bar(y0, y1, p0, xis, fs, grid, V0)
         elif self.solver.traced and monitor is None:
-            out = self.march(jnp.asarray(y0), jnp.asarray(y1), jnp.asarray(p0), jnp.asarray(xis), jnp.asarray(fs),
-                             jnp.asarray(grid.dt), V0)
-            out = [np.asarray(o) for o in out]
+            out = self.march(y0, y1, p0, xis, fs, grid.dt, V0)
         else:
             out = self.march_stepwise(y0, y1, p0, xis, fs, grid, V0, progress, monitor)
         wall = _time.perf_counter() - start

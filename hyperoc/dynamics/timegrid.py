@@ -48,6 +48,10 @@ class TimeGrid:
     def num_steps(self) -> int:
         return self.t.size - 1
 
+    def first(self, k: int) -> "TimeGrid":
+        """The grid of the first k steps (levels 0 .. k); this grid itself when k is all of them."""
+        return self if k == self.num_steps else TimeGrid(self.t[:k + 1])
+
 
 def uniform_grid(T: float, dt: float) -> TimeGrid:
     """``round(T / dt)`` equal steps on ``[0, T]``; ``T / dt`` must be an integer up to 1e-9."""
