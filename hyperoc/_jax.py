@@ -38,27 +38,14 @@ def enable_compilation_cache(directory=None):
     """Turn on JAX's persistent compilation cache: compiled XLA programs are written to ``directory``
     and reused by later processes with the same program, shapes and JAX version, so a second run of a
     job skips most of its compilation. Programs that compile in under 0.1 s are not stored.
+    The directory and the switch are those of `hyperoc._cache.cache_environment`. Returns the directory
+    used, or None."""
+    from ._cache import MIN_COMPILE_SECONDS, cache_environment
 
-    ``directory`` defaults to ``$HYPEROC_CACHE_DIR``, else ``$XDG_CACHE_HOME/hyperoc/jax`` (``~/.cache``
-    when unset). ``HYPEROC_COMPILATION_CACHE=0`` turns it off. Returns the directory used, or None.
-    """
-    from pathlib import Path
-
-    if os.environ.get("HYPEROC_COMPILATION_CACHE", "1") == "0":
-        return None
-    if directory is None:
-        directory = os.environ.get("HYPEROC_CACHE_DIR") or (
-            Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "hyperoc" / "jax")
-    directory = Path(directory)
-    try:
-        directory.mkdir(parents=True, exist_ok=True)
-    except OSError:  # an unwritable cache is not a reason to fail a run: compile as without it
-        return None
-    jax.config.update("jax_compilation_cache_dir", str(directory))
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.1)
-    # worker processes the run spawns import JAX afresh and read these
-    os.environ["JAX_COMPILATION_CACHE_DIR"] = str(directory)
-    os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0.1"
+    directory = cache_environment(directory)
+    if directory is not None:
+        jax.config.update("jax_compilation_cache_dir", str(directory))
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_SECONDS)
     return directory
 
 

@@ -42,3 +42,6 @@ class SolverError(HyperocError, RuntimeError):
         self.step, self.time, self.cause, self.detail = int(step), float(time), cause, detail
         msg = f"solver failed at step {self.step} (t = {self.time:.6g}): {cause}"
         super().__init__(msg + (f" ({detail})" if detail else ""))
+
+    def __reduce__(self):  # pickled by its fields (a worker process's failure reaches its parent)
+        return type(self), (self.step, self.time, self.cause, self.detail)

@@ -107,3 +107,25 @@ def test_unknown_horizon_is_input_error():
 
     with pytest.raises(InputError, match="horizon"):
         _functional(PressureAt(), "tau")
+
+
+def test_solver_error_reaches_a_parent_process_intact():
+    """The paper job's workers raise it across a process boundary (pickled)."""
+    import pickle
+
+    err = pickle.loads(pickle.dumps(SolverError(7, 0.5, "detF", "an element inverts")))
+    assert (err.step, err.time, err.cause, err.detail) == (7, 0.5, "detF", "an element inverts")
+    assert str(err) == str(SolverError(7, 0.5, "detF", "an element inverts"))
+
+
+def test_outputs_of_an_end_point_failing_after_the_objective_name_the_remedy(tmp_path):
+    """The reports solve [0, T]; an end point that is admissible only up to the objective's steps fails there
+    with the step, the cause and the option that keeps such points out."""
+    from hyperoc.app.workflows import _whole_state
+
+    J = _functional(PressureAt(), "objective")
+    xi = np.zeros((J.N + 1, J.model.control.size))
+    xi[J.steps_solved + 2:] = -50.0
+    with pytest.raises(SolverError, match='horizon = "full"') as info:
+        _whole_state(J, ControlPoint(xi, 1.2))
+    assert info.value.step >= J.steps_solved

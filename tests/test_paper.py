@@ -101,3 +101,15 @@ def test_bad_worker_count_is_an_input_error(tmp_path, capsys):
     assert main(["reproduce", "paper-1d", "--out", str(tmp_path), "--workers", "0", "--no-progress"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "workers" in err[0]
+
+
+def test_the_job_process_imports_neither_jax_nor_scipy():
+    """It only starts the workers: a process that loads OpenBLAS on two CPUs and is then bound to one keeps
+    a spinning BLAS thread beside the job (hyperoc.app.paper._run_jobs)."""
+    import subprocess
+    import sys
+
+    code = ("import sys, hyperoc.app.cli, hyperoc.app.paper, hyperoc._cache; "
+            "print(sorted(m for m in ('jax', 'scipy', 'matplotlib') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout
+    assert out.strip() == "[]"

@@ -212,8 +212,10 @@ def _reproduce(args) -> None:
     from .preflight import check_output_dir
 
     out = check_output_dir(args.out)
-    _start_compiler()
+    from .._cache import cache_environment
     from .paper import reproduce_paper_1d
+
+    cache_environment()  # for the workers' JAX (this process imports none)
 
     reproduce_paper_1d(out, quick=args.quick, progress=not args.no_progress, workers=args.workers)
 

@@ -8,20 +8,24 @@ All runs start from ``(xi, tau) = (0, T/2)`` on the setup of the paper's table o
    Newton-CG to a relative gradient of ``gtol`` (1e-6) in the H^1-in-time metric: a local maximizer.
    With the paper's weight ``alpha = 2e-3`` (with or without beta) the problem has no maximizer
    (docs/wellposedness.md); with weights at which the cost competes with the pressure it has one;
-2. ``as_stated/``: the paper's Algorithm 1 (Armijo, then Barzilai-Borwein) on the problem as stated,
+2. ``as_stated/``: the paper's Algorithm 1 (Armijo, then Barzilai-Borwein) on the problem as stated
+   (`AS_STATED`: a control is admissible when its state exists on all of [0, T]),
    and ``ray.json``: J along ``s * xi`` for the control it ends with (is there an interior maximum, or
    does J grow until the body inverts?);
 3. ``bounded/``: the problem as stated with a pointwise bound ``|xi| <= XI_MAX`` (the paper's Remark
    ``rk-box`` in pointwise form), by the spectral projected gradient method (Algorithm 1's BB steps,
    projected, with a nonmonotone Armijo test over the last ``SPG_WINDOW`` values).
 
-Runs 2-3 (skipped with ``quick``) share one compiled problem and run in a second worker process
-when two CPUs are available. The top-level ``summary.json`` holds the headline run, the paper's
-reported values and the diagnostic runs 2-3 with their status.
+Runs 2-3 are skipped with ``quick``. With two CPUs the three runs go to two worker processes, each
+bound to a CPU of its own, the headline and run 2 first, run 3 to the first one free; this process
+only starts them (it imports neither JAX nor SciPy) and writes the summary. Runs of one problem in one
+process share its compiled solves (runs 2-3 when they meet). The top-level ``summary.json`` holds the
+headline run, the paper's reported values and the diagnostic runs 2-3 with their status.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import time
 from importlib import resources
@@ -29,13 +33,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .._jax import compilation_clock
-from ..control.reduced import ControlPoint
 from ..errors import InputError, SolverError
 from ..io import read_json, write_json
 from ..solvers.threads import ONE_THREAD_POOL, bind_threads
 from .config import Config, parse_config, set_entries
-from .workflows import CACHE_DIR, optimize_single, write_optimization_outputs
 
 __all__ = ["paper_config", "wellposed_config", "reproduce_paper_1d", "PAPER_REPORT", "WELL_POSED"]
 
@@ -53,6 +54,9 @@ PAPER_REPORT = {
 # time (sqrt(beta / alpha) = 1 time unit), and the second-order method that reaches the KKT tolerance
 # past the round-off of J (docs/wellposedness.md).
 WELL_POSED = {"objective.alpha": 10.0, "objective.beta": 10.0, "optimize.method": "newton"}
+# The problem as stated solves every step: the paper's controls have a state on [0, T], and Algorithm 1
+# rejects a trial point whose state fails after tau too (the default solves up to the step after tau).
+AS_STATED = {"optimize.horizon": "full"}
 XI_MAX = 0.05  # bound of the bounded variant (same order as the control the paper's figures suggest)
 # The bounded variant's nonmonotone window (Birgin-Martinez-Raydan's SPG default): Algorithm 1's
 # unguarded BB steps let J fall to a tenth of its best value there.
@@ -82,14 +86,34 @@ def bounded_config(changes: dict | None = None) -> Config:
     return paper_config({**bounds, **(changes or {})})
 
 
-def _run(cfg: Config, key: str, out: Path, *, progress: bool, J=None) -> tuple[dict, object, object]:
-    """One optimization from ``(0, tau0)`` written to ``out`` (figures titled with the run's name);
-    ``J`` reuses a compiled reduced functional of the same problem. Returns the run's row, J and the result."""
+# The reduced functionals built in this process, by `_problem_key`: runs of one problem (the problem as
+# stated and its bounded variant, when one process runs both) share its compiled solves.
+_REDUCED: dict = {}
+# What of [optimize] the reduced functional depends on (the rest configures the optimizer).
+_REDUCED_OPTIONS = ("tau0", "gradient", "checkpoint_every", "checkpoint_snapshots", "horizon")
+
+
+def _problem_key(cfg: Config) -> str:
+    """The configuration without what only the optimizer or the outputs read."""
+    sections = {k: v for k, v in cfg.sections.items() if k not in ("optimize", "output")}
+    sections["optimize"] = {k: cfg["optimize"].get(k) for k in _REDUCED_OPTIONS}
+    return json.dumps(sections, sort_keys=True, default=str)
+
+
+def _run(cfg: Config, key: str, out: Path, *, progress: bool) -> tuple[dict, object, object]:
+    """One optimization from ``(0, tau0)`` written to ``out`` (figures titled with the run's name), with the
+    reduced functional this process already built for the same problem if any. Returns the run's row, J
+    and the result."""
+    from .._jax import compilation_clock
+    from .workflows import CACHE_DIR, optimize_single, write_optimization_outputs
+
     started, (compiling, compilations) = time.perf_counter(), compilation_clock()
+    J = _REDUCED.get(_problem_key(cfg))
     if J is not None:
         J.counts.update(state=0, adjoint=0)  # evaluations are reported per run
     J, res = optimize_single(cfg, float(cfg["optimize"]["tau0"]), cache_dir=out / CACHE_DIR, progress=progress,
                              J=J)
+    _REDUCED[_problem_key(cfg)] = J
     optimized, (compiled, compilations_after) = time.perf_counter(), compilation_clock()
     sol = J.state(res.point)
     marks = [(t, "paper's pressure maxima") for t in PAPER_REPORT["pressure_maxima_near_t"]]
@@ -144,8 +168,11 @@ def _local_maxima(t: np.ndarray, p: np.ndarray, keep: int = 4) -> tuple[list, li
     return [float(t[k]) for k in idx], [float(p[k]) for k in idx]
 
 
-def ray_study(J, point: ControlPoint, scales=(0.25, 0.5, 0.75, 1.0, 1.1, 1.25, 1.5, 2.0)) -> list:
-    """J(s xi*, tau*) for several s: where does J stop growing, and why (solver failure, det F)."""
+def ray_study(J, point, scales=(0.25, 0.5, 0.75, 1.0, 1.1, 1.25, 1.5, 2.0)) -> list:
+    """J(s xi*, tau*) for several s (``point`` a `hyperoc.control.reduced.ControlPoint`): where does J stop
+    growing, and why (solver failure, det F)."""
+    from ..control.reduced import ControlPoint
+
     rows = []
     for s in scales:
         try:
@@ -160,25 +187,31 @@ def ray_study(J, point: ControlPoint, scales=(0.25, 0.5, 0.75, 1.0, 1.1, 1.25, 1
 def _headline_job(overrides: dict, out: Path, progress: bool) -> dict:
     """The well-posed problem solved by Newton-CG, written to the top level of ``out``."""
     row, _, _ = _run(wellposed_config(overrides), "wellposed", out, progress=progress)
-    return row
+    return {"headline": row}
 
 
-def _diagnostics_job(overrides: dict, out: Path, progress: bool) -> dict:
-    """The problem as stated: Algorithm 1, the ray study at its end point, then the bounded variant
-    |xi| <= XI_MAX (SPG) with the same compiled reduced functional."""
-    as_stated, J, res = _run(paper_config(overrides), "as_stated", out / "as_stated", progress=progress)
+def _as_stated_job(overrides: dict, out: Path, progress: bool) -> dict:
+    """The problem as stated: Algorithm 1, then the ray study at its end point."""
+    as_stated, J, res = _run(paper_config({**AS_STATED, **overrides}), "as_stated", out / "as_stated",
+                             progress=progress)
     ray = ray_study(J, res.point)
     write_json(out / "ray.json", ray)
-    bounded, _, _ = _run(bounded_config(overrides), "bounded", out / "bounded", progress=progress, J=J)
-    return {"as_stated": as_stated, "bounded": bounded, "ray": ray}
+    return {"as_stated": as_stated, "ray": ray}
+
+
+def _bounded_job(overrides: dict, out: Path, progress: bool) -> dict:
+    """The bounded variant |xi| <= XI_MAX of the problem as stated (SPG)."""
+    bounded, _, _ = _run(bounded_config(overrides), "bounded", out / "bounded", progress=progress)
+    return {"bounded": bounded}
 
 
 def _jobs(out: Path, quick: bool, overrides: dict) -> dict:
-    """The studies as independent jobs ``key -> (function, kwargs)``: the headline and, unless
-    ``quick``, the diagnostics of the problem as stated (one compiled problem of its own)."""
+    """The studies as independent jobs ``key -> (function, kwargs)``, longest first (a free worker takes the
+    next): the headline and, unless ``quick``, the problem as stated and its bounded variant."""
     jobs = {"headline": (_headline_job, dict(overrides=overrides, out=out))}
     if not quick:
-        jobs["diagnostics"] = (_diagnostics_job, dict(overrides=overrides, out=out))
+        jobs["as_stated"] = (_as_stated_job, dict(overrides=overrides, out=out))
+        jobs["bounded"] = (_bounded_job, dict(overrides=overrides, out=out))
     return jobs
 
 
@@ -200,41 +233,41 @@ def _restore_cpus(cpus: set | None) -> None:
 
 
 def _run_jobs(jobs: dict, workers: int, progress: bool) -> dict:
-    """Results of every job, by key. With ``workers > 1`` the first job runs in this process and the others
-    in ``workers - 1`` fresh (spawned: JAX is not fork-safe) processes meanwhile, each process bound to
-    its own CPU (`_pin_to_cpu`); progress bars are shown for this process's runs only."""
-    first, *others = jobs
-    if workers == 1 or not others:
+    """Results of every job, by key. With ``workers > 1`` every job runs in one of ``min(workers, jobs)``
+    fresh (spawned: JAX is not fork-safe) processes, each bound to a CPU of its own (`_pin_worker`);
+    progress bars are shown for the first job only.
+
+    Why no job runs in this process: a process that loads NumPy's and SciPy's OpenBLAS with two CPUs
+    keeps a BLAS thread, which spins beside the job once the process is bound to one CPU (the
+    headline's Newton-CG took 2.4x as long). The workers start bound to one CPU, this process's, so
+    their BLAS has no thread of its own, and bind themselves to theirs before the job imports JAX."""
+    if workers == 1 or len(jobs) == 1:
         return {key: fn(progress=progress, **kwargs) for key, (fn, kwargs) in jobs.items()}
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
-    n_pool = min(workers - 1, len(others))
     ctx = multiprocessing.get_context("spawn")
     allowed = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
-    cpus = _pin_to_cpu(0, allowed)
-    # The workers inherit this CPU set of one and pin themselves to another; they run the 1D problem
-    # (no host solves), where a second XLA pool thread on their CPU only spins: 1.2x slower (measured),
-    # so they keep the one-thread pool (`hyperoc.solvers.threads.start_backend`).
+    cpus = _pin_to_cpu(0, allowed)  # inherited by the workers as they start
+    # The 1D problems need no host solves, and a second XLA pool thread on a worker's CPU only spins:
+    # 1.2x slower (measured), so the workers keep the one-thread pool (`hyperoc.solvers.threads.start_backend`).
     os.environ[ONE_THREAD_POOL] = "1"
     try:
-        with ProcessPoolExecutor(n_pool, mp_context=ctx, initializer=_pin_worker,
+        with ProcessPoolExecutor(min(workers, len(jobs)), mp_context=ctx, initializer=_pin_worker,
                                  initargs=(ctx.Value("i", 0), allowed)) as pool:
-            futures = {key: pool.submit(jobs[key][0], progress=False, **jobs[key][1]) for key in others}
-            fn, kwargs = jobs[first]
-            results = {first: fn(progress=progress, **kwargs)}
-            results.update({key: fut.result() for key, fut in futures.items()})
+            futures = {key: pool.submit(fn, progress=progress and i == 0, **kwargs)
+                       for i, (key, (fn, kwargs)) in enumerate(jobs.items())}
+            return {key: fut.result() for key, fut in futures.items()}
     finally:
         os.environ.pop(ONE_THREAD_POOL, None)
         _restore_cpus(cpus)
-    return results
 
 
 def _pin_worker(counter, allowed: list) -> None:
-    """Pool initializer: worker k (in start order) takes ``allowed[k]`` (the main process has ``allowed[0]``)."""
+    """Pool initializer: worker k (0-based, in start order) takes ``allowed[k]``."""
     with counter.get_lock():
-        counter.value += 1
         index = counter.value
+        counter.value += 1
     _pin_to_cpu(index, allowed)
 
 
@@ -247,16 +280,17 @@ def reproduce_paper_1d(out: Path, *, quick: bool = False, progress: bool = True,
     as ``{"SECTION.KEY": value}`` (`set_entries`; e.g. a coarser grid for a smoke test); the paper's setup
     is the default.
     """
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     overrides = dict(overrides or {})
     workers = min(2, os.cpu_count() or 1) if workers is None else int(workers)
     if workers < 1:
         raise InputError(f"workers must be >= 1, got {workers}")
+    wellposed_config(overrides), bounded_config(overrides)  # bad overrides: InputError before anything is written
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
     results = _run_jobs(_jobs(out, quick, overrides), workers, progress)
-    headline = results["headline"]
-    diagnostics = results.get("diagnostics", {})
+    headline = results["headline"]["headline"]
+    diagnostics = {k: v for job in results.values() for k, v in job.items()}
     run_summary = read_json(out / "summary.json")  # the headline run's own summary (histories, files)
     summary = {**run_summary, **{k: headline[k] for k in ("label", "alpha", "beta", "method", "relative_gradient",
                                                            "pressure_at_tau", "control_off_from_t",

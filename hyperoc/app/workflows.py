@@ -15,7 +15,7 @@ from ..control.optimize import EvaluationCache, OptimizationResult, barzilai_bor
 from ..control.reduced import ControlPoint, ReducedFunctional
 from ..control.verification import random_directions, taylor_test
 from ..dynamics.stepper import TimeStepper, detect_regimes
-from ..errors import InputError
+from ..errors import InputError, SolverError
 from ..io import read_json, write_json, write_npz
 from .config import Config
 from .plotting import Units
@@ -174,7 +174,7 @@ def write_optimization_outputs(out: Path, cfg: Config, J: ReducedFunctional, res
     optimizer's history, ``best.npz`` when an earlier iterate was better); ``extra``: more summary
     entries; ``title``: the run's name in the figures (default `run_title`); ``pressure_marks``:
     ``[(t, label), ...]`` marked on the pressure panel. Returns the summary."""
-    sol = J.state(res.point)
+    sol = _whole_state(J, res.point)
     sol.warnings = detect_regimes(sol)
     parts = J.objective_terms(sol)
     summary = {**res.summary(), "objective_terms": parts, "tau0": float(res.history["tau"][0]),
@@ -196,6 +196,18 @@ def write_optimization_outputs(out: Path, cfg: Config, J: ReducedFunctional, res
                                               "objective_history": summary["objective_history"],
                                               "tau_history": summary["tau_history"],
                                               "wall_time_s": summary["wall_time_s"]})
+
+
+def _whole_state(J: ReducedFunctional, point):
+    """The state of ``point`` on [0, T]; a failure after the steps J solves names the remedy."""
+    try:
+        return J.state(point)
+    except SolverError as err:
+        if err.step < J.steps_solved:
+            raise
+        raise SolverError(err.step, err.time, err.cause,
+                          "the optimizer's end point has no state after the steps the objective reads; "
+                          "[optimize] horizon = \"full\" keeps such controls out") from err
 
 
 def _start_dir(out: Path, k: int, tau0: float) -> Path:

@@ -18,8 +18,6 @@ import os
 import threading
 import warnings
 
-import jax
-
 __all__ = ["bind_threads", "start_backend", "ONE_THREAD_POOL"]
 
 #: Environment variable: ``"1"`` keeps a process started on one CPU at XLA's one-thread pool, for
@@ -39,6 +37,7 @@ def bind_threads(cpus: set, skip: set = frozenset()) -> None:
 
 def start_backend() -> None:
     """Start JAX's CPU backend with a thread pool of at least two threads (module docstring)."""
+    import jax
     from jax._src import xla_bridge
 
     if not hasattr(os, "sched_setaffinity") or xla_bridge.backends_are_initialized():
