@@ -14,7 +14,7 @@ import math
 import numpy as np
 import pytest
 
-from hyperoc.dynamics.stepper import MARCH_BLOCK, Scheme, TimeStepper
+from hyperoc.dynamics.stepper import MARCH_BLOCK, Scheme, StepStatus, TimeStepper
 from hyperoc.dynamics.timegrid import uniform_grid
 from hyperoc.errors import SolverError
 from hyperoc.fem import geometry
@@ -104,6 +104,27 @@ def test_monitor_sees_the_failing_step_before_the_error(bar_1d):
     assert all(r.status == "ok" and r.min_det_F > 0 for r in records[:-1])
     if err.cause == "detF":
         assert last.min_det_F <= 0
+
+
+def test_compiled_march_stops_after_the_failing_block_as_the_stepwise_one_does(bar_1d):
+    """The same load failing at step 35 over 3 blocks of steps: the compiled march runs no block after the
+    failing one, and its outputs are padded like the stepwise march's: the same failing step and cause,
+    every later step marked as after a failure, the states equal up to the failure."""
+    grid = uniform_grid(0.02 * (2 * MARCH_BLOCK + 40), 0.02)
+    xi = constant_control(bar_1d, grid, -0.5)
+    zero, fs = np.zeros(bar_1d.model.n), np.zeros((grid.num_steps + 1, bar_1d.model.n))
+    V0 = bar_1d.deformed_volume(zero)
+    blocks = []
+    compiled = bar_1d.march(zero, zero, 0.0, xi, fs, grid.dt, V0, on_block=blocks.append)
+    stepwise = bar_1d.march_stepwise(zero, zero, 0.0, xi, fs, grid, V0, False)
+    status = [np.asarray(out[4]) for out in (compiled, stepwise)]
+    first = [int(np.flatnonzero(s != StepStatus.OK)[0]) for s in status]
+    assert first[0] == first[1] < MARCH_BLOCK and status[0][first[0]] == status[1][first[1]] != StepStatus.OK
+    assert blocks == [MARCH_BLOCK]  # the first block only
+    for s in status:
+        assert np.all(s[first[0] + 1:] == StepStatus.AFTER_FAILURE) and len(s) == grid.num_steps
+    bound = first[0] * (bar_1d.scheme.rtol * np.max(np.abs(stepwise[0][:first[0]])) + bar_1d.scheme.atol)
+    assert np.max(np.abs(compiled[0][:first[0]] - stepwise[0][:first[0]])) <= bound
 
 
 @pytest.mark.slow

@@ -133,6 +133,17 @@ def level_pressure(p_steps, dt, multiplier: str = "step"):
     return xp.concatenate([first[None], interior, last[None]])
 
 
+def _padded_after_failure(outputs: list, num_steps: int) -> list:
+    """The stacked outputs of the steps run (the last one failed, if fewer than ``num_steps``) padded to
+    ``num_steps`` so that indices match the grid: the last values repeated, status `StepStatus.AFTER_FAILURE`."""
+    done = len(outputs[0])
+    if done == num_steps:
+        return outputs
+    padded = [np.concatenate([o, np.repeat(o[-1:], num_steps - done, axis=0)]) for o in outputs]
+    padded[4][done:] = StepStatus.AFTER_FAILURE
+    return padded
+
+
 def level_pressure_steps(level: int, num_steps: int) -> int:
     """How many leading step multipliers the pressure at ``level`` depends on (`level_pressure`, "step"):
     an interior level interpolates the steps on both sides of it, an end level extrapolates from the two
@@ -358,8 +369,9 @@ class TimeStepper:
 
         The steps run in blocks of `MARCH_BLOCK` (one block when fewer), the last block padded with
         inactive steps, so that a whole solve, a gradient's shorter horizon and a progress bar's blocks
-        share one compiled loop (`_block_scan`). ``on_block(done)``: called after each block with the
-        steps done so far."""
+        share one compiled loop (`_block_scan`). No block runs after one in which a step failed; the
+        outputs are then padded as `march_stepwise` pads them. ``on_block(done)``: called after each
+        block with the steps done so far."""
         L = len(dts)
         size = min(L, MARCH_BLOCK)
         carry = (jnp.asarray(y0), jnp.asarray(y1), jnp.asarray(p0, dtype=jnp.float64), jnp.asarray(False))
@@ -373,7 +385,11 @@ class TimeStepper:
             outs.append(out)
             if on_block is not None:
                 on_block(min(start + size, L))
-        return [np.concatenate([np.asarray(o[k]) for o in outs])[:L] for k in range(len(outs[0]))]
+            if bool(carry[3]):  # a step failed: the others would make no Newton iteration
+                break
+        done = min(len(outs) * size, L)
+        return _padded_after_failure([np.concatenate([np.asarray(o[k]) for o in outs])[:done]
+                                      for k in range(len(outs[0]))], L)
 
     @cached_property
     def _block_scan(self):
@@ -565,12 +581,7 @@ class TimeStepper:
                     monitor(record)
             if int(out[4]) != StepStatus.OK:
                 break
-        stacked = [np.stack([o[k] for o in outs]) for k in range(7)]
-        if len(outs) < grid.num_steps:  # failed early: pad so that indices match the grid
-            pad = grid.num_steps - len(outs)
-            stacked = [np.concatenate([s, np.repeat(s[-1:], pad, axis=0)]) for s in stacked]
-            stacked[4][len(outs):] = StepStatus.AFTER_FAILURE
-        return stacked
+        return _padded_after_failure([np.stack([o[k] for o in outs]) for k in range(7)], grid.num_steps)
 
     def _record(self, n, grid, out, V0) -> StepRecord:
         """The `StepRecord` of step n from the step's outputs (y0', y1', p', its, status, min det F, max grad)."""
