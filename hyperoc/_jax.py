@@ -23,6 +23,8 @@ not at import.
 import os
 import sys
 
+import numpy as np
+
 if "jax" not in sys.modules:
     os.environ.setdefault("JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS", "1")
 
@@ -32,6 +34,13 @@ from .solvers.threads import start_backend  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 start_backend()
+
+
+def on_device(a, dtype=np.float64):
+    """``a`` (a NumPy array, a JAX array or a number) as a JAX array of ``dtype`` (None: its own). Unlike
+    ``jnp.asarray``, which compiles a conversion for each new shape (tens of milliseconds, in every
+    process), a transfer."""
+    return jax.device_put(np.asarray(a, dtype=dtype))
 
 
 def enable_compilation_cache(directory=None):

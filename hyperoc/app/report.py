@@ -12,6 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._jax import on_device
 from ..dynamics.stepper import StateSolution
 from ..fem.volumes import cavity_volume
 from ..io import write_json, write_npz, write_time_series
@@ -49,7 +50,7 @@ def cell_det_F(sol: StateSolution, levels: np.ndarray) -> np.ndarray:
     """``min det F`` over the quadrature points of each cell at the given levels, (len(levels), nc)."""
     model = sol.model
     fn = jax.jit(lambda u: jnp.min(det(model.deformation_gradient(u)), axis=1))
-    return np.stack([np.asarray(fn(jnp.asarray(sol.y0[n]))) for n in levels])
+    return np.stack([np.asarray(fn(on_device(sol.y0[n]))) for n in levels])
 
 
 def _cell_series(sol: StateSolution, levels: np.ndarray, frames: FibreFrames | None) -> dict:

@@ -33,7 +33,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _jax  # noqa: F401
+from .._jax import on_device
 from ..dynamics.stepper import TimeStepper
 from ..dynamics.timegrid import TimeGrid
 from ..errors import InputError
@@ -175,7 +175,7 @@ class Adjoint:
     def _initial_state(self, u0, v0):
         """``(V0, y0, y1)``: the constrained volume ``int det F(u0)`` and the level-0 state as JAX arrays."""
         V0 = self.stepper.deformed_volume(u0)
-        return V0, jnp.asarray(u0, dtype=jnp.float64), jnp.asarray(v0, dtype=jnp.float64)
+        return V0, on_device(u0), on_device(v0)
 
     def _steps(self, rec: Record, state, a: int, b: int, hold=()):
         """The steps a .. b-1 from ``state = (y0, y1)`` at level a with Newton's first guess ``p_{a-1/2}`` (0
@@ -265,8 +265,8 @@ class _Reversal:
         rec, adjoint = self.rec, self.adjoint
         if rec.schedule.compiled and adjoint.stepper.solver.traced:
             args = (Y0, Y1, rec.p_steps[a:b], rec.xi[a:b + 1], rec.loads[a:b + 1], rec.dt[a:b])
-            self.lam, out = adjoint._scan(self.lam, *(jnp.asarray(np.asarray(x)) for x in args), rec.V0,
-                                          *(jnp.asarray(g) for g in self._partials(a, b)), jnp.asarray(self.gP[a:b]))
+            self.lam, out = adjoint._scan(self.lam, *(on_device(x) for x in args), rec.V0,
+                                          *(on_device(g) for g in self._partials(a, b)), on_device(self.gP[a:b]))
             return out
         outs = [None] * (b - a)
         for n in reversed(range(a, b)):

@@ -37,7 +37,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _jax  # noqa: F401
+from .._jax import on_device
 from ..dynamics.stepper import Scheme, StateSolution, TimeStepper
 from ..dynamics.timegrid import TimeTransform
 from ..errors import InputError
@@ -329,7 +329,7 @@ class ReducedFunctional:
 
     @staticmethod
     def _solution_arrays(sol: StateSolution) -> tuple:
-        return tuple(jnp.asarray(a) for a in (sol.y0, sol.y1, sol.p_steps, sol.xi, sol.dt))
+        return tuple(on_device(a) for a in (sol.y0, sol.y1, sol.p_steps, sol.xi, sol.dt))
 
     @cached_property
     def _objective_terms(self):
@@ -403,8 +403,7 @@ class ReducedFunctional:
         multipliers after the solved steps, which the objective does not read, are zeros."""
         Y0, Y1 = (np.pad(Y, ((0, len(self._read_levels) - len(Y)), (0, 0))) for Y in rec.at(self._solved_reads))
         p = np.pad(rec.p_steps, (0, self.N - rec.grid.num_steps))
-        return (jnp.asarray(Y0), jnp.asarray(Y1), jnp.asarray(p), jnp.asarray(m.xi),
-                jnp.asarray(self.transform.grid(m.tau).dt))
+        return tuple(on_device(a) for a in (Y0, Y1, p, m.xi, self.transform.grid(m.tau).dt))
 
     def __call__(self, m: ControlPoint) -> float:
         value, _ = self._objective_pair
@@ -418,6 +417,7 @@ class ReducedFunctional:
         _, vg = self._objective_pair
         J, (gY0, gY1, gP, gXi, gdt) = vg(*self._record_arrays(rec, m))
         K, kept = rec.grid.num_steps, len(rec.keep)
+        gY0, gY1, gP = (np.asarray(g) for g in (gY0, gY1, gP))
         gXi_state, gdt_state = self.adjoint.backward(rec, (gY0[:kept], gY1[:kept]), gP[:K])
         self.counts["adjoint"] += 1
         dxi, ddt = np.array(gXi), np.array(gdt)

@@ -32,7 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _jax  # noqa: F401
+from .._jax import on_device
 from ..errors import InputError, SolverError
 from ..mechanics.model import StateModel
 from ..mechanics.operators import combined_matvec
@@ -269,8 +269,8 @@ class TimeStepper:
         self.solver = make_solver(model, solver) if isinstance(solver, str) else solver
         M, K, B = model.jax_operators
         self._M, self._K, self._B = M, K, B
-        self._mass_blocks = jnp.asarray(model.mass_blocks)
-        self._lap_blocks = jnp.asarray(model.laplace_blocks)
+        self._mass_blocks = on_device(model.mass_blocks)
+        self._lap_blocks = on_device(model.laplace_blocks)
         self._inertia_damping = combined_matvec(model.mass, model.laplace)  # (y, a, b) -> a M y + b K y
         self.chord = scheme.chord_with(self.solver, auto=True)
 
@@ -374,7 +374,7 @@ class TimeStepper:
         block with the steps done so far."""
         L = len(dts)
         size = min(L, MARCH_BLOCK)
-        carry = (jnp.asarray(y0), jnp.asarray(y1), jnp.asarray(p0, dtype=jnp.float64), jnp.asarray(False))
+        carry = (on_device(y0), on_device(y1), on_device(p0), jnp.asarray(False))
         xis, fs, dts = np.asarray(xis), np.asarray(fs), np.asarray(dts)
         outs = []
         for start in range(0, L, size):
@@ -519,11 +519,11 @@ class TimeStepper:
 
     def level_volumes(self, Y0) -> np.ndarray:
         """The deformed volumes (L,) of the states Y0 (L, n)."""
-        return np.asarray(self._volumes(jnp.asarray(Y0)))
+        return np.asarray(self._volumes(on_device(Y0)))
 
     def deformed_volume(self, y0) -> float:
         """vol(y0) = int det(I + grad y0) dx of a state (n,) (the constraint's value)."""
-        return float(self.model.jitted["volume"](jnp.asarray(y0)))
+        return float(self.model.jitted["volume"](on_device(y0)))
 
     def _controls(self, xi, N) -> np.ndarray:
         nc = self.model.control.size if self.model.control is not None else 0
@@ -562,7 +562,7 @@ class TimeStepper:
         (the outputs padded to the grid with status ``StepStatus.AFTER_FAILURE``)."""
         from tqdm.auto import tqdm
 
-        carry = (jnp.asarray(y0), jnp.asarray(y1), jnp.asarray(p0, dtype=jnp.float64), jnp.asarray(False))
+        carry = (on_device(y0), on_device(y1), on_device(p0), jnp.asarray(False))
         outs = []
         steps = tqdm(range(grid.num_steps), disable=not progress, desc="compiling", leave=False)
         for n in steps:

@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse.linalg as spla
 
-from .. import _jax  # noqa: F401
+from .._jax import on_device
 from ..errors import InputError
 from ..fem.assembly import SparsePattern, dump_index, relabel_index
 from ..fem.mesh import Mesh
@@ -117,9 +117,9 @@ class StateModel:
         self.control = control.build(self.space, self.to_reduced) if control is not None else None
         self.neumann = neumann
         self.traction_load = self.load_vector(traction=traction) if traction is not None else np.zeros(self.n)
-        self._frames = None if frames is None else jnp.asarray(frames(self.quad.x))
-        self._dN = jnp.asarray(self.quad.dN)
-        self._w = jnp.asarray(self.quad.wdx)
+        self._frames = None if frames is None else on_device(frames(self.quad.x))
+        self._dN = on_device(self.quad.dN)
+        self._w = on_device(self.quad.wdx)
         self._cell_volume = jnp.sum(self._w, axis=1)  # (nc,)
         self._set_cell_dofs(self.to_reduced[self.space.cell_dofs])
         # the displacement's gather (`deformation_gradient`); a subclass appending unknowns to the
@@ -136,7 +136,7 @@ class StateModel:
         entries pointing at a dump slot n (read as 0, `kernels.gather`). Set eagerly (an array created
         while a kernel is traced would become that trace's constant)."""
         self.cell_dofs = cell_dofs
-        self._element_gather = jnp.asarray(dump_index(cell_dofs, self.n))
+        self._element_gather = on_device(dump_index(cell_dofs, self.n), dtype=None)
 
     # --- constant operators (`hyperoc.mechanics.operators`) ----------------------------------------
     @cached_property
@@ -303,7 +303,7 @@ class StateModel:
     def min_acoustic_eigenvalues(self, U) -> np.ndarray:
         """`hyperoc.mechanics.diagnostics.min_acoustic_eigenvalue` of the full law, for each state of
         ``U`` (levels, n): (levels,). Negative: loss of strong ellipticity."""
-        return np.asarray(self._ellipticity_fn(jnp.asarray(U)))
+        return np.asarray(self._ellipticity_fn(on_device(U)))
 
     # --- compiled kernels cached on the model --------------------------------------------------------
     @cached_property

@@ -8,12 +8,11 @@ on the reduced dofs by `hyperoc.fem.assembly.SparsePattern`; load vectors are on
 from __future__ import annotations
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
 from jax.experimental import sparse as jsparse
 
-from .. import _jax  # noqa: F401
+from .._jax import on_device
 from ..errors import InputError
 from ..fem.spaces import VectorSpace
 
@@ -56,8 +55,8 @@ def combined_matvec(A, B):
     U = (abs(sp.csr_matrix(A)) + abs(sp.csr_matrix(B))).tocsr()
     U.sort_indices()
     rows = np.repeat(np.arange(U.shape[0]), np.diff(U.indptr))
-    A_data, B_data = (jnp.asarray(np.asarray(sp.csr_matrix(X)[rows, U.indices]).ravel()) for X in (A, B))
-    index = jnp.asarray(np.stack([rows, U.indices], axis=1))
+    A_data, B_data = (on_device(np.asarray(sp.csr_matrix(X)[rows, U.indices]).ravel()) for X in (A, B))
+    index = on_device(np.stack([rows, U.indices], axis=1), dtype=None)
     shape = U.shape
     return lambda y, a, b: jsparse.BCOO((a * A_data + b * B_data, index), shape=shape) @ y
 

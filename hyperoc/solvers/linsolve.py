@@ -27,7 +27,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .. import _jax  # noqa: F401
+from .._jax import on_device
 from ..errors import InputError
 from ..fem.assembly import dump_index
 
@@ -116,7 +116,7 @@ def _gather_table(n, pairs, sentinel):
     table = np.full((n, max(int(counts.max(initial=0)), 1)), sentinel)
     slot = np.arange(len(target)) - np.repeat(np.cumsum(counts) - counts, counts)
     table[target, slot] = pos
-    return jnp.asarray(table)
+    return on_device(table, dtype=None)
 
 
 def nested_dissection(pattern) -> np.ndarray:
