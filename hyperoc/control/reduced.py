@@ -252,7 +252,7 @@ class ReducedFunctional:
         self._checkpoint_every, self._checkpoint_snapshots = every, snapshots
         self._solves.record = None  # made under the previous schedule
 
-    @cached_property
+    @property
     def steps_solved(self) -> int:
         """K, the steps the value and the gradient solve: those the objective reads (``horizon="objective"``)
         or all N. Fixed for the transform (tau moves the levels, not their indices)."""
