@@ -67,7 +67,7 @@ def reduced_functional(args):
     transform = cfg.transform(tau)
     model = cfg.model()
     comm, options = None, {"scheme": cfg.scheme(), "solver": cfg["dynamics"]["solver"],
-                           "checkpoint_snapshots": args.snapshots}
+                           "checkpoint_snapshots": args.snapshots, "horizon": cfg["optimize"]["horizon"]}
     if not args.serial:
         from mpi4py import MPI
 
@@ -115,7 +115,7 @@ def main(argv=None) -> int:
             print(f"error: {err}", file=sys.stderr)
         return 2
     record = {"config": args.config, "overrides": args.set, "serial": args.serial, "solver": args.solver,
-              "ranks": 1 if comm is None else comm.size, "unknowns": int(J.model.n), "steps": int(J.N),
+              "ranks": 1 if comm is None else comm.size, "unknowns": int(J.model.n), "steps": int(J.steps_solved),
               "controls": int(J.model.control.size), "tau": m.tau, "amplitude": args.amplitude, "seed": args.seed,
               "snapshots": args.snapshots, **evaluate(J, m)}
     if comm is not None:
