@@ -18,14 +18,13 @@ All runs start from ``(xi, tau) = (0, T/2)`` on the setup of the paper's table o
 
 Runs 2-3 are skipped with ``quick``. With two CPUs the three runs go to two worker processes, each
 bound to a CPU of its own, the headline and run 2 first, run 3 to the first one free; this process
-only starts them (it imports neither JAX nor SciPy) and writes the summary. Runs of one problem in one
-process share its compiled solves (runs 2-3 when they meet). The top-level ``summary.json`` holds the
-headline run, the paper's reported values and the diagnostic runs 2-3 with their status.
+only starts them (it imports neither JAX nor SciPy) and writes the summary. The top-level
+``summary.json`` holds the headline run, the paper's reported values and the diagnostic runs 2-3 with
+their status.
 """
 
 from __future__ import annotations
 
-import json
 import os
 import time
 from importlib import resources
@@ -89,39 +88,19 @@ def bounded_config(changes: dict | None = None) -> Config:
     return paper_config({**bounds, **(changes or {})})
 
 
-# The reduced functionals built in this process, by `_problem_key`: runs of one problem (the problem as
-# stated and its bounded variant, when one process runs both) share its compiled solves.
-_REDUCED: dict = {}
-# What of [optimize] the reduced functional depends on (the rest configures the optimizer).
-_REDUCED_OPTIONS = ("tau0", "gradient", "checkpoint_every", "checkpoint_snapshots", "horizon")
-
-
-def _problem_key(cfg: Config) -> str:
-    """The configuration without what only the optimizer or the outputs read."""
-    sections = {k: v for k, v in cfg.sections.items() if k not in ("optimize", "output")}
-    sections["optimize"] = {k: cfg["optimize"].get(k) for k in _REDUCED_OPTIONS}
-    return json.dumps(sections, sort_keys=True, default=str)
-
-
 def _run(cfg: Config, key: str, out: Path, *, progress: bool) -> tuple[dict, object, object]:
-    """One optimization from ``(0, tau0)`` written to ``out`` (figures titled with the run's name), with the
-    reduced functional this process already built for the same problem if any. Returns the run's row, J
-    and the result."""
+    """One optimization from ``(0, tau0)`` written to ``out`` (figures titled with the run's name). Returns
+    the run's row, J and the result."""
     from .._jax import compilation_clock
     from .workflows import CACHE_DIR, optimize_single, write_optimization_outputs
 
     started, (compiling, compilations) = time.perf_counter(), compilation_clock()
-    J = _REDUCED.get(_problem_key(cfg))
-    if J is not None:
-        J.counts.update(state=0, adjoint=0)  # evaluations are reported per run
-    J, res = optimize_single(cfg, float(cfg["optimize"]["tau0"]), cache_dir=out / CACHE_DIR, progress=progress,
-                             J=J)
-    _REDUCED[_problem_key(cfg)] = J
+    J, res = optimize_single(cfg, float(cfg["optimize"]["tau0"]), cache_dir=out / CACHE_DIR, progress=progress)
     optimized, (compiled, compilations_after) = time.perf_counter(), compilation_clock()
-    sol = J.state(res.point)
     marks = [(t, "paper's pressure maxima") for t in PAPER_REPORT["pressure_maxima_near_t"]]
     summary = write_optimization_outputs(out, cfg, J, res, extra={"label": RUN_NAMES[key]},
                                          title=f"paper-1d, {RUN_NAMES[key]}", pressure_marks=marks)
+    sol = J.state(res.point)  # the outputs' solve on [0, T], kept for the last point
     timings = {"compilation_s": compiled - compiling, "compilations": compilations_after - compilations,
                "optimization_s": optimized - started - (compiled - compiling),
                "outputs_s": time.perf_counter() - optimized}

@@ -100,11 +100,13 @@ def _fresh_step(jacobian, layout: Layout, xl_q, r, constrained: bool, kept: Kept
     m_o = layout.owned_size
     blocks, col, row = jacobian(*xl_q)
     layout.factor(blocks)
+    if kept is not None:
+        kept.factorization = layout.factorizations
     if not constrained:
         return layout.solve(-r)[:, 0]
     ab = layout.solve(-r[:m_o], col)
     if kept is not None:
-        kept.factorization, kept.b, kept.row = layout.factorizations, ab[:, 1].copy(), row
+        kept.b, kept.row = ab[:, 1].copy(), row
     du, dq = _eliminate(ab, row, -r[m_o], dot=layout.dot)
     return np.append(du, dq)
 
