@@ -15,8 +15,8 @@ Taylor-Hood pressures: `hyperoc.solvers.newton._small`). Chord Newton (a `KeptJa
 ``newton(..., chord=True)`` (`hyperoc.solvers.newton`): it solves with the Jacobian of an earlier
 iterate, of this solve or of an earlier one, takes the step if it decreases ``|r|^2`` (sufficient
 decrease 1e-4), refreshes the Jacobian after a rejected step or when the contraction rate exceeds
-`CHORD_RATE`, and stops on the error left after the update, ``rate / (1 - rate) |du|``, against the
-tolerances scaled by `CHORD_MARGIN`. Every rank makes the same sequence of collective calls: the
+`CHORD_RATE`, and stops by the serial policy, `hyperoc.solvers.newton.chord_stopping_test` (the error left after the
+update, of u and of the multiplier). Every rank makes the same sequence of collective calls: the
 decisions are taken on reduced values, equal on all ranks.
 """
 
@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..solvers.linsolve import _eliminate
-from ..solvers.newton import CHORD_MARGIN, CHORD_RATE, NewtonStatus, _small
+from ..solvers.newton import CHORD_RATE, NewtonStatus, _small, chord_stopping_test
 from .layout import Layout
 
 __all__ = ["KeptJacobian", "newton"]
@@ -74,14 +74,15 @@ def newton(residual, jacobian, layout: Layout, x0: np.ndarray, *, rtol: float, a
         if refresh and not solved:
             return x, it, NewtonStatus.NON_FINITE
         increment = layout.inf_norm(du) if solved else np.inf
-        rate = increment / previous
         chord = kept is not None
-        left = rate / (1 - rate) if chord and np.isfinite(previous) and rate < CHORD_RATE else 1.0
-        margin = CHORD_MARGIN if chord else 1.0
-        at_floor = chord and rate > CHORD_RATE and bool(_small(x[:m_o], du, layout.n_u, rtol, atol,
-                                                                inf_norm=layout.inf_norm))
-        converged = solved and (bool(_small(x[:m_o], left * du, layout.n_u, margin * rtol, margin * atol,
-                                            inf_norm=layout.inf_norm)) or at_floor)
+        small = lambda u, v, rt, at: bool(_small(u, v, layout.n_u, rt, at, inf_norm=layout.inf_norm))
+        if chord:
+            p, dp = (x[m_o], dx[m_o]) if constrained else (0.0, 0.0)
+            settled, rate = chord_stopping_test(x[:m_o], du, p, dp, increment, previous, small, rtol=rtol,
+                                                atol=atol, xp=np)
+        else:
+            settled, rate = small(x[:m_o], du, rtol, atol), np.inf
+        converged = solved and bool(settled)
         if converged:
             return x + dx, it, NewtonStatus.CONVERGED
         r1 = residual(*at(x + dx)) if solved else None

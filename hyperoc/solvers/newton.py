@@ -21,7 +21,8 @@ import jax.numpy as jnp
 
 from .. import _jax  # noqa: F401
 
-__all__ = ["newton", "NewtonStatus", "NewtonIteration", "NewtonLog", "CHORD_RATE", "CHORD_MARGIN"]
+__all__ = ["newton", "NewtonStatus", "NewtonIteration", "NewtonLog", "CHORD_RATE", "CHORD_MARGIN",
+           "chord_stopping_test"]
 
 #: Contraction rate above which a chord iteration refreshes the factorization: below it a kept
 #: factorization gains a digit or more per solve; a slower one would need more solves to reach the
@@ -126,11 +127,9 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
     Jacobian is assembled and factored again (``refresh_solve``: a full Newton iteration with the
     line search above) after a rejected step, when the kept solve failed (no factorization yet, or
     a singular one) or when the contraction rate ``theta = |du_k|_inf / |du_{k-1}|_inf`` exceeds
-    `CHORD_RATE`. A linearly converging iteration leaves an error of about
-    ``theta / (1 - theta) |du|`` after the update du, so the stopping test above is made on that
-    (on ``|du|`` itself while theta is unknown or above `CHORD_RATE`), with the tolerances scaled by
-    `CHORD_MARGIN`; an increment that meets the unscaled test while theta exceeds `CHORD_RATE` is
-    at the round-off floor, and ends the iteration too.
+    `CHORD_RATE`. It stops by `chord_stopping_test`: on the error left after the update, estimated from
+    theta, for u and, on its own scale, for the multiplier p, with the tolerances scaled by
+    `CHORD_MARGIN`; or at the round-off floor.
     """
     if chord:
         return _chord_newton(residual, jacobian_parts, solver, x0, rtol=rtol, atol=atol, max_iter=max_iter,
@@ -188,13 +187,9 @@ def _chord_newton(residual, jacobian_parts, solver, x0, *, rtol, atol, max_iter,
         m0 = _merit(r)
         solved = jnp.all(jnp.isfinite(dx))
         increment = jnp.where(solved, jnp.max(jnp.abs(du)), jnp.inf)
-        # The error left after this update, contracting by the rate: rate / (1 - rate) |du|.
-        rate = increment / previous
-        left = jnp.where(jnp.isfinite(previous) & (rate < CHORD_RATE), rate / (1 - rate), 1.0)
-        # With CHORD_MARGIN: p is a reaction, far more sensitive than u to what is left. An increment
-        # that already meets full Newton's test while the contraction fails is at round-off: accepted.
-        at_floor = (rate > CHORD_RATE) & _small(x[:-1], du, n_u, rtol, atol)
-        converged = solved & (_small(x[:-1], left * du, n_u, CHORD_MARGIN * rtol, CHORD_MARGIN * atol) | at_floor)
+        settled, rate = chord_stopping_test(x[:-1], du, x[-1], dp, increment, previous,
+                                            lambda u, v, rt, at: _small(u, v, n_u, rt, at), rtol=rtol, atol=atol)
+        converged = solved & settled
         r_full = residual(x + dx)
         # A fresh (full Newton) step backtracks (with ``line_search``); a chord step is taken whole or rejected.
         alpha, r1 = _backtrack(residual, x, dx, m0, r_full, refresh & ~converged & solved & line_search)
@@ -221,6 +216,28 @@ def _chord_newton(residual, jacobian_parts, solver, x0, *, rtol, atol, max_iter,
             jnp.asarray(jnp.inf, dtype=x0.dtype))
     x, _, it, status, *_ = jax.lax.while_loop(cond, body, init)
     return x, it, status
+
+
+def chord_stopping_test(u, du, p, dp, increment, previous, small, *, rtol, atol, xp=jnp):
+    """The stopping test of a chord iteration and its contraction rate, ``(settled, rate)``, on JAX or
+    NumPy values (``xp``): the one policy of the serial and the distributed chord Newton.
+
+    ``u, du``: the iterate's displacements and their increment; ``p, dp``: its multiplier and increment
+    (0 and 0 unconstrained); ``increment = |du|_inf`` and ``previous``, the last accepted one (inf if
+    none); ``small(u, du, rtol, atol)``: the block test of `_small`. A linearly converging iteration
+    leaves an error of about ``left |dx|`` after the update dx, ``left = rate / (1 - rate)``,
+    ``rate = increment / previous`` (1 while the rate is unknown or above `CHORD_RATE`). Settled: what
+    is left of u meets the tolerances scaled by `CHORD_MARGIN`, and what is left of p meets
+    ``rtol |p + dp|``: p is a reaction, far more sensitive than u to what is left (a chord iteration
+    stopped on u alone can leave p wrong in its eighth digit), so it gets its own test on its own scale.
+    Or the increment meets the unscaled test while the contraction fails: the iteration is at
+    round-off (which also ends it when p is 0 to round-off)."""
+    rate = increment / previous
+    left = xp.where(xp.isfinite(previous) & (rate < CHORD_RATE), rate / (1 - rate), 1.0)
+    u_settled = small(u, left * du, CHORD_MARGIN * rtol, CHORD_MARGIN * atol)
+    p_settled = xp.abs(left * dp) <= rtol * xp.abs(p + dp)
+    at_floor = (rate > CHORD_RATE) & small(u, du, rtol, atol)
+    return (u_settled & p_settled) | at_floor, rate
 
 
 def _merit(r):
