@@ -248,6 +248,12 @@ class SparseSolver:
     def _release(self):
         self._lu = self._kept = None
 
+    def forget_factorization(self) -> None:
+        """Drop the kept factorization (on the thread that built it), so that the next chord iteration
+        starts with a fresh one: a solve resumed from a saved state then takes the same iterations as
+        one that ran through (`hyperoc.dynamics.resumable`)."""
+        self._worker.submit(self._release).result()
+
     def reset_stats(self):
         self.stats = {"calls": 0, "factorizations": 0, "iterations": 0, "kept_solves": 0, "refactor_after_stall": 0,
                       "failed": 0, "order_s": 0.0, "assembly_s": 0.0, "factor_s": 0.0, "solve_s": 0.0, "host_s": 0.0,

@@ -1,0 +1,129 @@
+"""Forward solves that survive interruption: the time steps in segments, each segment's outputs saved
+atomically as it ends, a run resumed from the last saved segment.
+
+A long 3D solve (a heart beat on a benchmark mesh: hours on two cores) is a cluster job with a wall-time
+limit. `run_resumable` cuts the grid into segments of ``every`` steps. Each segment starts from the state
+the previous one ended in, with no factorization kept from it (`SparseSolver.forget_factorization`: chord
+Newton refreshes at the first step of every segment), and writes its outputs to
+``folder/segment_<k>.npz`` by a temporary file and a rename. A run started again on the same folder reads
+the segments found there and solves the others: whether it was interrupted or not, every segment is
+computed from the same state with the same solver history, so the result is bitwise the same.
+
+The folder also holds ``problem.json``, a fingerprint of what was solved (model size, grid, controls and
+loads, scheme, segment length); resuming a different problem is refused.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from .stepper import StateSolution, TimeStepper
+from .timegrid import TimeGrid
+
+__all__ = ["run_resumable", "SEGMENT_OUTPUTS"]
+
+#: the per-step outputs of `TimeStepper.march_levels` a segment file holds, in its order
+SEGMENT_OUTPUTS = ("y0", "y1", "p", "newton_iterations", "status", "min_det_F", "max_grad")
+
+
+def run_resumable(stepper: TimeStepper, grid: TimeGrid, xi=None, *, folder, every: int, u0=None, v0=None,
+                  external=None, progress: bool = False) -> StateSolution:
+    """`TimeStepper.run` in segments of ``every`` steps saved to ``folder`` (created if needed), resuming
+    from the segments already there. Same arguments and result as `TimeStepper.run` (multiplier "step"
+    only: the "theta" weighting carries p across steps as a state the segments would have to agree on).
+    `hyperoc.errors.SolverError` names the first failed step as `run` does; the segments before it stay
+    saved."""
+    if every < 1:
+        raise InputError(f"checkpoint segments need every >= 1 step, got {every}")
+    if stepper.scheme.multiplier != "step":
+        raise InputError("resumable solves need the scheme's multiplier 'step'")
+    m, N = stepper.model, grid.num_steps
+    y0 = np.zeros(m.n) if u0 is None else np.asarray(u0, dtype=np.float64)
+    y1 = np.zeros(m.n) if v0 is None else np.asarray(v0, dtype=np.float64)
+    xis, fs = stepper._controls(xi, N), stepper.external_loads(external, grid)
+    stepper._check_initial_velocity(y0, y1)
+    folder = Path(folder)
+    _claim(folder, _fingerprint(stepper, grid, xis, fs, y0, y1, every))
+    V0 = stepper.deformed_volume(y0)
+    state, outputs, wall = (y0, y1, 0.0), [], 0.0
+    starts = range(0, N, every)
+    from tqdm.auto import tqdm
+
+    for k in tqdm(starts, disable=not progress, desc="segments", leave=False):
+        levels = slice(k, min(k + every, N) + 1)
+        path = folder / f"segment_{k // every:05d}.npz"
+        if path.exists():
+            segment = _read_segment(path)
+        else:
+            start = time.perf_counter()
+            segment = _solve_segment(stepper, state, grid.t[levels], xis[levels], fs[levels], V0)
+            wall += time.perf_counter() - start
+            _write_segment(path, segment)
+        outputs.append(segment)
+        stepper.raise_on_failure(*(np.concatenate([o[name] for o in outputs]) if name else grid
+                                   for name in ("status", None, "newton_iterations", "min_det_F")))
+        state = (segment["y0"][-1], segment["y1"][-1], float(segment["p"][-1]))
+    stacked = {name: np.concatenate([o[name] for o in outputs]) for name in SEGMENT_OUTPUTS}
+    Y0 = np.concatenate([y0[None], stacked["y0"]])
+    Y1 = np.concatenate([y1[None], stacked["y1"]])
+    monitors = (stacked["newton_iterations"], stacked["min_det_F"], stacked["max_grad"])
+    return stepper.solution(grid, Y0, Y1, stacked["p"], monitors, xis, wall, diagnose=True)
+
+
+def _solve_segment(stepper: TimeStepper, state, t, xis, fs, V0) -> dict:
+    """The outputs (`SEGMENT_OUTPUTS`) of the steps over the levels ``t`` from ``state = (y0, y1, p)``,
+    with no factorization kept from before."""
+    forget = getattr(stepper.solver, "forget_factorization", None)
+    if forget is not None:
+        forget()
+    y0, y1, p = state
+    out = stepper.march_levels(y0, y1, p, t, xis, fs, V0)
+    return dict(zip(SEGMENT_OUTPUTS, (np.asarray(o) for o in out)))
+
+
+def _write_segment(path: Path, segment: dict) -> None:
+    """Write ``segment`` to ``path`` atomically (a temporary file in the same folder, then a rename)."""
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "wb") as f:
+        np.savez(f, **segment)
+    os.replace(tmp, path)
+
+
+def _read_segment(path: Path) -> dict:
+    with np.load(path) as data:
+        return {name: data[name] for name in SEGMENT_OUTPUTS}
+
+
+def _fingerprint(stepper: TimeStepper, grid: TimeGrid, xis, fs, y0, y1, every: int) -> dict:
+    """What a resumed run must agree on: sizes, the scheme, the segment length and digests of the grid,
+    the controls, the loads and the initial state."""
+    digest = hashlib.sha256()
+    for a in (grid.t, xis, fs, y0, y1):
+        digest.update(np.ascontiguousarray(a, dtype=np.float64).tobytes())
+    scheme = stepper.scheme
+    return {"unknowns": int(stepper.model.n), "steps": int(grid.num_steps), "every": int(every),
+            "scheme": [scheme.theta, scheme.multiplier, scheme.rtol, scheme.atol, scheme.max_iter, scheme.newton],
+            "data_sha256": digest.hexdigest()}
+
+
+def _claim(folder: Path, fingerprint: dict) -> None:
+    """Create ``folder`` with ``problem.json``, or check that the one there describes the same solve."""
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / "problem.json"
+    if path.exists():
+        found = json.loads(path.read_text())
+        if found != fingerprint:
+            changed = sorted(k for k in fingerprint if found.get(k) != fingerprint[k])
+            raise InputError(f"{folder} holds the segments of another solve (differs in: {', '.join(changed)})")
+        return
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(fingerprint, indent=1))
+    os.replace(tmp, path)
+
