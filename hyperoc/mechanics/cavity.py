@@ -1,0 +1,123 @@
+"""The volume of a cavity bounded by a wall of the body: the left ventricle's blood volume.
+
+The endocardium ``Gamma`` is a boundary part of the body; with the base open it is closed by a cone
+from a fixed apex point ``c`` (by default the centroid of its rim in the reference configuration) to
+its deformed rim. The volume enclosed by the deformed wall and that cone is, by the divergence theorem
+with ``div (x - c) = 3``,
+
+    V(u) = (1/3) int_{Gamma(x)} (x - c) . n_cav da  =  -(1/3) sum_facets int (x - c) . a(x) dxi,
+
+where ``x = X + u`` on the facet and ``a`` is the area vector of the facet parametrization
+(`hyperoc.mechanics.follower`: ``n da = a dxi``, pointing out of the body, i.e. into the cavity, hence
+the sign; on the cone ``x - c`` is tangent, so the cone adds nothing). The integrand is a polynomial of
+the facet coordinates (degree ``k + 1 + (d - 1)(k - 1)`` for Lagrange degree k) and is integrated
+exactly, so V is the exact volume of the discrete P1 or P2 (curved) surface. In 2D the same formula
+with 1/2 gives the area of the cavity's section.
+
+A closed ``Gamma`` (no rim) encloses a volume that does not depend on c. With a rim, the cone from c
+is the lid: while the deformed rim stays in a plane through c (a base sliding in its plane, or clamped)
+it is the flat lid, and V the cavity volume a clinician measures; a rim that leaves that plane adds the
+volume between the flat lid and the cone (first order in the rim's out-of-plane motion).
+
+V is a sum over facets of the facet's nodal positions, so its gradient (the load of a cavity pressure,
+``P dV/du``: the follower pressure on ``Gamma`` plus the cone's reaction on the rim) and its Hessian
+(that load's stiffness) are facet-local and fit the element blocks of the facets' owner cells.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..errors import InputError
+from .follower import FollowerPressure
+from .kernels import scatter
+
+__all__ = ["CavityVolume", "rim_nodes"]
+
+
+def rim_nodes(space, facets: np.ndarray) -> np.ndarray:
+    """The nodes on the rim of the boundary part ``facets`` (nf, dim) of ``space``'s mesh: the vertices
+    (and, P2, the edge nodes) of the facet edges (3D) or facet vertices (2D) that belong to a single
+    facet of the part. Empty for a closed surface."""
+    facets = np.asarray(facets, dtype=np.int64)
+    k = facets.shape[1]
+    if k == 2:  # 2D: a facet is an edge, its "edges" are its two vertices
+        ends, counts = np.unique(facets.ravel(), return_counts=True)
+        return ends[counts == 1]
+    pairs = np.sort(np.concatenate([facets[:, [i, j]] for i in range(k) for j in range(i + 1, k)]), axis=1)
+    unique, counts = np.unique(pairs, axis=0, return_counts=True)
+    rim = unique[counts == 1]
+    if rim.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    nodes = [rim.ravel()]
+    if space.degree == 2:
+        nodes.append(space.edge_nodes(rim[:, None, :]).ravel())
+    return np.unique(np.concatenate(nodes))
+
+
+class CavityVolume:
+    """Volume (area in 2D) ``V(u)`` of the cavity bounded by ``boundary`` of ``model``'s mesh (module
+    docstring), in the model's length unit cubed (squared in 2D).
+
+    Parameters
+    ----------
+    model : `hyperoc.mechanics.model.StateModel` (2D or 3D, P1 or P2); its reduced dofs are used.
+    boundary : the cavity wall, e.g. ``"endocardium"``.
+    apex : the cone's apex c (dim,); default the centroid of the rim's reference nodes (of all the
+        wall's nodes when the wall is closed).
+    """
+
+    def __init__(self, model, boundary: str = "endocardium", apex=None):
+        self.surface = FollowerPressure(model, boundary, 1.0)
+        self.boundary, self.dim, self.n = boundary, model.dim, model.n
+        facets = model.mesh.boundary(boundary)
+        self.rim = rim_nodes(model.space, facets)
+        around = self.rim if self.rim.size else np.unique(model.space.facet_nodes(facets))
+        c = np.mean(model.space.nodes[around], axis=0) if apex is None else np.asarray(apex, dtype=np.float64)
+        if c.shape != (self.dim,) or not np.all(np.isfinite(c)):
+            raise InputError(f"cavity apex must be {self.dim} finite numbers, got {apex!r}")
+        self.apex = c
+        if self.volume(np.zeros(model.n)) <= 0:
+            raise InputError(f"the cavity bounded by {boundary!r} has no positive volume: is it the inner wall of "
+                             "the body, closed or open on a single rim?")
+
+    def facet_volumes(self, u):
+        """Each facet's ``-(1/d) int (x - c) . a dxi`` (nf,), their sum the volume."""
+        s = self.surface
+        x = s._positions(u)
+        xq = jnp.einsum("qa,fai->fqi", s._N, x) - self.apex
+        a = jax.vmap(s._area_vectors)(x)
+        return -jnp.einsum("q,fqi,fqi->f", s._w, xq, a) / self.dim
+
+    def volume(self, u):
+        """V(u) (scalar) of the reduced displacement u (n,)."""
+        return jnp.sum(self.facet_volumes(u))
+
+    def _facet_volume(self, x):
+        """One facet's volume term of its nodal positions x (m, dim)."""
+        s = self.surface
+        xq = s._N @ x - self.apex
+        return -jnp.einsum("q,qi,qi->", s._w, xq, s._area_vectors(x)) / self.dim
+
+    def gradient(self, u):
+        """dV/du (n,): facet by facet, summed into the reduced dofs (Dirichlet dofs dropped)."""
+        s = self.surface
+        g = jax.vmap(jax.grad(self._facet_volume))(s._positions(u))
+        return scatter(g.reshape(g.shape[0], -1), s._gather, self.n)
+
+    def facet_hessians(self, u, factor=1.0):
+        """``factor d2V/dx2`` per facet, (nf, m dim, m dim), node-major facet dofs: the stiffness of a
+        cavity pressure ``factor`` is ``-factor d2V/du2``."""
+        s = self.surface
+        x = s._positions(u)
+        nf, m, d = x.shape
+        H = jax.vmap(jax.hessian(self._facet_volume))(x)
+        return factor * H.reshape(nf, m * d, m * d)
+
+    def add_hessian(self, cell_blocks, u, factor=1.0):
+        """``cell_blocks`` (nc, k, k) plus ``factor d2V/du2``, scattered into each facet's owner cell."""
+        s = self.surface
+        c = s._owner[:, None, None]
+        return cell_blocks.at[c, s._local[:, :, None], s._local[:, None, :]].add(self.facet_hessians(u, factor))
