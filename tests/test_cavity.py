@@ -68,6 +68,25 @@ def test_motions_that_keep_the_lid_keep_the_volume(lv):
         assert abs(float(cav.volume(lv.restrict(motion))) - V0) <= 1e-12 * V0
 
 
+def test_a_moving_apex_keeps_the_volume_under_every_rigid_motion(lv):
+    """``apex="rim"`` follows the rim: a translation along the long axis and a tilt leave the volume
+    unchanged. A fixed apex, left below the lifted rim, loses the cone between the lid and itself,
+    (1/3) A h (A the lid's area, h the lift; A to the P1 rim polygon's accuracy)."""
+    moving, fixed = CavityVolume(lv, apex="rim"), CavityVolume(lv)
+    V0 = float(moving.volume(np.zeros(lv.n)))
+    X = lv.space.nodes
+    a = 0.2
+    R = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    lift = lv.restrict(X * 0 + [0.0, 0.0, 2.0])
+    for motion in (lift, lv.restrict(X @ R.T - X + [0.3, 0.1, -1.0])):
+        assert abs(float(moving.volume(motion)) - V0) <= 1e-12 * V0
+    lid = np.pi * 49 * (1 - BASE**2 / RL**2)  # the base disc's area, mm^2
+    assert abs(float(fixed.volume(lift)) - (V0 - lid * 2.0 / 3)) < 0.1 * lid * 2.0 / 3
+    np.testing.assert_allclose(moving.volumes(np.stack([np.zeros(lv.n), lift])), V0, rtol=1e-12)
+    with pytest.raises(InputError, match="apex='rim'"):
+        moving.gradient(np.zeros(lv.n))
+
+
 def test_the_gradient_is_the_volumes_derivative(lv):
     """Central differences of V along a random direction: V is a polynomial of degree d in u, so their
     error is h^2 times a third derivative, far below the tolerance at these h."""

@@ -15,9 +15,14 @@ exactly, so V is the exact volume of the discrete P1 or P2 (curved) surface. In 
 with 1/2 gives the area of the cavity's section.
 
 A closed ``Gamma`` (no rim) encloses a volume that does not depend on c. With a rim, the cone from c
-is the lid: while the deformed rim stays in a plane through c (a base sliding in its plane, or clamped)
-it is the flat lid, and V the cavity volume a clinician measures; a rim that leaves that plane adds the
-volume between the flat lid and the cone (first order in the rim's out-of-plane motion).
+is the lid. Two apexes: a fixed point (by default the reference rim's centroid), and ``apex="rim"``, the
+deformed rim's centroid, which moves with the rim. With a fixed apex the cone is the flat lid while the
+deformed rim stays in a plane through c (a base sliding in its plane, or clamped); a rim that leaves that
+plane adds the volume between the flat lid and the cone (first order in the rim's out-of-plane motion).
+With ``apex="rim"`` the volume does not change under rigid motions of the whole, and the cone is the flat
+lid whenever the rim stays planar: the volume the benchmark codes and a clinician report. Its derivative
+couples every rim node to every wall node (the centroid moves with all of them), which does not fit the
+element blocks: the constraint and its tangent use a fixed apex, the reports the moving one.
 
 V is a sum over facets of the facet's nodal positions, so its gradient (the load of a cavity pressure,
 ``P dV/du``: the follower pressure on ``Gamma`` plus the cone's reaction on the rim) and its Hessian
@@ -26,13 +31,23 @@ V is a sum over facets of the facet's nodal positions, so its gradient (the load
 
 from __future__ import annotations
 
+from functools import cached_property
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ..errors import InputError
+from ..fem.assembly import dump_index
 from .follower import FollowerPressure
-from .kernels import scatter
+from .kernels import gather, scatter
+
+
+def _point(apex, dim: int) -> np.ndarray:
+    c = np.asarray(apex, dtype=np.float64)
+    if c.shape != (dim,) or not np.all(np.isfinite(c)):
+        raise InputError(f"cavity apex must be {dim} finite numbers or 'rim', got {apex!r}")
+    return c
 
 __all__ = ["CavityVolume", "rim_nodes"]
 
@@ -66,7 +81,8 @@ class CavityVolume:
     model : `hyperoc.mechanics.model.StateModel` (2D or 3D, P1 or P2); its reduced dofs are used.
     boundary : the cavity wall, e.g. ``"endocardium"``.
     apex : the cone's apex c (dim,); default the centroid of the rim's reference nodes (of all the
-        wall's nodes when the wall is closed).
+        wall's nodes when the wall is closed); ``"rim"``: the deformed rim's centroid (for reports: its
+        gradient is not facet-local, so `gradient` and `add_hessian` refuse it).
     """
 
     def __init__(self, model, boundary: str = "endocardium", apex=None):
@@ -75,25 +91,44 @@ class CavityVolume:
         facets = model.mesh.boundary(boundary)
         self.rim = rim_nodes(model.space, facets)
         around = self.rim if self.rim.size else np.unique(model.space.facet_nodes(facets))
-        c = np.mean(model.space.nodes[around], axis=0) if apex is None else np.asarray(apex, dtype=np.float64)
-        if c.shape != (self.dim,) or not np.all(np.isfinite(c)):
-            raise InputError(f"cavity apex must be {self.dim} finite numbers, got {apex!r}")
+        self.moving = isinstance(apex, str) and apex == "rim"
+        self._around = jnp.asarray(dump_index(model.to_reduced[model.space.node_dofs(around)], model.n))
+        self._around_X = jnp.asarray(model.space.nodes[around])
+        c = np.mean(model.space.nodes[around], axis=0) if apex is None or self.moving else _point(apex, self.dim)
         self.apex = c
         if self.volume(np.zeros(model.n)) <= 0:
             raise InputError(f"the cavity bounded by {boundary!r} has no positive volume: is it the inner wall of "
                              "the body, closed or open on a single rim?")
 
+    def apex_at(self, u):
+        """The apex c (dim,) for the reduced displacement u (n,): fixed, or the deformed rim's centroid."""
+        if not self.moving:
+            return jnp.asarray(self.apex)
+        return jnp.mean(self._around_X + gather(u, self._around).reshape(self._around_X.shape), axis=0)
+
     def facet_volumes(self, u):
         """Each facet's ``-(1/d) int (x - c) . a dxi`` (nf,), their sum the volume."""
         s = self.surface
         x = s._positions(u)
-        xq = jnp.einsum("qa,fai->fqi", s._N, x) - self.apex
+        xq = jnp.einsum("qa,fai->fqi", s._N, x) - self.apex_at(u)
         a = jax.vmap(s._area_vectors)(x)
         return -jnp.einsum("q,fqi,fqi->f", s._w, xq, a) / self.dim
 
     def volume(self, u):
         """V(u) (scalar) of the reduced displacement u (n,)."""
         return jnp.sum(self.facet_volumes(u))
+
+    def volumes(self, U) -> np.ndarray:
+        """V at each state of ``U`` (L, n): (L,)."""
+        return np.asarray(self._volumes(jnp.asarray(U)))
+
+    @cached_property
+    def _volumes(self):
+        return jax.jit(jax.vmap(self.volume))
+
+    def _fixed_apex(self) -> None:
+        if self.moving:
+            raise InputError("the cavity volume with apex='rim' has no facet-local derivatives: use a fixed apex")
 
     def _facet_volume(self, x):
         """One facet's volume term of its nodal positions x (m, dim)."""
@@ -103,6 +138,7 @@ class CavityVolume:
 
     def gradient(self, u):
         """dV/du (n,): facet by facet, summed into the reduced dofs (Dirichlet dofs dropped)."""
+        self._fixed_apex()
         s = self.surface
         g = jax.vmap(jax.grad(self._facet_volume))(s._positions(u))
         return scatter(g.reshape(g.shape[0], -1), s._gather, self.n)
@@ -110,6 +146,7 @@ class CavityVolume:
     def facet_hessians(self, u, factor=1.0):
         """``factor d2V/dx2`` per facet, (nf, m dim, m dim), node-major facet dofs: the stiffness of a
         cavity pressure ``factor`` is ``-factor d2V/du2``."""
+        self._fixed_apex()
         s = self.surface
         x = s._positions(u)
         nf, m, d = x.shape
