@@ -75,12 +75,17 @@ class Config:
 
         c = self["mesh"]
         return geometry.from_file(self.mesh_path(), dirichlet=c["dirichlet_tag"], neumann=c["neumann_tag"],
-                                  control=c["control_tag"])
+                                  control=c["control_tag"], tags=c.get("tags"))
 
     def mesh_path(self) -> Path | None:
         """``[mesh] file`` resolved against the config's folder (None for a generated mesh)."""
         c = self["mesh"]
         return (self.base / c["file"]).resolve() if c["kind"] == "file" else None
+
+    def fibres_path(self) -> Path | None:
+        """``[fibres] file`` resolved against the config's folder (None without one)."""
+        c = self["fibres"]
+        return (self.base / c["file"]).resolve() if "file" in c else None
 
     def control_path(self) -> Path | None:
         """``[control] file`` resolved against the config's folder (None without one)."""
@@ -115,16 +120,22 @@ class Config:
         return geometry.ventricle(c["h"], refinements=refinements)
 
     def fibres(self, mesh):
-        """Fibre frames (`hyperoc.mechanics.fibres.FibreFrames`) of ``[fibres]`` on ``mesh`` (kind "rule_based"),
-        or None (kind "none")."""
-        from ..mechanics.fibres import rule_based_fibres
+        """Fibre frames of ``[fibres]`` on ``mesh``: `hyperoc.mechanics.fibres.FibreFrames` (kind "rule_based"),
+        `hyperoc.mechanics.fibres.FieldFrames` (kinds "file" and "benchmark"), or None (kind "none")."""
+        from ..mechanics.fibres import read_fibres, rule_based_fibres
 
         c = self["fibres"]
         if c["kind"] == "none":
             return None
-        axis = c["long_axis"]
         if mesh.dim != 3:
-            raise InputError(f"config: [fibres] rule_based needs a 3D mesh, got dimension {mesh.dim}")
+            raise InputError(f"config: [fibres] {c['kind']} needs a 3D mesh, got dimension {mesh.dim}")
+        if c["kind"] == "file":
+            return read_fibres(self.fibres_path(), mesh, location=c["location"], tolerance=float(c["tolerance"]))
+        if c["kind"] == "benchmark":
+            from ..cardiac.benchmark_geometry import benchmark_fibres
+
+            return benchmark_fibres(mesh, inner=c["inner"], outer=c["outer"])
+        axis = c["long_axis"]
         return rule_based_fibres(mesh, helix_endo=float(c["helix_endo"]), helix_epi=float(c["helix_epi"]),
                                  long_axis=tuple(float(v) for v in axis), inner=c["inner"], outer=c["outer"])
 
@@ -163,7 +174,7 @@ class Config:
         frames = self.fibres(mesh)
         if frames is None and isinstance(material, (Guccione, HolzapfelOgden)):
             raise InputError(f"config: [material] law {self['material']['law']!r} needs fibres: "
-                             "add [fibres] kind = 'rule_based'")
+                             "add [fibres] kind = 'rule_based', 'file' or 'benchmark'")
         return StateModel(mesh, material, degree=self["mesh"]["degree"], damping=float(d["damping"]),
                           density=float(d["density"]), control=self.control_operator(frames), traction=traction,
                           neumann="gamma_n", frames=frames, volumetric=self["material"]["volumetric"],

@@ -36,7 +36,7 @@ import numpy as np
 from ..errors import InputError
 from .mesh import Mesh, find_group
 
-__all__ = ["from_file", "to_file", "read_xdmf_grids"]
+__all__ = ["from_file", "to_file", "read_raw", "read_xdmf_grids"]
 
 _SIMPLEX_DIM = {"line": 1, "triangle": 2, "tetra": 3}
 _SIMPLEX_TYPE = {d: t for t, d in _SIMPLEX_DIM.items()}
@@ -87,7 +87,7 @@ def from_file(path, *, dirichlet: str = "gamma_d", neumann: str = "gamma_n", con
     path = Path(path)
     if not path.is_file():
         raise InputError(f"mesh file not found: {path}")
-    raw = _read(path)
+    raw = read_raw(path)
     blocks, edge_nodes = _linear_blocks(raw.cells)
     dims = [_SIMPLEX_DIM[b.type] for b in blocks if b.type in _SIMPLEX_DIM and len(b.data)]
     if not dims:
@@ -128,8 +128,10 @@ def _alias(named: dict, canonical: str, source: str, path: Path, kind: str) -> N
     named[canonical] = named[find_group(named, source, kind, f"mesh file {path}")]
 
 
-def _read(path: Path) -> meshio.Mesh:
-    """The file as a meshio mesh: DOLFIN(x)-style XDMF by `read_xdmf_grids`, anything else by meshio."""
+def read_raw(path) -> meshio.Mesh:
+    """The file as a meshio mesh, with its point and cell data: DOLFIN(x)-style XDMF by `read_xdmf_grids`,
+    anything else by meshio; a failure is a one-line `InputError`."""
+    path = Path(path)
     if path.suffix.lower() == ".xdmf":
         grids = read_xdmf_grids(path)
         if grids is not None:

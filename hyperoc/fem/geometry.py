@@ -284,11 +284,13 @@ def _curve_edges(mesh: Mesh, surfaces: dict, planes: dict | None = None) -> Mesh
     """``mesh`` with curved P2 edge nodes. The node of every edge of the facets of ``surfaces``
     (boundary name -> `_Quadric`) moves from the edge midpoint onto that surface (`_Quadric.project`;
     an edge that is also an edge of a flat boundary in ``planes``, name -> unit normal (dim,), moves
-    within it); the other boundary edge nodes and the vertices stay; the interior edge nodes move by
-    the discrete harmonic extension of those shifts (``int grad s . grad phi = 0`` per component, P2
-    on the straight mesh). Spreading the boundary curvature into the first layers of cells keeps the
-    cells along a concave wall from being squeezed (ventricle(4.0): min det J_q / det J_affine 0.68,
-    0.41 with the interior edge nodes left at their midpoints)."""
+    within it; a normal given as a function of the midpoints (n, dim) -> (n, dim), e.g. of a cone, moves
+    the edge node within the tangent plane at its midpoint); the other boundary edge nodes and the vertices
+    stay; the interior edge nodes move by the discrete harmonic extension of those shifts
+    (``int grad s . grad phi = 0`` per component, P2 on the straight mesh). Spreading the boundary
+    curvature into the first layers of cells keeps the cells along a concave wall from being squeezed
+    (ventricle(4.0): min det J_q / det J_affine 0.68, 0.41 with the interior edge nodes left at their
+    midpoints)."""
     nv = len(mesh.points)
     key = lambda e: e[:, 0] * nv + e[:, 1]
     space = VectorSpace(mesh, 2, components=1)
@@ -297,9 +299,10 @@ def _curve_edges(mesh: Mesh, surfaces: dict, planes: dict | None = None) -> Mesh
     for name, surface in surfaces.items():
         e = _facet_edges(mesh.boundary(name))
         keep = np.zeros((len(e), mesh.dim))
-        for plane, normal in (planes or {}).items():
-            keep[np.isin(key(e), key(_facet_edges(mesh.boundary(plane))))] = normal
         mid = 0.5 * (mesh.points[e[:, 0]] + mesh.points[e[:, 1]])
+        for plane, normal in (planes or {}).items():
+            on_plane = np.isin(key(e), key(_facet_edges(mesh.boundary(plane))))
+            keep[on_plane] = normal(mid[on_plane]) if callable(normal) else normal
         shift[space.edge_nodes(e)] = surface.project(mid, keep) - mid
     fixed = np.unique(np.concatenate(fixed))
     shift = solve_dirichlet(space.laplace_blocks(), space.cell_nodes, space.num_nodes, fixed, shift[fixed])
