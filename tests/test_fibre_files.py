@@ -233,3 +233,42 @@ def test_cli_missing_tag_exit_2(tmp_path, capsys, mesh, frames):
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and "no boundary tag 'lv_endo' (tags found: base, endocardium, epicardium" in lines[0]
     assert not (tmp_path / "o").exists()
+
+
+def test_config_benchmark_mesh_and_fibres(tmp_path, mesh, frames):
+    text = CONFIG.replace('kind = "file"\nfile = "mesh.msh"\nneumann_tag = "ENDO"\ndirichlet_tag = "top"',
+                          'kind = "cardiac_benchmark"\nvariant = "coarse"\ndirichlet_tag = "base"')
+    text = text.replace('kind = "file"\nfile = "fibres.npz"', 'kind = "benchmark"')
+    (tmp_path / "bench.toml").write_text(text)
+    cfg = load_config(tmp_path / "bench.toml")
+    model = cfg.model()
+    assert len(model.mesh.boundary("gamma_d")) == len(mesh.boundary("base"))
+    assert len(model.mesh.boundary("gamma_n")) == len(mesh.boundary("endocardium"))
+    np.testing.assert_allclose(model.control.fibres, frames.cell_frames()[:, 0], atol=1e-12)
+
+
+def zero_volume_mesh(tmp_path: Path, mesh) -> None:
+    flat = mesh.points.copy()
+    flat[mesh.cells[0, 3]] = flat[mesh.cells[0, :3]].mean(axis=0)  # cell 0 flattened onto its first face
+    meshio.write(tmp_path / "mesh.vtu", meshio.Mesh(flat, [("tetra", mesh.cells)]))
+
+
+@pytest.mark.parametrize("case, message", [
+    ("zero-volume cell", r"mesh.vtu: \d+ degenerate \(zero-volume\) cell"),
+    ("unreadable mesh", "cannot read mesh file"),
+    ("unreadable fibres", "fibres.npz: cannot read it"),
+])
+def test_cli_bad_files_exit_2_nothing_written(tmp_path, capsys, mesh, frames, case, message):
+    cfg = write_case(tmp_path, mesh, {"fibre": frames.fibres, "sheet": frames.sheets})
+    if case == "zero-volume cell":
+        zero_volume_mesh(tmp_path, mesh)
+        cfg.write_text(CONFIG.replace('file = "mesh.msh"\nneumann_tag = "ENDO"\ndirichlet_tag = "top"',
+                                      'file = "mesh.vtu"'))
+    elif case == "unreadable mesh":
+        (tmp_path / "mesh.msh").write_text("$MeshFormat\n9 9 9\n")
+    else:
+        (tmp_path / "fibres.npz").write_bytes(b"PK\x03\x04 truncated")
+    assert main(["simulate", str(cfg), "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and re.search(message, lines[0]), lines
+    assert not (tmp_path / "o").exists()

@@ -70,16 +70,25 @@ class Config:
         return mesh
 
     def file_mesh(self):
-        """The mesh read from ``[mesh] file``, before refinements."""
+        """The mesh read from ``[mesh] file`` (or the shipped benchmark mesh), before refinements."""
         from ..fem import geometry
 
         c = self["mesh"]
+        if c["kind"] == "cardiac_benchmark":
+            from ..cardiac.benchmark_geometry import read_mesh
+
+            return read_mesh(c["variant"], dirichlet=c["dirichlet_tag"])
         return geometry.from_file(self.mesh_path(), dirichlet=c["dirichlet_tag"], neumann=c["neumann_tag"],
                                   control=c["control_tag"], tags=c.get("tags"))
 
     def mesh_path(self) -> Path | None:
-        """``[mesh] file`` resolved against the config's folder (None for a generated mesh)."""
+        """``[mesh] file`` resolved against the config's folder, the shipped file of ``kind = "cardiac_benchmark"``,
+        or None for a generated mesh."""
         c = self["mesh"]
+        if c["kind"] == "cardiac_benchmark":
+            from ..cardiac.benchmark_geometry import mesh_file
+
+            return mesh_file(c["variant"])
         return (self.base / c["file"]).resolve() if c["kind"] == "file" else None
 
     def fibres_path(self) -> Path | None:
@@ -102,10 +111,10 @@ class Config:
             return rectangle(c["nx"], c.get("ny"), tuple(c.get("size", (1.0, 1.0))), c["dirichlet"])
         if kind == "box":
             return box(c["nx"], c.get("ny"), c.get("nz"), tuple(c.get("size", (1.0, 1.0, 1.0))), c["dirichlet"])
-        if kind == "file":
+        if kind in ("file", "cardiac_benchmark"):
             return self.file_mesh()
         raise InputError(f"config: [mesh] kind {kind!r} unknown "
-                         "(interval, rectangle, box, annulus, shell, ventricle, file)")
+                         "(interval, rectangle, box, annulus, shell, ventricle, file, cardiac_benchmark)")
 
     def _curved_mesh(self, kind: str, refinements: int):
         """The generators that put refined boundary vertices on their exact surfaces."""

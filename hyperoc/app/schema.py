@@ -122,11 +122,12 @@ class Mesh(Section):
         "shell": {"r_inner", "r_outer", "h"},
         "ventricle": {"h"},
         "file": {"file", "dirichlet_tag", "neumann_tag", "control_tag", "tags"},
+        "cardiac_benchmark": {"variant", "dirichlet_tag"},
     }
 
-    kind: Literal["interval", "rectangle", "box", "annulus", "shell", "ventricle", "file"] = Field(
-        "interval", description="generator (interval: 1D, rectangle and annulus: 2D, box, shell and ventricle: 3D) "
-                                "or a mesh file")
+    kind: Literal["interval", "rectangle", "box", "annulus", "shell", "ventricle", "file", "cardiac_benchmark"] = Field(
+        "interval", description="generator (interval: 1D, rectangle and annulus: 2D, box, shell and ventricle: 3D), "
+                                "a mesh file, or a shipped mesh of the cardiac elastodynamics benchmark (m)")
     n: Count = Field(100, description="cells of the interval (0, length)")
     length: Positive = Field(1.0, description="length of the interval")
     nx: Count = Field(
@@ -150,6 +151,9 @@ class Mesh(Section):
     dirichlet_tag: str = Field("gamma_d", description="boundary tag (name or number) of the file's clamped part")
     neumann_tag: str = Field("gamma_n", description="boundary tag (name or number) of the file's free part")
     control_tag: str = Field("omega", description="subdomain tag of the file's control region")
+    variant: Literal["reference", "coarse"] = Field(
+        "reference", description="cardiac_benchmark: the benchmark's reference mesh or hyperoc's coarse one; "
+                                 "boundaries endocardium (gamma_n), epicardium, base")
     tags: Optional[dict[str, Union[Annotated[int, Field(ge=0)], str]]] = Field(
         None, description="names of the file's tags, e.g. {endocardium = 1, epicardium = 2, base = 3}; any look-up "
                           "also accepts the aliases endo/ENDO, epi/EPI, top for endocardium, epicardium, base")

@@ -37,8 +37,8 @@ from ..fem.files import from_file
 from ..fem.mesh import Mesh
 from ..mechanics.fibres import FieldFrames, field_frames, transmural_coordinate
 
-__all__ = ["ENDO", "EPI", "BASE_X", "HELIX", "P0", "P1", "TAGS", "reference_mesh_path", "reference_mesh",
-           "benchmark_mesh", "coarse_mesh", "benchmark_frames", "benchmark_fibres", "cavity_volume"]
+__all__ = ["ENDO", "EPI", "BASE_X", "HELIX", "P0", "P1", "TAGS", "mesh_file", "read_mesh", "reference_mesh",
+           "coarse_mesh", "benchmark_mesh", "benchmark_frames", "benchmark_fibres", "cavity_volume"]
 
 #: Short and long semi-axes ``(r_s, r_l)`` of the endocardial and epicardial ellipsoids, m.
 ENDO = (0.025, 0.09)
@@ -58,23 +58,35 @@ COARSE_H = 0.012
 _DATA = "data/cardiac_benchmark"
 
 
-def reference_mesh_path() -> Path:
-    """Path of the benchmark's reference mesh (XDMF + HDF5) inside the installed package."""
-    return Path(str(resources.files("hyperoc").joinpath(_DATA, "ellipsoid_0.005.xdmf")))
+#: The shipped meshes of the domain, by variant (`read_mesh`).
+MESH_FILES = {"reference": "ellipsoid_0.005.xdmf", "coarse": "ellipsoid_coarse.msh"}
+
+
+def mesh_file(variant: str = "reference") -> Path:
+    """Path of a shipped mesh of the domain inside the installed package: ``"reference"``, the benchmark's own
+    (XDMF + HDF5), or ``"coarse"``, hyperoc's generator at `COARSE_H` (Gmsh MSH 2.2)."""
+    if variant not in MESH_FILES:
+        raise InputError(f"cardiac benchmark: unknown mesh {variant!r} (one of {', '.join(MESH_FILES)})")
+    return Path(str(resources.files("hyperoc").joinpath(_DATA, MESH_FILES[variant])))
+
+
+def read_mesh(variant: str = "reference", *, dirichlet: str = "gamma_d") -> Mesh:
+    """A shipped mesh (`mesh_file`) with the boundaries ``endocardium`` (= ``gamma_n``), ``epicardium`` and
+    ``base``, and ``gamma_d`` = the boundary ``dirichlet`` if given (the benchmark itself clamps nothing)."""
+    tags = TAGS if variant == "reference" else None
+    return from_file(mesh_file(variant), tags=tags, neumann="endocardium", dirichlet=dirichlet)
 
 
 def reference_mesh() -> Mesh:
-    """The benchmark's reference mesh (straight P1 tetrahedra, as the participating codes used it), with the
-    boundaries ``endocardium`` (= ``gamma_n``), ``epicardium`` and ``base`` and their numbers ``"1"``, ``"2"``,
-    ``"3"``."""
-    return from_file(reference_mesh_path(), tags=TAGS, neumann="endocardium")
+    """The benchmark's reference mesh (4,577 vertices, 17,625 straight P1 tetrahedra, as the participating codes
+    used it), boundaries as `read_mesh` plus their numbers ``"1"``, ``"2"``, ``"3"``."""
+    return read_mesh("reference")
 
 
 def coarse_mesh() -> Mesh:
     """The shipped coarse mesh of the benchmark domain (`benchmark_mesh` at `COARSE_H`, straight cells), for
-    fast runs; boundaries as `reference_mesh`."""
-    path = Path(str(resources.files("hyperoc").joinpath(_DATA, "ellipsoid_coarse.msh")))
-    return from_file(path, neumann="endocardium")
+    fast runs; boundaries as `read_mesh`."""
+    return read_mesh("coarse")
 
 
 def benchmark_mesh(h: float = 0.005, *, curved: bool = True, refinements: int = 0) -> Mesh:
