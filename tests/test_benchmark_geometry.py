@@ -2,6 +2,8 @@
 and the participating codes' curves with the band they span."""
 
 import math
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -141,3 +143,15 @@ def test_curve_band_is_the_envelope_of_the_interpolated_curves():
     assert magnitude["lower"].shape == (1,) and 0.03 < magnitude["lower"][0] <= magnitude["upper"][0] < 0.04
     with pytest.raises(InputError, match="unknown quantity"):
         curve_band(curves, times, "p2")
+
+
+def test_docs_band_snippet_runs():
+    """The band example of docs/cardiac.md runs as printed."""
+    text = (Path(__file__).resolve().parents[1] / "docs" / "cardiac.md").read_text()
+    start = text.index("`hyperoc.cardiac.benchmark_curves` ships")
+    code = re.search(r"```python\n(.*?)```", text[start:], re.S).group(1)
+    names = {}
+    exec(compile(code, "docs/cardiac.md", "exec"), names)
+    band = names["band"]
+    assert band["lower"].shape == (101,) and np.all(band["lower"][1:] <= band["upper"][1:])
+    assert 0.034 < band["upper"].max() < 0.037  # the peak |p0| of step 1, m
