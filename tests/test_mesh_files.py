@@ -18,9 +18,10 @@ h5py = pytest.importorskip("h5py")
 REFERENCE = Path(__file__).parents[1] / "hyperoc" / "data" / "cardiac_benchmark" / "ellipsoid_0.005.xdmf"
 
 
-def write_dolfinx_xdmf(path: Path, points, cells, facets, facet_values, cell_values=None):
+def write_dolfinx_xdmf(path: Path, points, cells, facets, facet_values, cell_values=None, order: int = 1):
     """A mesh as DOLFINx writes it: a tetrahedron grid, then meshtag grids (facets, cells) referencing its
-    geometry, all arrays in the sibling .h5 file."""
+    geometry, all arrays in the sibling .h5 file (order 2: Tetrahedron_10 and Triangle_6, VTK node order)."""
+    tetra, triangle = ("Tetrahedron", "Triangle") if order == 1 else ("Tetrahedron_10", "Triangle_6")
     h5 = path.with_suffix(".h5")
     with h5py.File(h5, "w") as f:
         f["/Mesh/mesh/geometry"] = points
@@ -43,15 +44,16 @@ def write_dolfinx_xdmf(path: Path, points, cells, facets, facet_values, cell_val
       </Attribute>
     </Grid>"""
 
-    grids = [tag_grid("facets", "Triangle", len(facets), 3)]
+    grids = [tag_grid("facets", triangle, len(facets), facets.shape[1])]
     if cell_values is not None:
-        grids.append(tag_grid("cells", "Tetrahedron", len(cells), 4))
+        grids.append(tag_grid("cells", tetra, len(cells), cells.shape[1]))
     path.write_text(f"""<?xml version="1.0"?>
 <Xdmf Version="3.0" xmlns:xi="http://www.w3.org/2001/XInclude">
   <Domain>
     <Grid Name="mesh" GridType="Uniform">
-      <Topology TopologyType="Tetrahedron" NumberOfElements="{len(cells)}" NodesPerElement="4">
-        <DataItem Dimensions="{len(cells)} 4" NumberType="Int" Format="HDF">{h5.name}:/Mesh/mesh/topology</DataItem>
+      <Topology TopologyType="{tetra}" NumberOfElements="{len(cells)}" NodesPerElement="{cells.shape[1]}">
+        <DataItem Dimensions="{len(cells)} {cells.shape[1]}" NumberType="Int"
+                  Format="HDF">{h5.name}:/Mesh/mesh/topology</DataItem>
       </Topology>
       <Geometry GeometryType="XYZ">
         <DataItem Dimensions="{len(points)} 3" Format="HDF">{h5.name}:/Mesh/mesh/geometry</DataItem>
@@ -140,6 +142,20 @@ def test_order_two_msh_gives_curved_cells(tmp_path, version):
     np.testing.assert_allclose(np.linalg.norm(curved.curved_points, axis=1).max(), 1.0, atol=1e-9)
     assert facet_set(curved.boundary("endocardium")) == facet_set(curved.boundary("gamma_n"))
     assert curved.subdomains["wall"].all()
+
+
+def test_order_two_dolfinx_xdmf_matches_the_msh(tmp_path):
+    """The same quadratic mesh as DOLFINx XDMF (Tetrahedron_10 cells, Triangle_6 facet tags) and as .msh."""
+    path = gmsh_shell(tmp_path / "p2.msh", 2, 4.1)
+    raw = meshio.read(path)
+    cells, facets = raw.get_cells_type("tetra10"), raw.get_cells_type("triangle6")
+    tags = np.concatenate([t for b, t in zip(raw.cells, raw.cell_data["gmsh:physical"]) if b.type == "triangle6"])
+    xdmf = write_dolfinx_xdmf(tmp_path / "p2.xdmf", raw.points, cells, facets, tags, order=2)
+    from_msh, from_xdmf = from_file(path), from_file(xdmf, tags={"endocardium": raw.field_data["ENDO"][0]})
+    np.testing.assert_array_equal(from_xdmf.cells, from_msh.cells)
+    np.testing.assert_array_equal(from_xdmf.curved_edges, from_msh.curved_edges)
+    np.testing.assert_allclose(from_xdmf.curved_points, from_msh.curved_points)
+    assert facet_set(from_xdmf.boundary("endo")) == facet_set(from_msh.boundary("ENDO"))
 
 
 def test_vtu_with_integer_cell_tags(tmp_path):

@@ -164,7 +164,7 @@ def read_xdmf_grids(path) -> meshio.Mesh | None:
     Each grid's topology becomes a cell block; its integer cell attributes become cell data (named by
     the attribute, ``-1`` where a block has none), its node attributes point data. Data items may be
     inline (``Format="XML"``) or in HDF5 (``file.h5:/dataset``, read with h5py). Returns None for an XDMF
-    file of another layout (a time series), left to meshio.
+    file of another layout (a single grid, e.g. of mixed cells, or a time series), left to meshio.
     """
     path = Path(path)
     try:
@@ -173,7 +173,7 @@ def read_xdmf_grids(path) -> meshio.Mesh | None:
         raise InputError(f"cannot read mesh file {path}: {exc}") from exc
     domain = root.find("Domain")
     grids = [] if domain is None else [g for g in domain.findall("Grid") if g.get("GridType", "Uniform") == "Uniform"]
-    if not grids:
+    if len(grids) < 2:
         return None
     try:
         return _grids_mesh(path, grids)
