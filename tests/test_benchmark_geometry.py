@@ -155,3 +155,17 @@ def test_docs_band_snippet_runs():
     band = names["band"]
     assert band["lower"].shape == (101,) and np.all(band["lower"][1:] <= band["upper"][1:])
     assert 0.034 < band["upper"].max() < 0.037  # the peak |p0| of step 1, m
+
+
+def test_cavity_volume_of_deformed_configurations(reference):
+    """The closed cavity's volume is invariant under rigid motions (the rim's cap turns with it) and scales by
+    det A under a linear map x -> A x."""
+    v0 = bg.cavity_volume(reference)
+    x = reference.points
+    angle = 0.7
+    rotation = np.array([[1, 0, 0], [0, math.cos(angle), -math.sin(angle)], [0, math.sin(angle), math.cos(angle)]])
+    rotation = rotation @ np.array([[math.cos(0.3), 0, math.sin(0.3)], [0, 1, 0], [-math.sin(0.3), 0, math.cos(0.3)]])
+    rigid = x @ rotation.T + [0.01, -0.02, 0.03] - x
+    assert bg.cavity_volume(reference, rigid) == pytest.approx(v0, rel=1e-12)
+    A = np.array([[0.9, 0.05, 0.0], [0.0, 1.1, 0.02], [0.01, 0.0, 1.05]])
+    assert bg.cavity_volume(reference, x @ A.T - x) == pytest.approx(np.linalg.det(A) * v0, rel=1e-12)
