@@ -169,3 +169,23 @@ def test_cavity_volume_of_deformed_configurations(reference):
     assert bg.cavity_volume(reference, rigid) == pytest.approx(v0, rel=1e-12)
     A = np.array([[0.9, 0.05, 0.0], [0.0, 1.1, 0.02], [0.01, 0.0, 1.05]])
     assert bg.cavity_volume(reference, x @ A.T - x) == pytest.approx(np.linalg.det(A) * v0, rel=1e-12)
+
+
+@pytest.mark.parametrize("degree", [1, 2])
+def test_probes_at_p0_p1_reproduce_polynomials(reference, degree):
+    """The probe matrix at p0 and p1 reproduces the fields its space reproduces: polynomials of the degree on
+    the straight reference mesh, linear fields on the curved (isoparametric) coarse mesh; it refuses a point
+    outside the wall."""
+    from hyperoc.fem.probes import probe_matrix
+
+    linear = lambda x: np.stack([x[:, 0], 2 * x[:, 1] - x[:, 2], 0.5 + x[:, 0] * 0], 1)
+    quadratic = lambda x: np.stack([x[:, 0] * x[:, 1], x[:, 2] ** 2, x[:, 0] - x[:, 1] * x[:, 2]], 1)
+    points = np.array([bg.P0, bg.P1])
+    curved = bg.benchmark_mesh(bg.COARSE_H)
+    for mesh, field in ((reference, linear if degree == 1 else quadratic), (curved, linear)):
+        space = VectorSpace(mesh, degree)
+        assert space.isoparametric == (mesh is curved and degree == 2)
+        P = probe_matrix(space, points)
+        np.testing.assert_allclose(P @ field(space.nodes), field(points), atol=1e-15)
+    with pytest.raises(InputError, match="lies outside the mesh"):
+        probe_matrix(VectorSpace(reference, degree), [[0.0, 0.0, 0.0]])  # in the cavity
