@@ -87,7 +87,8 @@ def test_transmural_coordinate_converges_to_the_radial_solution_on_a_shell(shell
 def test_transmural_coordinate_rejects_bad_boundaries(ventricle):
     with pytest.raises(InputError, match="share vertices"):
         transmural_coordinate(ventricle, "endocardium", "endocardium")
-    with pytest.raises(InputError, match="no boundary named"):
+    found = r"\(tags found: base, endocardium, epicardium, gamma_d, gamma_n\)"
+    with pytest.raises(InputError, match=r"no boundary tag 'lv_endo' " + found):
         transmural_coordinate(ventricle, "lv_endo", "epicardium")
 
 

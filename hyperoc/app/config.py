@@ -70,17 +70,31 @@ class Config:
         return mesh
 
     def file_mesh(self):
-        """The mesh read from ``[mesh] file``, before refinements."""
+        """The mesh read from ``[mesh] file`` (or the shipped benchmark mesh), before refinements."""
         from ..fem import geometry
 
         c = self["mesh"]
+        if c["kind"] == "cardiac_benchmark":
+            from ..cardiac.benchmark_geometry import read_mesh
+
+            return read_mesh(c["variant"], dirichlet=c["dirichlet_tag"])
         return geometry.from_file(self.mesh_path(), dirichlet=c["dirichlet_tag"], neumann=c["neumann_tag"],
-                                  control=c["control_tag"])
+                                  control=c["control_tag"], tags=c.get("tags"))
 
     def mesh_path(self) -> Path | None:
-        """``[mesh] file`` resolved against the config's folder (None for a generated mesh)."""
+        """``[mesh] file`` resolved against the config's folder, the shipped file of ``kind = "cardiac_benchmark"``,
+        or None for a generated mesh."""
         c = self["mesh"]
+        if c["kind"] == "cardiac_benchmark":
+            from ..cardiac.benchmark_geometry import mesh_file
+
+            return mesh_file(c["variant"])
         return (self.base / c["file"]).resolve() if c["kind"] == "file" else None
+
+    def fibres_path(self) -> Path | None:
+        """``[fibres] file`` resolved against the config's folder (None without one)."""
+        c = self["fibres"]
+        return (self.base / c["file"]).resolve() if "file" in c else None
 
     def control_path(self) -> Path | None:
         """``[control] file`` resolved against the config's folder (None without one)."""
@@ -97,10 +111,10 @@ class Config:
             return rectangle(c["nx"], c.get("ny"), tuple(c.get("size", (1.0, 1.0))), c["dirichlet"])
         if kind == "box":
             return box(c["nx"], c.get("ny"), c.get("nz"), tuple(c.get("size", (1.0, 1.0, 1.0))), c["dirichlet"])
-        if kind == "file":
+        if kind in ("file", "cardiac_benchmark"):
             return self.file_mesh()
         raise InputError(f"config: [mesh] kind {kind!r} unknown "
-                         "(interval, rectangle, box, annulus, shell, ventricle, file)")
+                         "(interval, rectangle, box, annulus, shell, ventricle, file, cardiac_benchmark)")
 
     def _curved_mesh(self, kind: str, refinements: int):
         """The generators that put refined boundary vertices on their exact surfaces."""
@@ -115,16 +129,22 @@ class Config:
         return geometry.ventricle(c["h"], refinements=refinements)
 
     def fibres(self, mesh):
-        """Fibre frames (`hyperoc.mechanics.fibres.FibreFrames`) of ``[fibres]`` on ``mesh`` (kind "rule_based"),
-        or None (kind "none")."""
-        from ..mechanics.fibres import rule_based_fibres
+        """Fibre frames of ``[fibres]`` on ``mesh``: `hyperoc.mechanics.fibres.FibreFrames` (kind "rule_based"),
+        `hyperoc.mechanics.fibres.FieldFrames` (kinds "file" and "benchmark"), or None (kind "none")."""
+        from ..mechanics.fibres import read_fibres, rule_based_fibres
 
         c = self["fibres"]
         if c["kind"] == "none":
             return None
-        axis = c["long_axis"]
         if mesh.dim != 3:
-            raise InputError(f"config: [fibres] rule_based needs a 3D mesh, got dimension {mesh.dim}")
+            raise InputError(f"config: [fibres] {c['kind']} needs a 3D mesh, got dimension {mesh.dim}")
+        if c["kind"] == "file":
+            return read_fibres(self.fibres_path(), mesh, location=c["location"], tolerance=float(c["tolerance"]))
+        if c["kind"] == "benchmark":
+            from ..cardiac.benchmark_geometry import benchmark_fibres
+
+            return benchmark_fibres(mesh, inner=c["inner"], outer=c["outer"])
+        axis = c["long_axis"]
         return rule_based_fibres(mesh, helix_endo=float(c["helix_endo"]), helix_epi=float(c["helix_epi"]),
                                  long_axis=tuple(float(v) for v in axis), inner=c["inner"], outer=c["outer"])
 
@@ -163,7 +183,7 @@ class Config:
         frames = self.fibres(mesh)
         if frames is None and isinstance(material, (Guccione, HolzapfelOgden)):
             raise InputError(f"config: [material] law {self['material']['law']!r} needs fibres: "
-                             "add [fibres] kind = 'rule_based'")
+                             "add [fibres] kind = 'rule_based', 'file' or 'benchmark'")
         return StateModel(mesh, material, degree=self["mesh"]["degree"], damping=float(d["damping"]),
                           density=float(d["density"]), control=self.control_operator(frames), traction=traction,
                           neumann="gamma_n", frames=frames, volumetric=self["material"]["volumetric"],

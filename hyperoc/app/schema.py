@@ -17,7 +17,7 @@ from __future__ import annotations
 import json
 import math
 import typing
-from typing import Annotated, Any, ClassVar, Literal, Optional
+from typing import Annotated, Any, ClassVar, Literal, Optional, Union
 
 import annotated_types as at
 from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
@@ -121,12 +121,13 @@ class Mesh(Section):
         "annulus": {"r_inner", "r_outer", "h", "structured", "n_radial", "n_theta"},
         "shell": {"r_inner", "r_outer", "h"},
         "ventricle": {"h"},
-        "file": {"file", "dirichlet_tag", "neumann_tag", "control_tag"},
+        "file": {"file", "dirichlet_tag", "neumann_tag", "control_tag", "tags"},
+        "cardiac_benchmark": {"variant", "dirichlet_tag"},
     }
 
-    kind: Literal["interval", "rectangle", "box", "annulus", "shell", "ventricle", "file"] = Field(
-        "interval", description="generator (interval: 1D, rectangle and annulus: 2D, box, shell and ventricle: 3D) "
-                                "or a mesh file")
+    kind: Literal["interval", "rectangle", "box", "annulus", "shell", "ventricle", "file", "cardiac_benchmark"] = Field(
+        "interval", description="generator (interval: 1D, rectangle and annulus: 2D, box, shell and ventricle: 3D), "
+                                "a mesh file, or a shipped mesh of the cardiac elastodynamics benchmark (m)")
     n: Count = Field(100, description="cells of the interval (0, length)")
     length: Positive = Field(1.0, description="length of the interval")
     nx: Count = Field(
@@ -147,9 +148,15 @@ class Mesh(Section):
     degree: Literal[1, 2] = Field(1, description="polynomial degree of the displacement (P1 or P2)")
     refinements: Annotated[int, Field(ge=0)] = Field(
         0, description="uniform refinements of the mesh built (curved boundaries stay on their exact surfaces)")
-    dirichlet_tag: str = Field("gamma_d", description="boundary tag of the file's clamped part")
-    neumann_tag: str = Field("gamma_n", description="boundary tag of the file's free part")
+    dirichlet_tag: str = Field("gamma_d", description="boundary tag (name or number) of the file's clamped part")
+    neumann_tag: str = Field("gamma_n", description="boundary tag (name or number) of the file's free part")
     control_tag: str = Field("omega", description="subdomain tag of the file's control region")
+    variant: Literal["reference", "coarse"] = Field(
+        "reference", description="cardiac_benchmark: the benchmark's reference mesh or hyperoc's coarse one; "
+                                 "boundaries endocardium (gamma_n), epicardium, base")
+    tags: Optional[dict[str, Union[Annotated[int, Field(ge=0)], str]]] = Field(
+        None, description="names of the file's tags, e.g. {endocardium = 1, epicardium = 2, base = 3}; any look-up "
+                          "also accepts the aliases endo/ENDO, epi/EPI, top for endocardium, epicardium, base")
     fixed_components: Optional[Annotated[list[Annotated[int, Field(ge=0, le=2)]], Field(min_length=1)]] = Field(
         None, description="components fixed on gamma_d (default: all), e.g. [2]: a base sliding in its plane")
 
@@ -200,24 +207,39 @@ class Material(Section):
 
 
 class Fibres(Section):
-    """Fibre frames for fibre-dependent laws and active stress (`hyperoc.mechanics.fibres.rule_based_fibres`)."""
+    """Fibre frames for fibre-dependent laws and active stress: the helix-angle rule
+    (`hyperoc.mechanics.fibres.rule_based_fibres`), fields from a file (`hyperoc.mechanics.fibres.read_fibres`)
+    or the cardiac elastodynamics benchmark's analytic fields
+    (`hyperoc.cardiac.benchmark_geometry.benchmark_fibres`)."""
 
     KIND_KEY: ClassVar[str] = "kind"
     KINDS: ClassVar[dict] = {"none": set(),
-                             "rule_based": {"helix_endo", "helix_epi", "long_axis", "inner", "outer"}}
+                             "rule_based": {"helix_endo", "helix_epi", "long_axis", "inner", "outer"},
+                             "file": {"file", "location", "tolerance"},
+                             "benchmark": {"inner", "outer"}}
 
-    kind: Literal["none", "rule_based"] = Field("none", description="no fibres, or the helix-angle rule (3D)")
+    kind: Literal["none", "rule_based", "file", "benchmark"] = Field(
+        "none", description="no fibres, the helix-angle rule (3D), fields from a file, or the benchmark's fields")
     helix_endo: Number = Field(60.0, description="helix angle on the inner wall (degrees)")
     helix_epi: Number = Field(-60.0, description="helix angle on the outer wall (degrees)")
     long_axis: Annotated[list[Number], Field(min_length=3, max_length=3)] = Field(
         [0.0, 0.0, 1.0], description="long axis, apex to base")
     inner: str = Field("endocardium", description="boundary name of the inner wall")
     outer: str = Field("epicardium", description="boundary name of the outer wall")
+    file: Optional[str] = Field(
+        None, description="fibre and sheet fields (.xdmf, .vtu point or cell data; .npz arrays fibre, sheet), "
+                          "relative to the config")
+    location: Literal["auto", "node", "cell"] = Field(
+        "auto", description="file: one vector per vertex or per cell (auto: from their number)")
+    tolerance: Annotated[float, Field(allow_inf_nan=False, gt=0, lt=1)] = Field(
+        1e-3, description="file: largest | |f| - 1 |, | |s| - 1 | and |f . s| accepted")
 
     @model_validator(mode="after")
     def _axis_nonzero(self):
         if self.kind == "rule_based" and not any(self.long_axis):
             raise ValueError("long_axis must not be zero")
+        if self.kind == "file" and self.file is None:
+            raise ValueError("kind = 'file' needs file = 'path/to/fibres.vtu'")
         return self
 
 

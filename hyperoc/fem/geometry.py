@@ -19,9 +19,7 @@ The midpoint ``m`` is moved along the surface normal direction at ``m`` to the s
 of a quadratic for these quadrics); an edge that also lies in a flat boundary (the ventricle's
 rim, on the base plane) moves within that plane, so flat boundaries stay flat.
 
-File I/O: `from_file` reads any meshio-readable mesh (named Gmsh physical groups and meshio cell
-sets become named boundaries and subdomains); `to_file` writes a mesh so that `from_file` gets
-the names back (Gmsh MSH 2.2 for ``.msh``).
+File I/O (`from_file`, `to_file`) lives in `hyperoc.fem.files` and is re-exported here.
 
 Gmsh is imported on first use and finalized at the end of every call, so no Gmsh state outlives
 a call; Gmsh being a process-wide singleton, do not run the Gmsh-based generators concurrently in
@@ -31,24 +29,19 @@ threads of one process, nor while the caller has Gmsh initialized itself.
 from __future__ import annotations
 
 import contextlib
-import io
 import math
 from collections.abc import Callable
-from pathlib import Path
 
-import meshio
 import numpy as np
 
 from ..errors import InputError
 from .assembly import solve_dirichlet
+from .files import _drop_unused_points, from_file, to_file
 from .mesh import Mesh, refine
 from .spaces import VectorSpace
 
 __all__ = ["annulus", "thick_shell", "ventricle", "from_file", "to_file"]
 
-_SIMPLEX_DIM = {"line": 1, "triangle": 2, "tetra": 3}
-_SIMPLEX_TYPE = {d: t for t, d in _SIMPLEX_DIM.items()}
-_FACET_TYPE = {1: "vertex", 2: "line", 3: "triangle"}
 _GMSH_SIMPLEX = {1: 1, 2: 2, 3: 4}  # Gmsh element type of the linear simplex of each dimension
 
 # A signed-distance-like function of points (n, dim) -> (n,), zero on one analytic surface.
@@ -291,11 +284,13 @@ def _curve_edges(mesh: Mesh, surfaces: dict, planes: dict | None = None) -> Mesh
     """``mesh`` with curved P2 edge nodes. The node of every edge of the facets of ``surfaces``
     (boundary name -> `_Quadric`) moves from the edge midpoint onto that surface (`_Quadric.project`;
     an edge that is also an edge of a flat boundary in ``planes``, name -> unit normal (dim,), moves
-    within it); the other boundary edge nodes and the vertices stay; the interior edge nodes move by
-    the discrete harmonic extension of those shifts (``int grad s . grad phi = 0`` per component, P2
-    on the straight mesh). Spreading the boundary curvature into the first layers of cells keeps the
-    cells along a concave wall from being squeezed (ventricle(4.0): min det J_q / det J_affine 0.68,
-    0.41 with the interior edge nodes left at their midpoints)."""
+    within it; a normal given as a function of the midpoints (n, dim) -> (n, dim), e.g. of a cone, moves
+    the edge node within the tangent plane at its midpoint); the other boundary edge nodes and the vertices
+    stay; the interior edge nodes move by the discrete harmonic extension of those shifts
+    (``int grad s . grad phi = 0`` per component, P2 on the straight mesh). Spreading the boundary
+    curvature into the first layers of cells keeps the cells along a concave wall from being squeezed
+    (ventricle(4.0): min det J_q / det J_affine 0.68, 0.41 with the interior edge nodes left at their
+    midpoints)."""
     nv = len(mesh.points)
     key = lambda e: e[:, 0] * nv + e[:, 1]
     space = VectorSpace(mesh, 2, components=1)
@@ -304,9 +299,10 @@ def _curve_edges(mesh: Mesh, surfaces: dict, planes: dict | None = None) -> Mesh
     for name, surface in surfaces.items():
         e = _facet_edges(mesh.boundary(name))
         keep = np.zeros((len(e), mesh.dim))
-        for plane, normal in (planes or {}).items():
-            keep[np.isin(key(e), key(_facet_edges(mesh.boundary(plane))))] = normal
         mid = 0.5 * (mesh.points[e[:, 0]] + mesh.points[e[:, 1]])
+        for plane, normal in (planes or {}).items():
+            on_plane = np.isin(key(e), key(_facet_edges(mesh.boundary(plane))))
+            keep[on_plane] = normal(mid[on_plane]) if callable(normal) else normal
         shift[space.edge_nodes(e)] = surface.project(mid, keep) - mid
     fixed = np.unique(np.concatenate(fixed))
     shift = solve_dirichlet(space.laplace_blocks(), space.cell_nodes, space.num_nodes, fixed, shift[fixed])
@@ -366,233 +362,6 @@ def _gmsh_generate(gmsh, dim: int, h: float) -> Mesh:
     cells = index[np.asarray(cell_nodes, dtype=np.int64)].reshape(-1, dim + 1)
     points, cells, _ = _drop_unused_points(coords.reshape(-1, 3)[:, :dim], cells, {})
     return Mesh(points, cells)
-
-
-def _drop_unused_points(points: np.ndarray, cells: np.ndarray, facet_sets: dict) -> tuple:
-    """Keep the vertices of ``cells`` (in their original order) and renumber everything.
-
-    Returns ``(points, cells, facet_sets)``; raises `InputError` if a facet uses a dropped vertex.
-    """
-    used = np.unique(cells)
-    new_index = np.full(len(points), -1, dtype=np.int64)
-    new_index[used] = np.arange(len(used))
-    renumbered = {}
-    for name, facets in facet_sets.items():
-        renumbered[name] = new_index[facets]
-        if np.any(renumbered[name] < 0):
-            raise InputError(f"mesh: boundary {name!r} has vertices that belong to no cell")
-    return points[used], new_index[cells], renumbered
-
-
-# --------------------------------------------------------------------------------------------
-# Files
-# --------------------------------------------------------------------------------------------
-
-
-def from_file(path, *, dirichlet: str = "gamma_d", neumann: str = "gamma_n", control: str = "omega") -> Mesh:
-    """Read a mesh file (anything meshio reads: Gmsh ``.msh`` v2/v4, ``.vtu``, ``.xdmf``, ...).
-
-    The cells are the simplices of the highest dimension present (line, triangle or tetra);
-    the dimension of the points follows (``z``, or ``y`` and ``z``, must then be zero and are
-    dropped). Vertices used by no cell are dropped and the rest renumbered. Duplicate elements
-    (Gmsh MSH 2 repeats an element once per physical group) are merged.
-
-    Named groups come from Gmsh physical groups (``gmsh:physical`` tags named by the file's
-    ``$PhysicalNames``; a group without a name is called by its tag, e.g. ``"3"``) and from
-    meshio cell sets. Groups of facets (points, lines or triangles one dimension below the
-    cells) become ``boundaries``; groups of cells become ``subdomains`` (boolean masks).
-
-    Parameters
-    ----------
-    path : str or Path
-        Mesh file; coordinates are taken in model length units as they are.
-    dirichlet, neumann : str
-        Names of the boundary groups that become ``"gamma_d"`` and ``"gamma_n"``.
-    control : str
-        Name of the cell group that becomes the control region ``"omega"``.
-        A group named other than its default (``"gamma_d"``, ``"gamma_n"``, ``"omega"``) must
-        exist in the file; the default names are simply absent if the file lacks them.
-
-    Raises
-    ------
-    InputError
-        Missing or unreadable file, no simplices, non-flat coordinates, or a requested group
-        that the file does not have.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"mesh file not found: {path}")
-    raw = _read_meshio(path)
-    dims = [_SIMPLEX_DIM[block.type] for block in raw.cells if block.type in _SIMPLEX_DIM and len(block.data)]
-    if not dims:
-        raise InputError(f"mesh file {path}: no line, triangle or tetra cells")
-    dim = max(dims)
-    cells, cell_rows = _merged_elements(raw.cells, _SIMPLEX_TYPE[dim])
-    facets, facet_rows = _merged_elements(raw.cells, _FACET_TYPE[dim])
-    groups = _named_groups(raw)
-    boundaries = _boundary_groups(groups, facets, facet_rows, dim)
-    subdomains = _subdomain_groups(groups, len(cells), cell_rows, dim)
-    points, cells, boundaries = _drop_unused_points(raw.points, cells, boundaries)
-    if np.any(points[:, dim:] != 0):
-        raise InputError(f"mesh file {path}: {dim}D cells but coordinates beyond the first {dim} are not all zero")
-    _alias(boundaries, "gamma_d", dirichlet, path)
-    _alias(boundaries, "gamma_n", neumann, path)
-    _alias(subdomains, "omega", control, path)
-    return Mesh(points[:, :dim], cells, boundaries, subdomains)
-
-
-def to_file(mesh: Mesh, path) -> Path:
-    """Write ``mesh`` with its named boundaries and subdomains; returns the path.
-
-    Every name becomes a Gmsh physical group (``gmsh:physical`` tag + ``field_data`` name), its
-    elements written as one extra cell block: all cells first, then each subdomain's cells, then
-    each boundary's facets. A ``.msh`` path is written as Gmsh MSH 2.2 (ASCII), which Gmsh reads
-    and from which `from_file` recovers every name, including empty groups. Other formats are
-    written by meshio as they are; in ``.vtu``/``.vtk`` the names are lost (only the integer
-    ``gmsh:physical`` tags remain, which `from_file` then reads as names ``"1"``, ``"2"``, ...).
-    Points are padded to 3 coordinates. Only the straight-sided mesh is written: curved P2 edge nodes
-    (``mesh.curved_edges``) are not, so the file reads back as ``mesh.faceted()``.
-    """
-    path = Path(path)
-    shared = sorted(set(mesh.subdomains) & set(mesh.boundaries))
-    if shared:
-        raise InputError(f"to_file: {shared} name both a subdomain and a boundary; Gmsh names must be unique")
-    blocks = [(_SIMPLEX_TYPE[mesh.dim], mesh.cells, 0)]
-    field_data = {}
-    groups = [(name, _SIMPLEX_TYPE[mesh.dim], mesh.cells[mask]) for name, mask in mesh.subdomains.items()]
-    groups += [(name, _FACET_TYPE[mesh.dim], facets) for name, facets in mesh.boundaries.items()]
-    for tag, (name, cell_type, data) in enumerate(groups, start=1):
-        field_data[name] = np.array([tag, _element_dim(cell_type)])
-        if len(data):
-            blocks.append((cell_type, data, tag))
-    cells = [meshio.CellBlock(cell_type, data) for cell_type, data, _ in blocks]
-    physical = [np.full(len(data), tag, dtype=np.int32) for _, data, tag in blocks]
-    geometrical = [np.full(len(data), k + 1, dtype=np.int32) for k, (_, data, _) in enumerate(blocks)]
-    points = np.zeros((len(mesh.points), 3))
-    points[:, : mesh.dim] = mesh.points
-    out = meshio.Mesh(
-        points, cells, cell_data={"gmsh:physical": physical, "gmsh:geometrical": geometrical}, field_data=field_data
-    )
-    if path.suffix == ".msh":
-        out.write(path, file_format="gmsh22", binary=False)
-    else:
-        out.write(path)
-    return path
-
-
-def _read_meshio(path: Path) -> meshio.Mesh:
-    """``meshio.read``, silenced, with every failure turned into a one-line `InputError`.
-
-    ``.msh`` is read as Gmsh (meshio would try ANSYS first). meshio prints its readers' errors
-    and calls ``sys.exit`` when none accepts the file, hence the captured output and the
-    ``SystemExit`` handler.
-    """
-    file_format = "gmsh" if path.suffix == ".msh" else None
-    try:
-        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-            return meshio.read(path, file_format=file_format)
-    except SystemExit as exc:
-        raise InputError(f"cannot read mesh file {path}: not a valid {file_format or path.suffix} mesh") from exc
-    except Exception as exc:  # meshio raises ReadError, KeyError, ValueError, ... on bad input
-        lines = str(exc).strip().splitlines() or [type(exc).__name__]
-        raise InputError(f"cannot read mesh file {path}: {lines[0]}") from exc
-
-
-def _merged_elements(blocks, cell_type: str) -> tuple[np.ndarray, dict[int, np.ndarray]]:
-    """Distinct elements of one type over all blocks, in order of first appearance.
-
-    Returns ``(elements (n, k), rows)`` where ``rows[b][i]`` is the row of element ``i`` of
-    block ``b`` in ``elements``.
-    """
-    data = {b: np.asarray(block.data, dtype=np.int64) for b, block in enumerate(blocks) if block.type == cell_type}
-    if not data:
-        return np.empty((0, _element_dim(cell_type) + 1), dtype=np.int64), {}
-    stacked = np.concatenate(list(data.values()))
-    _, first, inverse = np.unique(np.sort(stacked, axis=1), axis=0, return_index=True, return_inverse=True)
-    order = np.argsort(first)
-    rank = np.empty_like(order)
-    rank[order] = np.arange(len(order))
-    rows_all = rank[inverse.reshape(-1)]
-    bounds = np.cumsum([0] + [len(d) for d in data.values()])
-    rows = {b: rows_all[bounds[k] : bounds[k + 1]] for k, b in enumerate(data)}
-    return stacked[first[order]], rows
-
-
-def _named_groups(raw: meshio.Mesh) -> dict[tuple[str, int], dict[int, np.ndarray]]:
-    """Named element groups of a meshio mesh: ``(name, dimension) -> {block: element indices}``.
-
-    Sources: ``gmsh:physical`` tags (names and dimensions from ``field_data``, where named
-    groups without elements are kept, empty, so that they survive a round trip; unnamed tags
-    are named by their number) and meshio ``cell_sets`` (except Gmsh's internal ones).
-    """
-    groups: dict[tuple[str, int], dict[int, np.ndarray]] = {}
-
-    def add(key, block, idx):
-        members = groups.setdefault(key, {})
-        members[block] = np.union1d(members.get(block, np.empty(0, np.int64)), idx).astype(np.int64)
-
-    physical = raw.cell_data.get("gmsh:physical")
-    names = _physical_names(raw.field_data) if physical is not None else {}
-    for tag, dim in names:
-        groups.setdefault((names[tag, dim], dim), {})
-    for b, tags in enumerate(physical or []):
-        dim = _element_dim(raw.cells[b].type)
-        tags = np.asarray(tags).reshape(-1)
-        for tag in np.unique(tags[tags > 0]):
-            add((names.get((int(tag), dim), str(int(tag))), dim), b, np.flatnonzero(tags == tag))
-    for name, per_block in raw.cell_sets.items():
-        if name.startswith("gmsh:"):
-            continue
-        for b, idx in enumerate(per_block):
-            if idx is not None and len(idx):
-                add((name, _element_dim(raw.cells[b].type)), b, np.asarray(idx))
-    return groups
-
-
-def _physical_names(field_data: dict) -> dict[tuple[int, int], str]:
-    """Gmsh ``$PhysicalNames`` as meshio stores them (``name -> [tag, dim]``): ``(tag, dim) -> name``."""
-    names = {}
-    for name, value in field_data.items():
-        value = np.asarray(value).reshape(-1)
-        if len(value) == 2 and 0 <= value[1] <= 3:
-            names[int(value[0]), int(value[1])] = name
-    return names
-
-
-def _element_dim(cell_type: str) -> int:
-    return 0 if cell_type == "vertex" else _SIMPLEX_DIM.get(cell_type, -1)
-
-
-def _boundary_groups(groups: dict, facets: np.ndarray, facet_rows: dict, dim: int) -> dict[str, np.ndarray]:
-    """Facet groups (dimension ``dim - 1``) as ``name -> (nf, dim)`` vertex indices, in file order."""
-    out = {}
-    for (name, gdim), members in groups.items():
-        if gdim == dim - 1:
-            rows = np.concatenate([facet_rows[b][idx] for b, idx in members.items() if b in facet_rows] or [[]])
-            _, first = np.unique(rows, return_index=True)
-            out[name] = facets[rows[np.sort(first)].astype(np.int64)]
-    return out
-
-
-def _subdomain_groups(groups: dict, num_cells: int, cell_rows: dict, dim: int) -> dict[str, np.ndarray]:
-    """Cell groups (dimension ``dim``) as ``name -> (nc,) bool`` masks."""
-    out = {}
-    for (name, gdim), members in groups.items():
-        if gdim == dim:
-            mask = np.zeros(num_cells, dtype=bool)
-            for b, idx in members.items():
-                if b in cell_rows:
-                    mask[cell_rows[b][idx]] = True
-            out[name] = mask
-    return out
-
-
-def _alias(named: dict, canonical: str, source: str, path: Path) -> None:
-    """Make ``named[canonical]`` the group ``source``; a non-default ``source`` must exist."""
-    if source in named:
-        named[canonical] = named[source]
-    elif source != canonical:
-        raise InputError(f"mesh file {path}: no group named {source!r} (available: {sorted(named)})")
 
 
 def _require(condition: bool, message: str) -> None:

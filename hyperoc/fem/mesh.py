@@ -24,7 +24,15 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["Mesh", "interval", "rectangle", "box", "refine"]
+__all__ = ["Mesh", "ALIASES", "find_group", "interval", "rectangle", "box", "refine"]
+
+#: Canonical boundary names and the names (compared without case) that files use for them.
+ALIASES = {
+    "endocardium": ("endocardium", "endo"),
+    "epicardium": ("epicardium", "epi"),
+    "base": ("base", "top"),
+}
+
 
 
 @dataclass(frozen=True, eq=False)
@@ -121,9 +129,8 @@ class Mesh:
         return uniq[counts == 1]
 
     def boundary(self, name: str) -> np.ndarray:
-        if name not in self.boundaries:
-            raise InputError(f"mesh has no boundary named {name!r} (available: {sorted(self.boundaries)})")
-        return self.boundaries[name]
+        """The facets of the boundary ``name`` (or of the one boundary that an alias of it names, `find_group`)."""
+        return self.boundaries[find_group(self.boundaries, name)]
 
     def boundary_vertices(self, name: str) -> np.ndarray:
         return np.unique(self.boundary(name))
@@ -150,6 +157,22 @@ class Mesh:
         x = self.points[self.cells]
         pairs = itertools.combinations(range(self.dim + 1), 2)
         return float(max(np.linalg.norm(x[:, i] - x[:, j], axis=1).max() for i, j in pairs))
+
+
+def find_group(named: dict, wanted, kind: str = "boundary", source: str = "mesh") -> str:
+    """The key of ``named`` that ``wanted`` designates: itself (a name, or a number as its string), else
+    the one key among the aliases of ``wanted``'s canonical name (`ALIASES`, any case).
+
+    Raises `InputError` (one line naming the tags found) when there is none."""
+    wanted = str(wanted)
+    if wanted in named:
+        return wanted
+    group = next((names for names in ALIASES.values() if wanted.lower() in names), ())
+    hits = [key for key in named if key.lower() in group]
+    if len(hits) == 1:
+        return hits[0]
+    found = ", ".join(sorted(named)) or "none"
+    raise InputError(f"{source}: no {kind} tag {wanted!r} (tags found: {found})")
 
 
 def _curved_edge_data(edges, positions, num_points: int, dim: int) -> tuple[np.ndarray, np.ndarray]:
@@ -251,7 +274,7 @@ def _orient_positively(points: np.ndarray, cells: np.ndarray) -> np.ndarray:
     det = np.linalg.det(np.swapaxes(x[:, 1:, :] - x[:, :1, :], 1, 2))
     scale = np.max(np.abs(x - x[:, :1, :])) ** points.shape[1]
     if np.any(np.abs(det) <= 1e-14 * scale):
-        raise InputError(f"mesh: {int(np.sum(np.abs(det) <= 1e-14 * scale))} degenerate cell(s)")
+        raise InputError(f"mesh: {int(np.sum(np.abs(det) <= 1e-14 * scale))} degenerate (zero-volume) cell(s)")
     cells = cells.copy()
     neg = det < 0
     cells[neg, 0], cells[neg, 1] = cells[neg, 1].copy(), cells[neg, 0].copy()

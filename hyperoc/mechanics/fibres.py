@@ -16,6 +16,14 @@
    ``alpha > 0`` means fibres that rise towards the base when going counterclockwise seen from the
    base. Land et al. (2015) problem 3 uses ``alpha_endo = 90``, ``alpha_epi = -90`` degrees.
 
+Fields given as data (`FieldFrames`: `read_fibres` from an XDMF, VTU or NPZ file, `field_frames` from arrays):
+the fibre ``f`` and sheet ``s`` per vertex or per cell, checked (finite, unit within a tolerance, ``f . s = 0``
+within it, one vector per vertex or cell of the mesh), then
+
+    f = f_h / |f_h|,   s = (s_h - (s_h . f) f) / |...|,   n = f x s
+
+at each point, ``f_h``, ``s_h`` the cell's value or the P1 interpolant of the vertex values.
+
 The frame field is what `hyperoc.mechanics.model.StateModel` takes as ``frames`` and passes, row by row
 (``f, s, n``), to fibre-dependent materials (`hyperoc.mechanics.materials.Guccione`, `HolzapfelOgden`).
 """
@@ -35,8 +43,12 @@ from ..fem.mesh import Mesh
 from ..fem.spaces import VectorSpace
 from ..io import atomic_write_bytes
 
-__all__ = ["FibreFrames", "ProlateFibres", "transmural_coordinate", "rule_based_fibres", "prolate_fibres",
-           "write_fibres"]
+__all__ = ["FibreFrames", "ProlateFibres", "FieldFrames", "transmural_coordinate", "rule_based_fibres",
+           "prolate_fibres", "field_frames", "read_fibres", "write_fibres"]
+
+#: Names under which files store the fibre and the sheet field (the first one found is used).
+FIBRE_NAMES = ("fibre", "fiber", "f0", "f")
+SHEET_NAMES = ("sheet", "s0", "s")
 
 
 def _p1_stiffness_blocks(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
@@ -275,13 +287,13 @@ def write_fibres(path, mesh: Mesh, frames) -> Path:
     """Write a VTU file (atomically) with cell vectors ``fibre``, ``sheet``, ``normal`` evaluated at
     the cell centroids and the point field ``transmural`` (ParaView: Glyph filter on the cell data).
 
-    ``frames``: `FibreFrames` of ``mesh`` (``transmural`` = its Laplace coordinate) or `ProlateFibres`
-    (``transmural`` = the prolate t at the vertices)."""
+    ``frames``: `FibreFrames` of ``mesh`` (``transmural`` = its Laplace coordinate), `ProlateFibres`
+    (``transmural`` = the prolate t at the vertices) or `FieldFrames` (its ``transmural``, zero if it has none)."""
     if mesh.dim != 3:
         raise InputError(f"write_fibres needs a 3D mesh, got dimension {mesh.dim}")
     path = Path(path)
     F = frames(mesh.cell_centroids()[:, None, :])[:, 0]
-    transmural = frames.transmural if isinstance(frames, FibreFrames) else frames.transmural(mesh.points)
+    transmural = frames.transmural(mesh.points) if callable(frames.transmural) else frames.transmural
     cell_data = {name: [F[:, k]] for k, name in enumerate(("fibre", "sheet", "normal"))}
     point_data = {"transmural": transmural}
     out = meshio.Mesh(mesh.points, [("tetra", mesh.cells)], point_data=point_data, cell_data=cell_data)
@@ -289,3 +301,171 @@ def write_fibres(path, mesh: Mesh, frames) -> Path:
         staged = Path(tmp) / path.name
         meshio.write(staged, out, file_format="vtu")
         return atomic_write_bytes(path, staged.read_bytes())
+
+
+@dataclass(frozen=True, eq=False)
+class FieldFrames:
+    """(f, s, n) frames from fibre and sheet vectors given per vertex or per cell of a 3D mesh (module docstring).
+
+    Attributes
+    ----------
+    fibres, sheets : (n, 3) the given vectors, n = number of vertices (``location = "node"``) or cells ("cell").
+    location : ``"node"`` or ``"cell"``.
+    cells : (nc, 4) the mesh's cells; ``x0`` (nc, 3) their first vertex; ``inverse`` (nc, 3, 3) the inverse
+        of the straight cell's Jacobian (barycentric coordinates of a point, for vertex fields).
+    centroids : (nc, 3) cell centroids (where `cell_frames` evaluates).
+    transmural : (nv,) a transmural coordinate for output (zeros when the source has none).
+    """
+
+    fibres: np.ndarray
+    sheets: np.ndarray
+    location: str
+    cells: np.ndarray
+    x0: np.ndarray
+    inverse: np.ndarray
+    centroids: np.ndarray
+    transmural: np.ndarray
+
+    @property
+    def num_cells(self) -> int:
+        return len(self.cells)
+
+    def __call__(self, x, cells=None) -> np.ndarray:
+        """Frames (n, ..., 3, 3) with rows ``(f, s, n)`` at points x (n, ..., 3) of the cells ``cells`` (n,)
+        (default: every cell), e.g. the quadrature points of `StateModel`."""
+        x = np.asarray(x, dtype=np.float64)
+        cells = np.arange(self.num_cells) if cells is None else np.asarray(cells, dtype=np.int64).reshape(-1)
+        if x.ndim < 2 or x.shape[0] != cells.size or x.shape[-1] != 3:
+            raise InputError(f"fibre frames: expected points (number of cells = {cells.size}, ..., 3), got {x.shape}")
+        expand = (slice(None),) + (None,) * (x.ndim - 2)
+        if self.location == "cell":
+            f = np.broadcast_to(self.fibres[cells][expand], x.shape)
+            s = np.broadcast_to(self.sheets[cells][expand], x.shape)
+        else:
+            lam = np.einsum("cij,c...j->c...i", self.inverse[cells], x - self.x0[cells][expand])
+            lam = np.concatenate([1.0 - lam.sum(-1, keepdims=True), lam], axis=-1)  # barycentric (n, ..., 4)
+            f = np.einsum("c...a,cai->c...i", lam, self.fibres[self.cells[cells]])
+            s = np.einsum("c...a,cai->c...i", lam, self.sheets[self.cells[cells]])
+        f = f / np.linalg.norm(f, axis=-1, keepdims=True)
+        s = s - np.sum(s * f, axis=-1, keepdims=True) * f
+        s = s / np.linalg.norm(s, axis=-1, keepdims=True)
+        return np.stack([f, s, np.cross(f, s)], axis=-2)
+
+    def fibre(self, x, cells=None) -> np.ndarray:
+        """Unit fibre directions (n, ..., 3) at points x (n, ..., 3) of ``cells`` (row 0 of the frame)."""
+        return self(x, cells)[..., 0, :]
+
+    def cell_frames(self) -> np.ndarray:
+        """Frames (nc, 3, 3) at the cell centroids (output, glyphs)."""
+        return self(self.centroids[:, None, :])[:, 0]
+
+
+def field_frames(mesh: Mesh, fibres, sheets, *, location: str = "auto", tolerance: float = 1e-3,
+                 source: str = "fibres", transmural=None) -> FieldFrames:
+    """`FieldFrames` of the vectors ``fibres``, ``sheets`` (n, 3) on the 3D ``mesh``, after the checks of the module
+    docstring, each failure one `InputError` line starting with ``source``.
+
+    ``location``: ``"node"`` (n = vertices), ``"cell"`` (n = cells) or ``"auto"`` (from n; a mesh with as many
+    vertices as cells needs it stated). ``tolerance``: the largest ``| |f| - 1 |``, ``| |s| - 1 |`` and ``|f . s|``
+    accepted (dimensionless; the vectors are normalised and orthogonalised afterwards)."""
+    if mesh.dim != 3:
+        raise InputError(f"{source}: fibre fields need a 3D mesh, got dimension {mesh.dim}")
+    nv, nc = len(mesh.points), mesh.num_cells
+    f, s = (np.asarray(v, dtype=np.float64) for v in (fibres, sheets))
+    location = _field_location(f, s, nv, nc, location, source)
+    for name, v in (("fibre", f), ("sheet", s)):
+        bad = int(np.sum(~np.isfinite(v).all(axis=1)))
+        if bad:
+            raise InputError(f"{source}: {bad} {name} vector(s) are not finite")
+        error = np.abs(np.linalg.norm(v, axis=1) - 1.0)
+        if error.max() > tolerance:
+            raise InputError(f"{source}: {int(np.sum(error > tolerance))} {name} vector(s) are not unit "
+                             f"(largest | |v| - 1 | = {error.max():.3g} > tolerance {tolerance:g})")
+    dot = np.abs(np.sum(f * s, axis=1))
+    if dot.max() > tolerance:
+        raise InputError(f"{source}: fibre and sheet are not orthogonal at {int(np.sum(dot > tolerance))} "
+                         f"{location}(s) (largest |f . s| = {dot.max():.3g} > tolerance {tolerance:g})")
+    J = mesh.cell_jacobians()
+    return FieldFrames(fibres=f, sheets=s, location=location, cells=mesh.cells, x0=mesh.points[mesh.cells[:, 0]],
+                       inverse=np.linalg.inv(J), centroids=mesh.cell_centroids(),
+                       transmural=np.zeros(nv) if transmural is None else np.asarray(transmural, dtype=np.float64))
+
+
+def _field_location(f: np.ndarray, s: np.ndarray, nv: int, nc: int, location: str, source: str) -> str:
+    """``"node"`` or ``"cell"``: the stated location checked against the number of vectors, or inferred from it."""
+    if location not in ("auto", "node", "cell"):
+        raise InputError(f"{source}: location must be 'auto', 'node' or 'cell', got {location!r}")
+    if f.ndim != 2 or f.shape[1] != 3 or s.shape != f.shape:
+        raise InputError(f"{source}: fibre and sheet must both have shape (n, 3), got {f.shape} and {s.shape}")
+    counts = {"node": nv, "cell": nc}
+    if location == "auto":
+        matches = [where for where, n in counts.items() if n == len(f)]
+        if len(matches) == 2:
+            raise InputError(f"{source}: the mesh has as many vertices as cells ({nv}): state location = "
+                             "'node' or 'cell'")
+        location = matches[0] if matches else location
+    if location == "auto" or counts[location] != len(f):
+        raise InputError(f"{source}: {len(f)} fibre vectors, but the mesh has {nv} vertices and {nc} cells")
+    return location
+
+
+def read_fibres(path, mesh: Mesh, *, location: str = "auto", tolerance: float = 1e-3) -> FieldFrames:
+    """`FieldFrames` of the fibre and sheet fields of a file, checked as in `field_frames`.
+
+    - ``.npz``: arrays named ``fibre`` (or ``fiber``, ``f0``, ``f``) and ``sheet`` (or ``s0``, ``s``), (n, 3),
+      in the mesh's vertex or cell order.
+    - ``.vtu``, ``.xdmf`` (meshio's or DOLFIN(x)'s layout, `hyperoc.fem.files.read_raw`) and other meshio files:
+      point data (per vertex) or cell data (per cell) of those names. The file's points (cell centroids) are
+      matched to the mesh's vertices (centroids) by position, to 1e-8 of the mesh's size, so the file may
+      number them differently or hold more points (the edge nodes of a P2 field).
+    """
+    path = Path(path)
+    source = f"fibres file {path}"
+    if not path.is_file():
+        raise InputError(f"{source}: not found")
+    if path.suffix.lower() == ".npz":
+        from ..io import read_npz
+
+        try:
+            arrays = read_npz(path)
+        except Exception as exc:  # a damaged or foreign file: zipfile, pickle and numpy errors
+            raise InputError(f"{source}: cannot read it ({type(exc).__name__})") from exc
+        f, s = (_named_array(arrays, names, source) for names in (FIBRE_NAMES, SHEET_NAMES))
+    else:
+        f, s, location = _mesh_file_fields(path, mesh, location, source)
+    return field_frames(mesh, f, s, location=location, tolerance=tolerance, source=source)
+
+
+def _named_array(arrays: dict, names: tuple, source: str) -> np.ndarray:
+    key = next((name for name in names if name in arrays), None)
+    if key is None:
+        found = ", ".join(sorted(arrays)) or "none"
+        raise InputError(f"{source}: no array named {' or '.join(names)} (found: {found})")
+    return np.asarray(arrays[key], dtype=np.float64).reshape(len(arrays[key]), -1)
+
+
+def _mesh_file_fields(path: Path, mesh: Mesh, location: str, source: str) -> tuple:
+    """Fibre and sheet (n, 3) of a mesh file, reordered to the mesh's vertices or cells, and their location."""
+    from scipy.spatial import cKDTree
+
+    from ..fem.files import read_raw
+
+    raw = read_raw(path)
+    tets = [b for b, block in enumerate(raw.cells) if block.type in ("tetra", "tetra10")]
+    cell_data = {name: np.concatenate([np.asarray(blocks[b]).reshape(len(raw.cells[b].data), -1) for b in tets])
+                 for name, blocks in raw.cell_data.items() if tets}
+    by_node = location in ("auto", "node") and any(n in raw.point_data for n in FIBRE_NAMES)
+    arrays = raw.point_data if by_node else cell_data
+    f, s = (_named_array(arrays, names, source) for names in (FIBRE_NAMES, SHEET_NAMES))
+    if by_node:
+        file_x, mesh_x = raw.points[:, :3], mesh.points
+    else:
+        file_x = np.concatenate([raw.points[np.asarray(raw.cells[b].data)[:, :4]].mean(axis=1) for b in tets])
+        mesh_x = mesh.cell_centroids()
+    distance, rows = cKDTree(file_x).query(mesh_x)
+    size = np.ptp(mesh.points, axis=0).max()
+    if distance.max() > 1e-8 * size:
+        what = "vertices" if by_node else "cell centroids"
+        raise InputError(f"{source}: its points do not match the mesh's {what} "
+                         f"(largest distance {distance.max():.3g}, mesh size {size:.3g})")
+    return f[rows], s[rows], "node" if by_node else "cell"
