@@ -44,7 +44,6 @@ import math
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from ..errors import InputError
 from ..mechanics import kernels
@@ -72,22 +71,26 @@ class RobinBoundary(BoundaryFacets):
         if not (math.isfinite(stiffness) and math.isfinite(damping) and stiffness >= 0 and damping >= 0):
             raise InputError(f"Robin boundary {boundary!r}: need finite stiffness >= 0 and damping >= 0, "
                              f"got {stiffness}, {damping}")
-        super().__init__(model, boundary, degree=2 * model.space.degree)  # N_a N_b exactly
+        super().__init__(model, boundary, degree=2 * model.space.degree)  # N_a N_b exactly on a flat facet
         self.stiffness, self.damping, self.direction = float(stiffness), float(damping), direction
         self._S = self._facet_matrices()
 
     def _facet_matrices(self):
-        """``S_f`` (nf, m d, m d), node-major: ``int_f N_a N_b dA P_ij`` on each reference facet (flat:
-        the area vector is constant on it)."""
-        X = np.asarray(self._X)
-        nf, m, d = X.shape
-        a = np.asarray(jax.vmap(_area_vector)(jnp.asarray(np.swapaxes(X[:, 1:d] - X[:, :1], 1, 2))))
-        area = np.linalg.norm(a, axis=1)  # |a| = dA / dxi
-        mass = np.einsum("q,qa,qb->ab", np.asarray(self._w), np.asarray(self._N), np.asarray(self._N))
-        normal = a / area[:, None]
-        P = (np.broadcast_to(np.eye(d), (nf, d, d)) if self.direction == "full"
-             else np.einsum("fi,fj->fij", normal, normal))
-        return jnp.asarray(np.einsum("f,ab,fij->faibj", area, mass, P).reshape(nf, m * d, m * d))
+        """``S_f`` (nf, m d, m d), node-major: ``sum_q w_q |a_q| N_a N_b P_ij(N_q)`` on each reference facet,
+        ``a_q`` the area vector at the quadrature point (constant on a flat facet, where the rule of degree
+        2k is exact; a curved P2 facet, `hyperoc.fem.mesh.Mesh.curved_edges`, gets the area and normal of
+        its isoparametric map at each point)."""
+        tangents = jnp.einsum("qaj,fai->fqij", self._dN, self._X)
+        a = jax.vmap(jax.vmap(_area_vector))(tangents)  # (nf, nq, d)
+        area = jnp.linalg.norm(a, axis=-1)
+        nf, m, d = self._X.shape
+        if self.direction == "full":
+            P = jnp.broadcast_to(jnp.eye(d), (*area.shape, d, d))
+        else:
+            normal = a / area[..., None]
+            P = jnp.einsum("fqi,fqj->fqij", normal, normal)
+        S = jnp.einsum("q,fq,qa,qb,fqij->faibj", self._w, area, self._N, self._N, P)
+        return S.reshape(nf, m * d, m * d)
 
     def _restricted(self, mine):
         self._S = self._S[mine]
