@@ -61,6 +61,22 @@ def turning_2d(x):
     return np.stack([f, np.stack([-f[..., 1], f[..., 0]], axis=-1)], axis=-2)
 
 
+# --- Robin boundary matrix -----------------------------------------------------------------------------
+
+@pytest.mark.parametrize("degree", [1, 2])
+def test_robin_energy_of_rigid_translations(degree):
+    """A unit translation a on a face of area |Gamma| stores k/2 |Gamma| |a|^2 ("full") or k/2 |Gamma| (a.N)^2
+    ("normal"): exact integrals of N_a N_b on flat facets."""
+    model = StateModel(box(2, 2, 2, size=(1.0, 0.7, 0.5)), NeoHookean(1.0, 1.0), degree=degree, dirichlet=None)
+    area, k = 1.0 * 0.5, 3.0  # the top face y = 0.7
+    for direction in ("full", "normal"):
+        robin = RobinBoundary(model, "top", k, 0.0, direction)
+        for a, along_normal in (([0.0, 1.0, 0.0], 1.0), ([0.6, 0.0, 0.8], 0.0)):
+            u = jnp.asarray(model.interpolate(lambda x: np.tile(a, (len(x), 1))))
+            expected = 0.5 * k * area * (1.0 if direction == "full" else along_normal)
+            assert abs(float(robin.stored_energy(u)) - expected) < 1e-14, (direction, a)
+
+
 # --- energy balance -----------------------------------------------------------------------------------
 
 def _energy_problem():
