@@ -65,7 +65,7 @@ def test_marches_of_any_length_share_one_compiled_loop_and_change_nothing(bar_1d
     assert bar_1d._block_scan._cache_size() == 1
     k = MARCH_BLOCK + 3  # continue from level k with its multiplier as Newton's first guess
     rest = bar_1d.march(whole.y0[k], whole.y1[k], whole.p_steps[k - 1], xi[k:], np.zeros((N + 1 - k, bar_1d.model.n)),
-                        grid.dt[k:], bar_1d.deformed_volume(whole.y0[0]))
+                        grid.t[k:], bar_1d.deformed_volume(whole.y0[0]))
     np.testing.assert_array_equal(rest[0], whole.y0[k + 1:])
     np.testing.assert_array_equal(rest[2], whole.p_steps[k:])
     assert bar_1d._block_scan._cache_size() == 1
@@ -115,7 +115,7 @@ def test_compiled_march_stops_after_the_failing_block_as_the_stepwise_one_does(b
     zero, fs = np.zeros(bar_1d.model.n), np.zeros((grid.num_steps + 1, bar_1d.model.n))
     V0 = bar_1d.deformed_volume(zero)
     blocks = []
-    compiled = bar_1d.march(zero, zero, 0.0, xi, fs, grid.dt, V0, on_block=blocks.append)
+    compiled = bar_1d.march(zero, zero, 0.0, xi, fs, grid.t, V0, on_block=blocks.append)
     stepwise = bar_1d.march_stepwise(zero, zero, 0.0, xi, fs, grid, V0, False)
     status = [np.asarray(out[4]) for out in (compiled, stepwise)]
     first = [int(np.flatnonzero(s != StepStatus.OK)[0]) for s in status]

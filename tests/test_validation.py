@@ -257,7 +257,8 @@ def test_keys_of_other_kinds_at_their_defaults_are_dropped(tmp_path):
         "alpha = 2e-3", "alpha = 2e-3\neps = 0.0").replace(
         "max_iter = 4", 'max_iter = 4\ntau_scale = "range"\nmax_cg = 20')
     cfg = load_config(_write(tmp_path / "c.toml", text))
-    assert cfg["mesh"] == {"kind": "interval", "n": 20, "length": 1.0, "degree": 1, "refinements": 0}
+    assert cfg["mesh"] == {"kind": "interval", "n": 20, "length": 1.0, "degree": 1, "refinements": 0,
+                           "clamped": True, "scale": 1.0}
     assert "eps" not in cfg["objective"] and not {"tau_scale", "max_cg"} & set(cfg["optimize"])
     assert load_config(_write(tmp_path / "again.toml", cfg.to_toml()))["mesh"] == cfg["mesh"]
 

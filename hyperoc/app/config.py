@@ -13,6 +13,7 @@ Importing this module is cheap (no JAX, no solver): the builders import what the
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
 import math
 import sys
@@ -63,11 +64,11 @@ class Config:
         c = self["mesh"]
         kind, k = c["kind"], c["refinements"]
         if kind in ("annulus", "shell", "ventricle"):
-            return self._curved_mesh(kind, k)
+            return _scaled(self._curved_mesh(kind, k), c["scale"])
         mesh = self._straight_mesh(kind)
         for _ in range(k):
             mesh = refine(mesh)
-        return mesh
+        return _scaled(mesh, c["scale"])
 
     def file_mesh(self):
         """The mesh read from ``[mesh] file`` (or the shipped benchmark mesh), before refinements."""
@@ -165,7 +166,8 @@ class Config:
         from ..mechanics.materials import material_from_config
 
         with _in_section("material"):
-            return material_from_config({k: v for k, v in self["material"].items() if k != "volumetric"})
+            return material_from_config({k: v for k, v in self["material"].items()
+                                         if k not in ("volumetric", "viscosity")})
 
     def model(self, mesh=None):
         """The `hyperoc.mechanics.model.StateModel` of the config (on ``mesh`` if already built); the frames of
@@ -190,7 +192,10 @@ class Config:
                           **self._dirichlet(mesh.dim))
 
     def _dirichlet(self, dim: int) -> dict:
-        """StateModel keywords for gamma_d: clamped, or only ``[mesh] fixed_components`` fixed."""
+        """StateModel keywords for gamma_d: clamped, or only ``[mesh] fixed_components`` fixed, or none
+        (``[mesh] clamped = false``)."""
+        if not self["mesh"]["clamped"]:
+            return {"dirichlet": None}
         comps = self["mesh"].get("fixed_components")
         if comps is None:
             return {"dirichlet": "gamma_d"}
@@ -198,6 +203,34 @@ class Config:
             raise InputError(f"config: [mesh] fixed_components must be integers in [0, {dim}) on this mesh, "
                              f"got {comps}")
         return {"dirichlet": None, "dirichlet_components": {"gamma_d": tuple(comps)}}
+
+    def step_terms(self, model) -> tuple:
+        """The terms of the step (`hyperoc.dynamics.terms`) of ``[dynamics] robin, pressure, activation`` and
+        ``[material] viscosity`` on ``model``; `InputError` for a boundary the mesh does not have."""
+        from ..dynamics.terms import DynamicPressure, PrescribedTension, RobinBoundary, Viscosity
+
+        d, terms = self["dynamics"], []
+        with _in_section("dynamics"):
+            for r in d.get("robin") or []:
+                terms.append(RobinBoundary(model, r["boundary"], float(r["stiffness"]), float(r["damping"]),
+                                           r["direction"]))
+            if d.get("pressure") is not None:
+                terms.append(DynamicPressure(model, d["pressure"]["boundary"], time_law(d["pressure"]["law"])))
+            if d.get("activation") is not None:
+                if model._frames is None:
+                    raise InputError("activation needs fibres: add [fibres] kind = 'rule_based'")
+                terms.append(PrescribedTension(model, time_law(d["activation"]["law"])))
+        if self["material"]["viscosity"] > 0:
+            terms.append(Viscosity(model, float(self["material"]["viscosity"])))
+        return tuple(terms)
+
+    def stepper(self, model):
+        """The `hyperoc.dynamics.stepper.TimeStepper` of the config on ``model``: scheme, solver, step terms and
+        constraint."""
+        from ..dynamics.stepper import TimeStepper
+
+        return TimeStepper(model, self.scheme(), self["dynamics"]["solver"], terms=self.step_terms(model),
+                           constraint=self["dynamics"]["constraint"])
 
     def scheme(self):
         from ..dynamics.stepper import Scheme
@@ -274,6 +307,28 @@ class Config:
             out = np.stack([np.stack([expression_field(e, x, float(tk)) for e in exprs], axis=-1) for tk in t])
         _require_finite(out, t, x, exprs)
         return out.reshape(t.size, -1)
+
+
+def time_law(value):
+    """The `hyperoc.dynamics.laws.TimeLaw` of a validated ``law`` value (`hyperoc.app.schema`)."""
+    from ..dynamics import laws
+
+    if isinstance(value, str):
+        return laws.ExpressionLaw(value)
+    if not isinstance(value, dict):
+        return laws.Constant(float(value))
+    if "bestel" in value:
+        make = laws.bestel_pressure if value["bestel"] == "pressure" else laws.bestel_activation
+        return make(float(value.get("t_end", 1.0)), value.get("parameters"))
+    return laws.Table(value["times"], value["values"])
+
+
+def _scaled(mesh, factor: float):
+    """``mesh`` with its coordinates (and curved P2 nodes) times ``factor``."""
+    if factor == 1.0:
+        return mesh
+    points = None if mesh.curved_points is None else mesh.curved_points * factor
+    return dataclasses.replace(mesh, points=mesh.points * factor, curved_points=points)
 
 
 @contextmanager

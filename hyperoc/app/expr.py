@@ -163,6 +163,16 @@ class Expression:
         shape = np.broadcast_shapes(result.shape, *(a.shape for a in arrays.values()))
         return np.array(np.broadcast_to(result, shape), dtype=np.float64)
 
+    def traced(self, **values):
+        """Evaluate with ``jax.numpy`` (the same functions by name), so that the expression is a JAX function
+        of its variables (traceable, differentiable), e.g. a time law ``g(t)``. Used variables must be given."""
+        import jax.numpy as jnp
+
+        missing = sorted(self.names - set(values))
+        if missing:
+            raise TypeError(f"expression {quote(self.source)}: missing value(s) for {missing}")
+        return _evaluate(self.tree.body, {k: jnp.asarray(v, dtype=jnp.float64) for k, v in values.items()}, jnp)
+
 
 def parse_expression(source: str, variables=DEFAULT_VARIABLES) -> Expression:
     """Parse and validate ``source`` as an expression of ``variables``; see `Expression`."""
@@ -349,38 +359,44 @@ def _check_call(node: ast.Call, variables: frozenset, source: str) -> set:
     return set()
 
 
-def _evaluate(root: ast.AST, values: dict) -> np.ndarray:
-    """Evaluate a validated tree, operands before operators; every result is a float64 array."""
+def _evaluate(root: ast.AST, values: dict, xp=np) -> np.ndarray:
+    """Evaluate a validated tree, operands before operators; every result is a float64 array of the array
+    namespace ``xp`` (numpy, or jax.numpy for a traced evaluation: the functions of the same names)."""
     results = {}
     for node in _postorder(root):
         operands = [results.pop(id(child)) for child in _children(node)]
-        results[id(node)] = _evaluate_node(node, operands, values)
+        results[id(node)] = _evaluate_node(node, operands, values, xp)
     return results[id(root)]
 
 
-def _evaluate_node(node: ast.AST, operands: list, values: dict) -> np.ndarray:
+def _in(xp, fn):
+    """The function of ``xp`` named as the numpy function ``fn``."""
+    return fn if xp is np else getattr(xp, fn.__name__)
+
+
+def _evaluate_node(node: ast.AST, operands: list, values: dict, xp=np) -> np.ndarray:
     """One node's value from its operands' values."""
     if isinstance(node, ast.Constant):
-        return np.asarray(node.value, dtype=np.float64)
+        return xp.asarray(node.value, dtype=np.float64)
     if isinstance(node, ast.Name):
-        return values[node.id] if node.id in values else np.asarray(CONSTANTS[node.id])
+        return values[node.id] if node.id in values else xp.asarray(CONSTANTS[node.id])
     if isinstance(node, ast.BinOp):
-        return _BINARY[type(node.op)](*operands)
+        return _in(xp, _BINARY[type(node.op)])(*operands)
     if isinstance(node, ast.UnaryOp):
-        return np.asarray(_UNARY[type(node.op)](operands[0]), dtype=np.float64)
+        return xp.asarray(_in(xp, _UNARY[type(node.op)])(operands[0]), dtype=np.float64)
     if isinstance(node, ast.BoolOp):
         combined = operands[0]
         for operand in operands[1:]:
-            combined = _BOOLEAN[type(node.op)](combined, operand)
-        return np.asarray(combined, dtype=np.float64)
+            combined = _in(xp, _BOOLEAN[type(node.op)])(combined, operand)
+        return xp.asarray(combined, dtype=np.float64)
     if isinstance(node, ast.Compare):
-        return _evaluate_comparison(node, operands)
-    return np.asarray(FUNCTIONS[node.func.id][0](*operands), dtype=np.float64)
+        return _evaluate_comparison(node, operands, xp)
+    return xp.asarray(_in(xp, FUNCTIONS[node.func.id][0])(*operands), dtype=np.float64)
 
 
-def _evaluate_comparison(node: ast.Compare, operands: list) -> np.ndarray:
+def _evaluate_comparison(node: ast.Compare, operands: list, xp=np) -> np.ndarray:
     """``a < b <= c`` as ``(a < b) and (b <= c)``, as 1.0 / 0.0."""
-    result = np.asarray(True)
+    result = xp.asarray(True)
     for op, left, right in zip(node.ops, operands[:-1], operands[1:]):
-        result = np.logical_and(result, _COMPARE[type(op)](left, right))
-    return np.asarray(result, dtype=np.float64)
+        result = xp.logical_and(result, _in(xp, _COMPARE[type(op)])(left, right))
+    return xp.asarray(result, dtype=np.float64)

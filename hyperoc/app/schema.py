@@ -66,7 +66,46 @@ def _ordered_pair(value):
     return value
 
 
+def _time_law(value):
+    """A time law (`hyperoc.dynamics.laws`): a finite number (constant), an expression string of t, a table
+    ``{times = [...], values = [...]}`` (times strictly increasing) or a Bestel ODE ``{bestel = "pressure" |
+    "activation", t_end = 1.0, parameters = {...}}`` (unknown parameters are reported when the law is built)."""
+    if _is_expression(value):
+        if isinstance(value, str):
+            parse_expression(value, {"t"})
+        return value
+    if not isinstance(value, dict):
+        raise ValueError(f"must be a number, an expression of t, a table {{times, values}} or a Bestel law "
+                         f"{{bestel = 'pressure' | 'activation'}}, got {quote(value)}")
+    if "bestel" in value:
+        extra = sorted(set(value) - {"bestel", "t_end", "parameters"})
+        if extra or value["bestel"] not in ("pressure", "activation"):
+            raise ValueError(f"a Bestel law takes bestel = 'pressure' | 'activation', t_end and parameters, got "
+                             f"{quote(value)}")
+        t_end, parameters = value.get("t_end", 1.0), value.get("parameters", {})
+        if not (_is_expression(t_end) and not isinstance(t_end, str) and t_end > 0):
+            raise ValueError(f"Bestel t_end must be a positive number, got {quote(t_end)}")
+        if not isinstance(parameters, dict) or not all(_is_expression(v) and not isinstance(v, str)
+                                                       for v in parameters.values()):
+            raise ValueError(f"Bestel parameters must be a table of finite numbers, got {quote(parameters)}")
+        return value
+    if set(value) != {"times", "values"}:
+        raise ValueError(f"a table law has exactly the keys times and values, got {sorted(value)}")
+    times, values = value["times"], value["values"]
+    numbers = lambda v: isinstance(v, list) and all(_is_expression(x) and not isinstance(x, str) for x in v)
+    if not (numbers(times) and numbers(values) and len(times) == len(values) >= 2):
+        raise ValueError("a table law needs times and values: lists of as many finite numbers, at least 2")
+    bad = [k for k in range(len(times) - 1) if not times[k] < times[k + 1]]
+    if bad:
+        k = bad[0]
+        raise ValueError(f"table times must be strictly increasing: times[{k}] = {times[k]:g} >= "
+                         f"times[{k + 1}] = {times[k + 1]:g}")
+    return value
+
+
 Expressions = Annotated[Any, BeforeValidator(_expressions)]
+TimeLawValue = Annotated[Any, BeforeValidator(_time_law),
+                         Field(json_schema_extra={"type": "number, expression of t, table or Bestel law"})]
 TauScale = Annotated[Any, BeforeValidator(_tau_scale), Field(json_schema_extra={"type": "'range' or number"})]
 Bounds = Annotated[list[Number], AfterValidator(_ordered_pair)]
 
@@ -159,6 +198,9 @@ class Mesh(Section):
                           "also accepts the aliases endo/ENDO, epi/EPI, top for endocardium, epicardium, base")
     fixed_components: Optional[Annotated[list[Annotated[int, Field(ge=0, le=2)]], Field(min_length=1)]] = Field(
         None, description="components fixed on gamma_d (default: all), e.g. [2]: a base sliding in its plane")
+    clamped: bool = Field(True, description="false: no Dirichlet boundary at all (a body held by Robin boundaries)")
+    scale: Positive = Field(1.0, description="factor on the coordinates of the mesh built, e.g. 1e-3: the "
+                                             "ventricle generator's mm in m")
 
     @model_validator(mode="after")
     def _radii_ordered(self):
@@ -195,7 +237,11 @@ class Material(Section):
     afs: Optional[Number] = Field(None, description="Holzapfel-Ogden: fibre-sheet modulus")
     bulk_modulus: Optional[Number] = Field(
         None, description="Guccione, Holzapfel-Ogden: small-strain bulk modulus of the volumetric penalty (kPa)")
-    isochoric: Optional[bool] = Field(None, description="Guccione: Q on the isochoric strain (needed with cell-mean)")
+    isochoric: Optional[bool] = Field(
+        None, description="Guccione: Q on the isochoric strain (needed with cell-mean); Holzapfel-Ogden: I1bar "
+                          "(default) or, false, the full I1 of the cardiac elastodynamics benchmark")
+    viscosity: NonNegative = Field(
+        0.0, description="eta of the viscous pseudo-potential (eta/2) tr(dE/dt^2) (stress x time, e.g. Pa s)")
     volumetric: Literal["pointwise", "cell-mean"] = Field(
         "pointwise", description="bulk term per quadrature point, or on each cell's mean J (condensed mixed u-p)")
 
@@ -204,6 +250,29 @@ class Material(Section):
     def values(self) -> dict:
         dumped = self.model_dump(by_alias=True)
         return {k: v for k, v in dumped.items() if v is not None}
+
+
+class Robin(Section):
+    """``[[dynamics.robin]]``: a spring-dashpot boundary, traction -(k u + c u_t) or its normal part."""
+
+    boundary: str = Field(description="boundary name")
+    stiffness: NonNegative = Field(description="spring k (stress / length, e.g. Pa/m)")
+    damping: NonNegative = Field(0.0, description="dashpot c (stress x time / length, e.g. Pa s/m)")
+    direction: Literal["full", "normal"] = Field("full", description="every component, or the reference normal's")
+
+
+class BoundaryPressure(Section):
+    """``[dynamics.pressure]``: a follower pressure (positive pushes into the body) on a boundary."""
+
+    boundary: str = Field("endocardium", description="boundary name")
+    law: TimeLawValue = Field(description="p(t): number, expression of t, {times, values} or {bestel = 'pressure'}")
+
+
+class Activation(Section):
+    """``[dynamics.activation]``: a prescribed active tension T_a(t) along the fibres, beside the control."""
+
+    law: TimeLawValue = Field(description="T_a(t): number, expression of t, {times, values} or "
+                                          "{bestel = 'activation'}")
 
 
 class Fibres(Section):
@@ -262,6 +331,12 @@ class Dynamics(Section):
     newton: Literal["auto", "full", "chord"] = Field(
         "auto", description="auto: chord Newton (a kept factorization) with the sparse solvers, full Newton otherwise")
     traction: Optional[Numbers] = Field(None, description="constant traction on gamma_n, one number per dimension")
+    constraint: Literal["tissue_volume", "none"] = Field(
+        "tissue_volume", description="the tissue volume held by a multiplier (the paper's), or none (only the "
+                                     "material's bulk term; the reported pressure is then 0)")
+    robin: Optional[list[Robin]] = Field(None, description="spring-dashpot boundaries, [[dynamics.robin]] tables")
+    pressure: Optional[BoundaryPressure] = Field(None, description="follower pressure p(t) on a boundary")
+    activation: Optional[Activation] = Field(None, description="prescribed active tension T_a(t) along the fibres")
 
     @model_validator(mode="after")
     def _step_fits(self):
@@ -537,6 +612,14 @@ def reference_markdown() -> str:
         parts += _section_table(name, model)
     parts += _section_table("control.region", Region)
     parts += _section_table("output.units", OutputUnits)
+    parts += _section_table("dynamics.robin", Robin)
+    parts += _section_table("dynamics.pressure", BoundaryPressure)
+    parts += _section_table("dynamics.activation", Activation)
+    parts += ["A time `law` is a number (constant), an expression of `t` (e.g. `\"1e3*sin(pi*t)\"`), a table "
+              "`{ times = [...], values = [...] }` (piecewise linear, times strictly increasing, constant outside) or "
+              "the benchmark's Bestel ODE `{ bestel = \"pressure\" }` / `{ bestel = \"activation\" }` with optional "
+              "`t_end` (s, default 1) and `parameters` (a table overriding `hyperoc.dynamics.laws.BESTEL_PRESSURE` / "
+              "`BESTEL_ACTIVATION`; SI units).", ""]
     return "\n".join(parts)
 
 
@@ -574,6 +657,8 @@ def _annotation_text(annotation) -> str:
 
 
 def _default_text(field) -> str:
+    if field.is_required():
+        return "required"
     if field.default is None or isinstance(field.default, BaseModel):
         return "-"
     return f"`{json.dumps(field.default)}`"

@@ -11,10 +11,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..control.adjoint import Adjoint
 from ..control.optimize import EvaluationCache, OptimizationResult, barzilai_borwein, lbfgsb, newton_cg
 from ..control.reduced import ControlPoint, ReducedFunctional
 from ..control.verification import random_directions, taylor_test
-from ..dynamics.stepper import TimeStepper, detect_regimes
+from ..dynamics.stepper import detect_regimes
 from ..errors import InputError, SolverError
 from ..io import read_json, write_json, write_npz
 from .config import Config
@@ -45,6 +46,7 @@ def check_run(cfg: Config, command: str, mesh=None):
     if solver not in ("auto", "tridiagonal", "dense", *SparseSolver.methods):
         raise InputError(f"config: [dynamics] solver {solver!r} unknown (auto, tridiagonal, dense, "
                          f"{', '.join(SparseSolver.methods)})")
+    cfg.step_terms(model)  # a missing boundary tag, fibres an activation needs: before anything is written
     if command == "simulate":
         cfg.prescribed_control(model, grid.t)
     elif command == "optimize":
@@ -74,8 +76,7 @@ def simulate(cfg: Config, out, *, progress: bool = False, monitor=None, model=No
     model = model or cfg.model()
     grid = cfg.grid()
     xi = cfg.prescribed_control(model, grid.t)
-    stepper = TimeStepper(model, cfg.scheme(), cfg["dynamics"]["solver"])
-    sol = stepper.run(grid, xi, progress=progress, monitor=monitor)
+    sol = cfg.stepper(model).run(grid, xi, progress=progress, monitor=monitor)
     o = cfg["output"]
     return write_state_outputs(Path(out), sol, snapshot_times=o.get("snapshot_times"),
                                series_every=o.get("series_every"), frames=cfg.fibres(model.mesh),
@@ -85,8 +86,11 @@ def simulate(cfg: Config, out, *, progress: bool = False, monitor=None, model=No
 def build_reduced(cfg: Config, tau0: float, model=None) -> ReducedFunctional:
     model = model or cfg.model()
     o = cfg["optimize"]
-    return ReducedFunctional(model, cfg.transform(tau0), cfg.objective(), scheme=cfg.scheme(),
-                             solver=cfg["dynamics"]["solver"], gradient=o["gradient"],
+    if cfg["dynamics"]["constraint"] != "tissue_volume":
+        raise InputError("config: [objective] reads the pressure, the multiplier of [dynamics] constraint = "
+                         "'tissue_volume'; with constraint = 'none' there is none")
+    return ReducedFunctional(model, cfg.transform(tau0), cfg.objective(), adjoint=Adjoint(cfg.stepper(model)),
+                             gradient=o["gradient"],
                              checkpoint_every=o.get("checkpoint_every"),
                              checkpoint_snapshots=o.get("checkpoint_snapshots"), horizon=o["horizon"])
 

@@ -80,10 +80,10 @@ class Record:
         return self.grid.dt
 
     def step_inputs(self, n: int) -> tuple:
-        """``(xi_n, xi_{n+1}, f_n, f_{n+1}, dt_n, V0)``, the inputs of `TimeStepper.step` (and of `Adjoint.step`
+        """``(xi_n, xi_{n+1}, f_n, f_{n+1}, dt_n, V0, t_n)``, the inputs of `TimeStepper.step` (and of `Adjoint.step`
         after the states) with the argument types of `TimeStepper.march_stepwise`, so that a jitted step
         compiles once for both."""
-        return self.xi[n], self.xi[n + 1], self.loads[n], self.loads[n + 1], self.dt[n], self.V0
+        return self.xi[n], self.xi[n + 1], self.loads[n], self.loads[n + 1], self.dt[n], self.V0, self.grid.t[n]
 
     def at(self, levels) -> tuple[np.ndarray, np.ndarray]:
         """The states at kept ``levels`` (ascending), (len(levels), n) each."""
@@ -109,22 +109,33 @@ class Adjoint:
 
     def step(self, carry, inputs):
         """One backward step, the adjoint of step n: carry = ``(lambda0, lambda1)`` at level n+1, totals, (n,)
-        each; inputs = ``(y0_{n+1}, p_{n+1/2}, y0_n, y1_n, xi_n, xi_{n+1}, f_n, f_{n+1}, dt_n, V0, dJ/dp_{n+1/2})``.
-        Returns the totals at level n without J's partials there, and the step's ``(dJ/dxi_n, dJ/dxi_{n+1}
-        (n_ctrl,), dJ/ddt_n)``."""
+        each; inputs = ``(y0_{n+1}, p_{n+1/2}, y0_n, y1_n, xi_n, xi_{n+1}, f_n, f_{n+1}, dt_n, V0, t_n,
+        dJ/dp_{n+1/2})``. Returns the totals at level n without J's partials there, and the step's
+        ``(dJ/dxi_n, dJ/dxi_{n+1} (n_ctrl,), dJ/ddt_n, dJ/dt_n)`` (the last through the time laws of the
+        step's terms: t_n moves with every earlier step, `_Reversal.totals`).
+
+        The Jacobian's transpose: the bordered solve with ``col`` and ``row`` swapped and, when a term is
+        not symmetric (follower pressure on an open surface, viscosity), the element blocks transposed
+        (the assembled transpose is the sum of the transposed blocks on the same pattern). The right-hand
+        side is ``(dsplit/dx)^T (lambda0 + dv/dy0'^T lambda1, dJ/dp)``, the unknown x mapped to the step's
+        ``(y0', p')`` by the constraint (`hyperoc.dynamics.constraint`)."""
         st = self.stepper
         lam0, lam1 = carry
-        y0n, pn, y0, y1, xi0, xi1, f0, f1, dt, V0, gp = inputs
-        x = jnp.concatenate([y0n, pn[None]])
+        y0n, pn, y0, y1, xi0, xi1, f0, f1, dt, V0, t0, gp = inputs
+        x = st.constraint.unknown(y0n, pn)
         _, vjp_v = jax.vjp(st.velocity, y0n, y0, y1, dt)
         v_y0n, v_y0, v_y1, v_dt = vjp_v(lam1)
-        blocks, col, row = st.jacobian_parts(x, y0, dt)
-        w_u, w_p = st.solver.solve(blocks, row, col, lam0 + v_y0n, gp)  # transpose: col <-> row
+        blocks, col, row = st.jacobian_parts(x, y0, dt, y1, t0)
+        if not st.symmetric:
+            blocks = jnp.swapaxes(blocks, 1, 2)
+        _, vjp_s = jax.vjp(st.constraint.split, x)
+        rhs = vjp_s((lam0 + v_y0n, jnp.asarray(gp, dtype=x.dtype)))[0]
+        w_u, w_p = st.solver.solve(blocks, row, col, rhs[:-1], rhs[-1])  # transpose: col <-> row
         w = jnp.concatenate([w_u, w_p[None]])
-        res = lambda y0, y1, xi0, xi1, dt: st.residual(x, y0, y1, 0.0, xi0, xi1, f0, f1, dt, V0)
-        _, vjp_r = jax.vjp(res, y0, y1, xi0, xi1, dt)
-        r_y0, r_y1, r_xi0, r_xi1, r_dt = vjp_r(w)
-        return (v_y0 - r_y0, v_y1 - r_y1), (-r_xi0, -r_xi1, v_dt - r_dt)
+        res = lambda y0, y1, xi0, xi1, dt, t0: st.residual(x, y0, y1, 0.0, xi0, xi1, f0, f1, dt, V0, t0)
+        _, vjp_r = jax.vjp(res, y0, y1, xi0, xi1, dt, t0)
+        r_y0, r_y1, r_xi0, r_xi1, r_dt, r_t0 = vjp_r(w)
+        return (v_y0 - r_y0, v_y1 - r_y1), (-r_xi0, -r_xi1, v_dt - r_dt, -r_t0)
 
     @cached_property
     def _jitted_step(self):
@@ -134,16 +145,17 @@ class Adjoint:
     @cached_property
     def _scan(self):
         """`step` over a range of L steps, last first, in one compiled loop: ``(lam, Y0, Y1 (L+1, n), P (L,),
-        Xi (L+1, n_ctrl), F (L+1, n), dt (L,), V0, gY0, gY1 (L, n), gP (L,))`` to the totals at the range's
-        first level and the steps' derivatives ``(dJ/dxi_n, dJ/dxi_{n+1} (L, n_ctrl), dJ/ddt_n (L,))``."""
-        def run(lam, Y0, Y1, P, Xi, F, dt, V0, gY0, gY1, gP):
+        Xi (L+1, n_ctrl), F (L+1, n), dt (L,), V0, t0 (L,), gY0, gY1 (L, n), gP (L,))`` to the totals at the
+        range's first level and the steps' derivatives ``(dJ/dxi_n, dJ/dxi_{n+1} (L, n_ctrl), dJ/ddt_n,
+        dJ/dt_n (L,))``."""
+        def run(lam, Y0, Y1, P, Xi, F, dt, V0, t0, gY0, gY1, gP):
             def body(carry, inp):
                 (l0, l1), out = self.step(carry, inp[:-2])
                 g0, g1 = inp[-2:]
                 return (l0 + g0, l1 + g1), out
 
-            xs = (Y0[1:], P, Y0[:-1], Y1[:-1], Xi[:-1], Xi[1:], F[:-1], F[1:], dt, jnp.full(dt.shape[0], V0), gP, gY0,
-                  gY1)
+            xs = (Y0[1:], P, Y0[:-1], Y1[:-1], Xi[:-1], Xi[1:], F[:-1], F[1:], dt, jnp.full(dt.shape[0], V0), t0, gP,
+                  gY0, gY1)
             return jax.lax.scan(body, lam, xs, reverse=True)
 
         return jax.jit(run)
@@ -261,11 +273,12 @@ class _Reversal:
 
     def _reverse(self, a: int, b: int, Y0, Y1):
         """`Adjoint.step` over the steps a .. b-1, last first, from the states ``Y0, Y1`` at the levels a .. b:
-        moves ``lam`` to level a; returns the steps' ``(dJ/dxi_n, dJ/dxi_{n+1} (L, n_ctrl), dJ/ddt_n (L,))``."""
+        moves ``lam`` to level a; returns the steps' ``(dJ/dxi_n, dJ/dxi_{n+1} (L, n_ctrl), dJ/ddt_n,
+        dJ/dt_n (L,))``."""
         rec, adjoint = self.rec, self.adjoint
         if rec.schedule.compiled and adjoint.stepper.solver.traced:
             args = (Y0, Y1, rec.p_steps[a:b], rec.xi[a:b + 1], rec.loads[a:b + 1], rec.dt[a:b])
-            self.lam, out = adjoint._scan(self.lam, *(on_device(x) for x in args), rec.V0,
+            self.lam, out = adjoint._scan(self.lam, *(on_device(x) for x in args), rec.V0, on_device(rec.grid.t[a:b]),
                                           *(on_device(g) for g in self._partials(a, b)), on_device(self.gP[a:b]))
             return out
         outs = [None] * (b - a)
@@ -290,11 +303,14 @@ class _Reversal:
         return g
 
     def totals(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(dJ/dxi (N+1, n_ctrl), dJ/ddt (N,))`` from the derivatives of all steps."""
+        """``(dJ/dxi (N+1, n_ctrl), dJ/ddt (N,))`` from the derivatives of all steps. The level t_n =
+        t_0 + sum_{k<n} dt_k moves with every earlier step, so ``dJ/ddt_k`` gathers ``dJ/dt_n`` of the
+        steps n > k."""
         xi = self.rec.xi
-        gxi0, gxi1, gdt = np.zeros_like(xi[1:]), np.zeros_like(xi[1:]), np.zeros(len(xi) - 1)
-        for a, b, (d0, d1, ddt) in jax.device_get(self.derivatives):
-            gxi0[a:b], gxi1[a:b], gdt[a:b] = d0, d1, ddt
+        gxi0, gxi1, gdt, gt = np.zeros_like(xi[1:]), np.zeros_like(xi[1:]), np.zeros(len(xi) - 1), np.zeros(len(xi) - 1)
+        for a, b, (d0, d1, ddt, dt0) in jax.device_get(self.derivatives):
+            gxi0[a:b], gxi1[a:b], gdt[a:b], gt[a:b] = d0, d1, ddt, dt0
+        gdt[:-1] += np.cumsum(gt[::-1])[::-1][1:]
         gXi = np.zeros_like(xi)
         gXi[:-1] += gxi0
         gXi[1:] += gxi1

@@ -112,7 +112,7 @@ class DistributedStepper(TimeStepper):
         dt, V0)``, the states and loads serial (n,); returns the new carry and ``(y0', y1', p', iterations,
         status, min det F, max |grad u|)``."""
         y0, y1, p_prev, failed = carry
-        xi0, xi1, f0, f1, dt, V0 = inputs
+        xi0, xi1, f0, f1, dt, V0, _ = inputs  # the level t0: no term of time on the distributed path
         y0, y1, dt, V0 = np.asarray(y0), np.asarray(y1), float(dt), float(V0)
         if bool(failed):
             return carry, (y0, y1, float(p_prev), 0, int(StepStatus.AFTER_FAILURE), np.nan, np.nan)
@@ -169,7 +169,7 @@ class DistributedAdjoint(Adjoint):
         L, k, th = st.layout, st._kernels, st.scheme.theta
         d, o = L.dofs, L.owned_serial
         lam0, lam1 = (np.asarray(c) for c in carry)
-        y0n, pn, y0, y1, xi0, xi1, f0, f1, dt, V0, gp = inputs
+        y0n, pn, y0, y1, xi0, xi1, f0, f1, dt, V0, _, gp = inputs
         y0n, y0, y1, pn, dt, gp = np.asarray(y0n), np.asarray(y0), np.asarray(y1), float(pn), float(dt), float(gp)
         with L.clock("kernels"):
             v_y0n, v_y0, v_y1, v_dt = (np.asarray(a) for a in k["velocity_vjp"](y0n[o], y0[o], y1[o], dt, lam1[o]))
@@ -186,4 +186,4 @@ class DistributedAdjoint(Adjoint):
         load_dt = st.owned_load(xi0, xi1, f0, f1, 1.0) @ w_u
         Bw = L.sum_array(st._B.T @ w_u) if st._B is not None else np.zeros(0)
         lam = (L.serial(v_y0 - L.add(r_y0)), L.serial(v_y1 - L.add(r_y1)))
-        return lam, (dt * (1 - th) * Bw, dt * th * Bw, L.sum(float(v_dt) - float(r_dt) - load_dt))
+        return lam, (dt * (1 - th) * Bw, dt * th * Bw, L.sum(float(v_dt) - float(r_dt) - load_dt), 0.0)

@@ -66,6 +66,9 @@ def reduced_functional(args):
     tau = float(cfg["optimize"].get("tau0", cfg["dynamics"]["T"] / 2)) if args.tau is None else args.tau
     transform = cfg.transform(tau)
     model = cfg.model()
+    if cfg.step_terms(model) or cfg["dynamics"]["constraint"] != "tissue_volume":
+        raise InputError("the distributed gradient does not yet take [dynamics] robin, pressure, activation, "
+                         "[material] viscosity or constraint = 'none'")
     comm, options = None, {"scheme": cfg.scheme(), "solver": cfg["dynamics"]["solver"],
                            "checkpoint_snapshots": args.snapshots, "horizon": cfg["optimize"]["horizon"]}
     if not args.serial:

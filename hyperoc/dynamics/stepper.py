@@ -3,14 +3,18 @@
 First-order system ``y0 = u``, ``y1 = u_t``; step ``n -> n+1`` of size ``dt``:
 
     y0' = y0 + dt (theta y1' + (1 - theta) y1)
-    M (y1' - y1) + dt [theta A(y0', y1') + (1 - theta) A(y0, y1)] + dt p' [theta G(y0') + (1 - theta) G(y0)]
+    M (y1' - y1) + dt [theta A(y0', y1', t') + (1 - theta) A(y0, y1, t)] + dt p' [theta G(y0') + (1 - theta) G(y0)]
                  = dt [theta L(xi') + (1 - theta) L(xi)]
     vol(y0') = V0
 
-with ``A(y0, y1) = kappa K y1 + R(y0)`` (damping kappa = ``StateModel.damping``), ``L(xi) = B xi + g``.
-The unknown of a step is ``x = (y0', p')``; ``y1'`` follows from the first line. ``p'`` is the
+with ``A(y0, y1, t) = kappa K y1 + R(y0) + sum_j A_j(y0, y1, t)`` (damping kappa = ``StateModel.damping``;
+``A_j`` the stepper's ``terms``, `hyperoc.dynamics.terms`: Robin boundaries, time-dependent follower
+pressure, prescribed active tension, viscosity), ``L(xi) = B xi + g``, t and t' = t + dt the step's
+levels. The unknown of a step is ``x = (y0', p')``; ``y1'`` follows from the first line. ``p'`` is the
 step's multiplier, a second-order approximation of p at the mid-step; pressures at time levels are
-interpolated from the two adjacent steps (second order on non-uniform grids too).
+interpolated from the two adjacent steps (second order on non-uniform grids too). The volume
+constraint is one of a family (`hyperoc.dynamics.constraint`): with ``constraint="none"`` there is no
+multiplier and the last row is a gauge (the reported pressure is then 0).
 
 ``multiplier="theta"`` weights the multiplier as ``theta p' G' + (1 - theta) p G`` (the paper's
 and GetFEM's choice), with ``p`` at t = 0 from the consistent initial acceleration. It is kept for
@@ -38,6 +42,7 @@ from ..mechanics.model import StateModel
 from ..mechanics.operators import combined_matvec
 from ..solvers.linsolve import make_solver
 from ..solvers.newton import NewtonStatus, newton
+from .constraint import make_constraint
 from .timegrid import TimeGrid
 
 __all__ = ["Scheme", "StateSolution", "StepRecord", "StepStatus", "TimeStepper", "solve_state", "level_pressure",
@@ -262,10 +267,20 @@ class TimeStepper:
     solver : "auto" | "tridiagonal" | "dense" | a `hyperoc.solvers.linsolve.SparseSolver` method
         (``SparseSolver.methods``: "lu", "lu_reuse", "pardiso", "pardiso_reuse", "pardiso_single",
         "pardiso_single_reuse", "minres"), or a solver object.
+    terms : the terms ``A_j`` of A (`hyperoc.dynamics.terms`), e.g. ``(RobinBoundary(...), Viscosity(...))``.
+    constraint : "tissue_volume" (default, the paper's), "none", or a constraint object
+        (`hyperoc.dynamics.constraint`).
     """
 
-    def __init__(self, model: StateModel, scheme: Scheme = Scheme(), solver="auto"):
+    def __init__(self, model: StateModel, scheme: Scheme = Scheme(), solver="auto", *, terms=(),
+                 constraint="tissue_volume"):
         self.model, self.scheme = model, scheme
+        self.terms = tuple(terms)
+        self.constraint = make_constraint(model, constraint)
+        if not self.constraint.has_multiplier and scheme.multiplier != "step":
+            raise InputError("multiplier='theta' weights a multiplier: it needs a constraint that has one")
+        if not self.symmetric and solver == "minres":
+            raise InputError("the step tangent is not symmetric (follower pressure, viscosity): MINRES does not apply")
         self.solver = make_solver(model, solver) if isinstance(solver, str) else solver
         M, K, B = model.jax_operators
         self._M, self._K, self._B = M, K, B
@@ -275,6 +290,16 @@ class TimeStepper:
         self.chord = scheme.chord_with(self.solver, auto=True)
 
     # --- the step residual: single source of truth for Newton and adjoint -------------------------
+    @property
+    def symmetric(self) -> bool:
+        """Whether the step's Jacobian is symmetric (every term's is); if not, the adjoint solves with the
+        transposed element blocks."""
+        return all(term.symmetric for term in self.terms)
+
+    def terms_force(self, y0, y1, t):
+        """``sum_j A_j(y0, y1, t)`` (n,)."""
+        return sum((term.force(y0, y1, t) for term in self.terms), jnp.zeros(self.model.n))
+
     @property
     def mass(self):
         """The mass matrix M of the reduced dofs (JAX sparse, as the step uses it)."""
@@ -290,80 +315,76 @@ class TimeStepper:
         th = self.scheme.theta
         return (y0_new - y0) / (th * dt) - (1 - th) / th * y1
 
-    def residual(self, x, y0, y1, p_prev, xi0, xi1, f0, f1, dt, V0):
-        """Step residual (n+1,): momentum rows then the volume constraint."""
-        return self.residual_at(x, self.known_terms(y0, y1, xi0, xi1, f0, f1, dt), y0, y1, p_prev, dt, V0)
+    def residual(self, x, y0, y1, p_prev, xi0, xi1, f0, f1, dt, V0, t0=0.0):
+        """Step residual (n+1,) from the level t0 to t0 + dt: momentum rows then the constraint's row."""
+        return self.residual_at(x, self.known_terms(y0, y1, xi0, xi1, f0, f1, dt, t0), y0, y1, p_prev, dt, V0, t0)
 
-    def known_terms(self, y0, y1, xi0, xi1, f0, f1, dt):
-        """The parts of the momentum rows that do not depend on the unknown x = (y0', p'): computed
-        once per step rather than at every Newton iterate.
+    def known_terms(self, y0, y1, xi0, xi1, f0, f1, dt, t0=0.0):
+        """The parts of the momentum rows that do not depend on the unknown x: computed once per step
+        rather than at every Newton iterate.
 
-        Returns ``(c, G_old)`` with ``c = -M y1 + dt (1 - th) A(y0, y1) - dt (th L1 + (1 - th) L0)``
-        (n,), ``A(y0, y1) = kappa K y1 + f_int(y0)``, and ``G_old = dV/dy0 (y0)`` (n,).
+        Returns ``c = -M y1 + dt (1 - th) A(y0, y1, t0) - dt (th L1 + (1 - th) L0)`` (n,),
+        ``A(y0, y1, t) = kappa K y1 + f_int(y0) + sum_j A_j(y0, y1, t)``.
         """
         m, th = self.model, self.scheme.theta
-        c = (self._inertia_damping(y1, -1.0, dt * (1 - th) * m.damping) + dt * (1 - th) * m.internal_force(y0)
-             - dt * (th * self.load(xi1, f1) + (1 - th) * self.load(xi0, f0)))
-        return c, m.volume_gradient(y0)
+        return (self._inertia_damping(y1, -1.0, dt * (1 - th) * m.damping)
+                + dt * (1 - th) * (m.internal_force(y0) + self.terms_force(y0, y1, t0))
+                - dt * (th * self.load(xi1, f1) + (1 - th) * self.load(xi0, f0)))
 
-    def residual_at(self, x, known, y0, y1, p_prev, dt, V0):
+    def residual_at(self, x, known, y0, y1, p_prev, dt, V0, t0=0.0):
         """`residual` given the `known_terms` of the step."""
-        m, th = self.model, self.scheme.theta
-        c, G_old = known
-        y0n, pn = x[:-1], x[-1]
+        m, th, con = self.model, self.scheme.theta, self.constraint
+        y0n, _ = con.split(x)
         y1n = self.velocity(y0n, y0, y1, dt)
-        G_new = m.volume_gradient(y0n)
-        if self.scheme.multiplier == "step":
-            mult = pn * (th * G_new + (1 - th) * G_old)
-        else:
-            mult = th * pn * G_new + (1 - th) * p_prev * G_old
-        Fu = self._inertia_damping(y1n, 1.0, dt * th * m.damping) + dt * th * m.internal_force(y0n) + dt * mult + c
-        Fc = m.volume(y0n) - V0
-        return jnp.concatenate([Fu, Fc[None]])
+        A = m.internal_force(y0n) + self.terms_force(y0n, y1n, t0 + dt)
+        Fu = (self._inertia_damping(y1n, 1.0, dt * th * m.damping) + dt * th * A
+              + dt * con.momentum(x, y0, p_prev, th, self.scheme.multiplier) + known)
+        return jnp.concatenate([Fu, jnp.reshape(con.row(x, V0), (1,))])
 
-    def jacobian_parts(self, x, y0, dt):
-        """(element blocks of dFu/dy0', column dFu/dp', row dFc/dy0') at x."""
-        m, th = self.model, self.scheme.theta
-        y0n, pn = x[:-1], x[-1]
+    def jacobian_parts(self, x, y0, dt, y1=None, t0=0.0):
+        """(element blocks of dFu/dy0', border column, border row) at x (`hyperoc.dynamics.constraint`);
+        ``y1`` (the level's velocity) is needed when a term depends on the velocity."""
+        m, th, con = self.model, self.scheme.theta, self.constraint
+        y0n, _ = con.split(x)
         blocks = (self._mass_blocks / (th * dt) + m.damping * self._lap_blocks
-                  + dt * th * m.tangent_blocks(y0n, 1.0, pn))
-        G_new = m.volume_gradient(y0n)
-        if self.scheme.multiplier == "step":
-            col = dt * (th * G_new + (1 - th) * m.volume_gradient(y0))
-        else:
-            col = dt * th * G_new
-        return blocks, col, G_new
+                  + dt * th * m.tangent_blocks(y0n, 1.0, con.tangent_weight(x)))
+        if self.terms:
+            y1n = self.velocity(y0n, y0, y1, dt)
+            for term in self.terms:
+                blocks = term.add_tangent(blocks, y0n, y1n, t0 + dt, dt * th, 1.0)
+        col, row = con.border(blocks, x, y0, dt, th, self.scheme.multiplier)
+        return blocks, col, row
 
     def step(self, carry, inputs):
         """One time step on traced arrays.
 
-        carry = (y0, y1, p_prev, failed); inputs = (xi0, xi1, f0, f1, dt, V0) with f the external
-        load vectors at both ends of the step.
+        carry = (y0, y1, p_prev, failed); inputs = (xi0, xi1, f0, f1, dt, V0, t0) with f the external
+        load vectors at both ends of the step and t0 its first level.
         """
         y0, y1, p_prev, failed = carry
-        xi0, xi1, f0, f1, dt, V0 = inputs
-        m, sch = self.model, self.scheme
-        known = self.known_terms(y0, y1, xi0, xi1, f0, f1, dt)
+        xi0, xi1, f0, f1, dt, V0, t0 = inputs
+        m, sch, con = self.model, self.scheme, self.constraint
+        known = self.known_terms(y0, y1, xi0, xi1, f0, f1, dt, t0)
 
         # After a failed step no Newton iteration is made (max_iter 0: x stays at the old state);
         # a traced bound rather than a lax.cond, which costs XLA's CPU runtime more per step.
-        x, it, status = newton(lambda x: self.residual_at(x, known, y0, y1, p_prev, dt, V0),
-                               lambda x: self.jacobian_parts(x, y0, dt),
-                               self.solver, jnp.concatenate([y0 + dt * y1, p_prev[None]]),
+        x, it, status = newton(lambda x: self.residual_at(x, known, y0, y1, p_prev, dt, V0, t0),
+                               lambda x: self.jacobian_parts(x, y0, dt, y1, t0),
+                               self.solver, con.unknown(y0 + dt * y1, p_prev),
                                rtol=sch.rtol, atol=sch.atol, max_iter=jnp.where(failed, 0, sch.max_iter),
                                chord=self.chord)
-        mindet, maxgrad = m.min_det_F(x[:-1]), m.max_grad(x[:-1])
+        y0n, pn = con.split(x)
+        mindet, maxgrad = m.min_det_F(y0n), m.max_grad(y0n)
         status = jnp.where(failed, int(StepStatus.AFTER_FAILURE),
                            jnp.where((status == int(NewtonStatus.CONVERGED)) & ~(mindet > 0), int(StepStatus.DET_F),
                                      status))
-        y0n, pn = x[:-1], x[-1]
         y1n = self.velocity(y0n, y0, y1, dt)
         failed = failed | (status != 0)
         return (y0n, y1n, pn, failed), (y0n, y1n, pn, it, status, mindet, maxgrad)
 
-    def march(self, y0, y1, p0, xis, fs, dts, V0, on_block=None):
+    def march(self, y0, y1, p0, xis, fs, ts, V0, on_block=None):
         """The compiled loop over levels: from the state ``(y0, y1)`` (n,) with Newton's first multiplier
-        guess p0, controls xis (L+1, n_ctrl), loads fs (L+1, n), steps dts (L,) and the reference volume
+        guess p0, controls xis (L+1, n_ctrl), loads fs (L+1, n), levels ts (L+1,) and the reference volume
         V0, the outputs of `step` stacked over the L steps (NumPy): (y0, y1 (L, n), p, iterations,
         status, min det F, max |grad u| (L,)).
 
@@ -372,15 +393,17 @@ class TimeStepper:
         share one compiled loop (`_block_scan`). No block runs after one in which a step failed; the
         outputs are then padded as `march_stepwise` pads them. ``on_block(done)``: called after each
         block with the steps done so far."""
+        ts = np.asarray(ts, dtype=np.float64)
+        dts, t0s = np.diff(ts), ts[:-1]
         L = len(dts)
         size = min(L, MARCH_BLOCK)
         carry = (on_device(y0), on_device(y1), on_device(p0), jnp.asarray(False))
-        xis, fs, dts = np.asarray(xis), np.asarray(fs), np.asarray(dts)
+        xis, fs = np.asarray(xis), np.asarray(fs)
         outs = []
         for start in range(0, L, size):
             levels = np.minimum(np.arange(start, start + size + 1), L)  # the last level repeated as padding
             steps = np.minimum(np.arange(start, start + size), L - 1)
-            carry, out = self._block_scan(carry, xis[levels], fs[levels], dts[steps], np.full(size, V0),
+            carry, out = self._block_scan(carry, xis[levels], fs[levels], dts[steps], np.full(size, V0), t0s[steps],
                                           np.arange(start, start + size) < L)
             outs.append(out)
             if on_block is not None:
@@ -394,7 +417,7 @@ class TimeStepper:
     @cached_property
     def _block_scan(self):
         """`march`'s compiled loop over one block of steps from a carry, returning the final carry and the
-        outputs: ``(carry, xis (B+1, n_ctrl), fs (B+1, n), dts (B,), V (B,), active (B,))``. An inactive step
+        outputs: ``(carry, xis (B+1, n_ctrl), fs (B+1, n), dts (B,), V (B,), t0s (B,), active (B,))``. An inactive step
         makes no Newton iteration (it is run as after a failure) and leaves the carry as it was."""
         def masked_step(carry, inputs):
             *step_inputs, active = inputs
@@ -402,8 +425,8 @@ class TimeStepper:
             new, out = self.step((y0, y1, p, failed | ~active), tuple(step_inputs))
             return jax.tree.map(lambda a, b: jnp.where(active, a, b), new, carry), out
 
-        def run(carry, xis, fs, dts, V, active):
-            return jax.lax.scan(masked_step, carry, (xis[:-1], xis[1:], fs[:-1], fs[1:], dts, V, active))
+        def run(carry, xis, fs, dts, V, t0s, active):
+            return jax.lax.scan(masked_step, carry, (xis[:-1], xis[1:], fs[:-1], fs[1:], dts, V, t0s, active))
 
         return jax.jit(run)
 
@@ -421,14 +444,14 @@ class TimeStepper:
             bar.update(done - bar.n)
 
         try:
-            return self.march(y0, y1, p0, xis, fs, grid.dt, V0, on_block=advanced)
+            return self.march(y0, y1, p0, xis, fs, grid.t, V0, on_block=advanced)
         finally:
             bar.close()
 
     @cached_property
     def advance(self):
         """One compiled step, ``advance(carry, inputs) -> (carry, outputs)`` (`step` jitted): carry
-        ``(y0, y1, p, failed)``, inputs ``(xi0, xi1, f0, f1, dt, V0)``, outputs as in `march`."""
+        ``(y0, y1, p, failed)``, inputs ``(xi0, xi1, f0, f1, dt, V0, t0)``, outputs as in `march`."""
         return jax.jit(self.step)
 
     def march_levels(self, y0, y1, p_prev, t, xi, loads, V0):
@@ -437,11 +460,11 @@ class TimeStepper:
         Python float, as `run` passes it, so that the compiled loops are shared); xi (L+1, n_ctrl),
         loads (L+1, n). Returns the outputs of `march` for the levels after the first."""
         if self.solver.traced:
-            return self.march(y0, y1, p_prev, xi, loads, np.diff(t), V0)
+            return self.march(y0, y1, p_prev, xi, loads, t, V0)
         return self.march_stepwise(y0, y1, p_prev, xi, loads, TimeGrid(t), V0, False)
 
     # --- driver ---------------------------------------------------------------------------------
-    def consistent_pressure(self, y0, y1, xi, f):
+    def consistent_pressure(self, y0, y1, xi, f, t=0.0):
         """The pressure consistent with the state (second time derivative of the constraint), traced.
 
         ``G^T a + y1^T H y1 = 0`` with ``M a = L(xi, f) - A(y0, y1) - p G`` gives
@@ -450,13 +473,13 @@ class TimeStepper:
         m = self.model
         G = m.volume_gradient(y0)
         _, Hy1 = jax.jvp(m.volume_gradient, (y0,), (y1,))
-        rhs = self.load(xi, f) - m.damping * (self._K @ y1) - m.internal_force(y0)
+        rhs = self.load(xi, f) - m.damping * (self._K @ y1) - m.internal_force(y0) - self.terms_force(y0, y1, t)
         MinvG = m.apply_mass_inverse(G)
         return (MinvG @ rhs + y1 @ Hy1) / (G @ MinvG)
 
-    def initial_pressure(self, y0, y1, xi0, f0) -> float:
-        """p(0) from the consistent initial acceleration (`consistent_pressure` at t = 0)."""
-        return float(self.consistent_pressure(*(jnp.asarray(a) for a in (y0, y1, xi0, f0))))
+    def initial_pressure(self, y0, y1, xi0, f0, t0: float = 0.0) -> float:
+        """p(t0) from the consistent initial acceleration (`consistent_pressure` at the first level t0)."""
+        return float(self.consistent_pressure(*(jnp.asarray(a) for a in (y0, y1, xi0, f0)), t0))
 
     def run(self, grid: TimeGrid, xi=None, *, u0=None, v0=None, external=None, progress: bool = False,
             monitor=None, diagnose: bool = True) -> StateSolution:
@@ -483,12 +506,12 @@ class TimeStepper:
         fs = self.external_loads(external, grid)
         self._check_initial_velocity(y0, y1)
         V0 = self.deformed_volume(y0)
-        p0 = self.initial_pressure(y0, y1, xis[0], fs[0]) if self.scheme.multiplier == "theta" else 0.0
+        p0 = self.initial_pressure(y0, y1, xis[0], fs[0], grid.t[0]) if self.scheme.multiplier == "theta" else 0.0
         start = _time.perf_counter()
         if self.solver.traced and monitor is None and progress:
             out = self._march_with_bar(y0, y1, p0, xis, fs, grid, V0)
         elif self.solver.traced and monitor is None:
-            out = self.march(y0, y1, p0, xis, fs, grid.dt, V0)
+            out = self.march(y0, y1, p0, xis, fs, grid.t, V0)
         else:
             out = self.march_stepwise(y0, y1, p0, xis, fs, grid, V0, progress, monitor)
         wall = _time.perf_counter() - start
@@ -537,7 +560,7 @@ class TimeStepper:
     def _check_initial_velocity(self, y0, y1) -> None:
         """The constraint's time derivative ``G(u0) . v0 = 0`` must hold: an incompatible v0 would
         leave an undamped alternating velocity at the constrained boundary."""
-        if not np.any(y1):
+        if not np.any(y1) or self.constraint.kind != "tissue_volume":
             return
         G = np.asarray(self.model.jitted["volume_gradient"](jnp.asarray(y0)))
         scale = np.linalg.norm(G) * max(np.linalg.norm(y1), 1e-300)
@@ -567,7 +590,7 @@ class TimeStepper:
         steps = tqdm(range(grid.num_steps), disable=not progress, desc="compiling", leave=False)
         for n in steps:
             inputs = (jnp.asarray(xis[n]), jnp.asarray(xis[n + 1]), jnp.asarray(fs[n]), jnp.asarray(fs[n + 1]),
-                      grid.dt[n], V0)
+                      grid.dt[n], V0, grid.t[n])
             carry, out = self.advance(carry, inputs)
             out = [np.asarray(o) for o in out]
             outs.append(out)

@@ -47,7 +47,7 @@ from ..fem.quadrature import simplex_rule
 from ..fem.spaces import reference_shape
 from .kernels import gather, scatter
 
-__all__ = ["FollowerPressure"]
+__all__ = ["BoundaryFacets", "FollowerPressure"]
 
 
 def _area_vector(T):
@@ -83,7 +83,63 @@ def _outward_facets(mesh, facets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return facets, owner
 
 
-class FollowerPressure:
+class BoundaryFacets:
+    """The facets of the boundary part ``boundary`` of ``model``'s mesh, oriented outward, with what a
+    boundary term integrates on them: their reduced dofs, reference node positions, owner cells and
+    the positions of their dofs in the owner's element block, and a facet quadrature rule of degree
+    ``degree`` (default ``k + (d - 1)(k - 1)``, exact for the follower force; k the Lagrange degree).
+
+    Attributes: ``num_facets``; ``_gather`` (nf, m d) reduced dofs (n = dump slot); ``_X`` (nf, m, d)
+    reference nodes; ``_owner`` (nf,), ``_local`` (nf, m d); ``_w`` (nq,), ``_N`` (nq, m), ``_dN``
+    (nq, m, d - 1) on the reference facet.
+    """
+
+    def __init__(self, model, boundary: str, degree: int | None = None):
+        space, dim = model.space, model.dim
+        facets, owner = _outward_facets(model.mesh, model.mesh.boundary(boundary))
+        nodes = space.facet_nodes(facets)  # (nf, m)
+        nf, m = nodes.shape
+        self.boundary, self.n, self.dim = boundary, model.n, dim
+        self.num_facets = nf
+        red = model.to_reduced[space.node_dofs(nodes.ravel()).reshape(nf, m * dim)]
+        self._gather = jnp.asarray(dump_index(red, model.n))  # (nf, m d)
+        self._X = jnp.asarray(space.nodes[nodes])  # (nf, m, dim)
+        # Local positions of the facet dofs inside the owner cell's element block.
+        loc = np.argmax(space.cell_nodes[owner][:, None, :] == nodes[:, :, None], axis=2)  # (nf, m)
+        self._owner = jnp.asarray(owner)
+        self._local = jnp.asarray((loc[:, :, None] * dim + np.arange(dim)).reshape(nf, m * dim))
+        k = space.degree
+        xi, w = simplex_rule(dim - 1, k + (dim - 1) * (k - 1) if degree is None else degree)
+        N, dN = reference_shape(dim - 1, k, xi)
+        self._w, self._N, self._dN = jnp.asarray(w), jnp.asarray(N), jnp.asarray(dN)  # (nq,), (nq, m), (nq, m, d-1)
+
+    def restricted(self, model, local, cells: np.ndarray, dofs: np.ndarray):
+        """This term on the facets whose owner cell is among ``cells`` of the serial ``model`` (the one
+        it was built on), its unknowns the serial ``dofs`` (m,), increasing: the term of
+        ``local = model.restricted(cells, dofs)``, forces (m,), stiffness added to its element blocks
+        (the interface of a load a distributed solve restricts, `hyperoc.distributed.statics`)."""
+        local = copy.copy(self)
+        position = np.full(model.mesh.num_cells, -1, dtype=np.int64)
+        position[cells] = np.arange(cells.size)
+        owner = position[np.asarray(self._owner)]
+        mine = np.flatnonzero(owner >= 0)
+        local._owner, local._local, local._X = jnp.asarray(owner[mine]), self._local[mine], self._X[mine]
+        local._gather = jnp.asarray(relabel_index(np.asarray(self._gather)[mine], model.n, dofs))
+        local.num_facets, local.n = mine.size, dofs.size
+        local._restricted(mine)
+        return local
+
+    def _restricted(self, mine: np.ndarray) -> None:
+        """Restrict further per-facet data of a subclass to the facets ``mine`` (called by `restricted`)."""
+
+    def add_facet_blocks(self, cell_blocks, facet_blocks):
+        """``cell_blocks`` (nc, k, k) plus ``facet_blocks`` (nf, m d, m d), each scattered into its facet's
+        owner cell (so the sum fits the model's sparsity pattern)."""
+        c = self._owner[:, None, None]
+        return cell_blocks.at[c, self._local[:, :, None], self._local[:, None, :]].add(facet_blocks)
+
+
+class FollowerPressure(BoundaryFacets):
     """Pressure ``pressure`` (kPa) on the deformed boundary part ``boundary`` of ``model``'s mesh.
 
     Methods take the reduced displacement u (n,) and a load ``factor`` (the load step ``s``: the
@@ -99,38 +155,8 @@ class FollowerPressure:
     def __init__(self, model, boundary: str, pressure: float):
         if not np.isfinite(pressure):
             raise InputError(f"follower pressure must be finite, got {pressure}")
-        space, dim = model.space, model.dim
-        facets, owner = _outward_facets(model.mesh, model.mesh.boundary(boundary))
-        nodes = space.facet_nodes(facets)  # (nf, m)
-        nf, m = nodes.shape
-        self.boundary, self.pressure, self.n, self.dim = boundary, float(pressure), model.n, dim
-        self.num_facets = nf
-        red = model.to_reduced[space.node_dofs(nodes.ravel()).reshape(nf, m * dim)]
-        self._gather = jnp.asarray(dump_index(red, model.n))  # (nf, m d)
-        self._X = jnp.asarray(space.nodes[nodes])  # (nf, m, dim)
-        # Local positions of the facet dofs inside the owner cell's element block.
-        loc = np.argmax(space.cell_nodes[owner][:, None, :] == nodes[:, :, None], axis=2)  # (nf, m)
-        self._owner = jnp.asarray(owner)
-        self._local = jnp.asarray((loc[:, :, None] * dim + np.arange(dim)).reshape(nf, m * dim))
-        k = space.degree
-        xi, w = simplex_rule(dim - 1, k + (dim - 1) * (k - 1))
-        N, dN = reference_shape(dim - 1, k, xi)
-        self._w, self._N, self._dN = jnp.asarray(w), jnp.asarray(N), jnp.asarray(dN)  # (nq,), (nq, m), (nq, m, d-1)
-
-    def restricted(self, model, local, cells: np.ndarray, dofs: np.ndarray) -> "FollowerPressure":
-        """This load on the facets whose owner cell is among ``cells`` of the serial ``model`` (the one
-        it was built on), its unknowns the serial ``dofs`` (m,), increasing: the load of
-        ``local = model.restricted(cells, dofs)``, forces (m,), stiffness added to its element blocks
-        (the interface of a load a distributed solve restricts, `hyperoc.distributed.statics`)."""
-        local = copy.copy(self)
-        position = np.full(model.mesh.num_cells, -1, dtype=np.int64)
-        position[cells] = np.arange(cells.size)
-        owner = position[np.asarray(self._owner)]
-        mine = np.flatnonzero(owner >= 0)
-        local._owner, local._local, local._X = jnp.asarray(owner[mine]), self._local[mine], self._X[mine]
-        local._gather = jnp.asarray(relabel_index(np.asarray(self._gather)[mine], model.n, dofs))
-        local.num_facets, local.n = mine.size, dofs.size
-        return local
+        super().__init__(model, boundary)
+        self.pressure = float(pressure)
 
     # --- per facet ------------------------------------------------------------------------------
     def _area_vectors(self, x):
@@ -165,9 +191,7 @@ class FollowerPressure:
 
     def add_stiffness(self, cell_blocks, u, factor=1.0):
         """``cell_blocks`` (nc, k, k) plus the load stiffness, scattered into each facet's owner cell."""
-        Kf = self.facet_stiffness(u, factor)
-        c = self._owner[:, None, None]
-        return cell_blocks.at[c, self._local[:, :, None], self._local[:, None, :]].add(Kf)
+        return self.add_facet_blocks(cell_blocks, self.facet_stiffness(u, factor))
 
     def enclosed_volume(self, u):
         """``(1/d) sum_facets int x . a dxi`` (scalar, length^d): the volume enclosed by the deformed

@@ -275,7 +275,9 @@ class Guccione(Material):
 @dataclass(frozen=True)
 class HolzapfelOgden(Material):
     """Orthotropic Holzapfel-Ogden law (Holzapfel & Ogden 2009, Phil. Trans. R. Soc. A 367), with an
-    isochoric ``I1`` (the common compressible form).
+    isochoric ``I1`` (the common compressible form) or, with ``isochoric=False``, the full ``I1 = tr C``
+    (the cardiac elastodynamics benchmark's form, Aróstica et al. 2025, CMAME 435:117485; it is not
+    stress free: at E = 0 the second Piola stress is ``a I``, 59 Pa with the benchmark's parameters).
 
     ``W = a/(2b) (exp(b (I1bar - d)) - 1)
         + af/(2bf) (exp(bf <I4f - 1>^2) - 1) + as/(2bs) (exp(bs <I4s - 1>^2) - 1)
@@ -285,7 +287,7 @@ class HolzapfelOgden(Material):
     ``I8fs = f.Cs`` (``f, s`` = rows 0, 1 of the frame; d = 2 or 3), and ``<x> = max(x, 0)``: fibres
     and sheets bear load only when stretched. Only the isotropic term is isochoric; the fibre terms
     use the full invariants, as is common (with isochoric I4bar a compressible anisotropic body
-    answers a hydrostatic load by a pure dilatation, Sansour 2008). Stress free at E = 0.
+    answers a hydrostatic load by a pure dilatation, Sansour 2008). Stress free at E = 0 when isochoric.
 
     The frame must be orthonormal: the code evaluates ``I4 - 1 = 2 a.E a`` and ``I8fs = 2 f.E s``
     (equal for such frames), which vanish exactly at E = 0 whatever the round-off in ``|f|``.
@@ -295,9 +297,10 @@ class HolzapfelOgden(Material):
     ``I4 = 1`` exactly it is the compression (left) limit 0, so the reference tangent (E = 0) has no
     fibre or sheet contribution.
 
-    Units: a, af, as, afs, bulk_modulus in kPa; b, bf, bs, bfs dimensionless. Defaults: the 2009 fit to
-    Dokos et al. shear data (a = 0.059, b = 8.023, af = 18.472, bf = 16.026, as = 2.481, bs = 11.120,
-    afs = 0.216, bfs = 11.436); ``as_`` is spelled ``as`` in configs.
+    Units: a, af, as, afs, bulk_modulus in stress units (kPa with mm; Pa with m: the benchmark's a = 59 Pa,
+    af = 18472 Pa, as = 2481 Pa, afs = 216 Pa, bulk_modulus = 1e6 Pa); b, bf, bs, bfs dimensionless.
+    Defaults: the 2009 fit to Dokos et al. shear data (a = 0.059, b = 8.023, af = 18.472, bf = 16.026,
+    as = 2.481, bs = 11.120, afs = 0.216, bfs = 11.436, kPa); ``as_`` is spelled ``as`` in configs.
     """
 
     a: float = 0.059
@@ -309,12 +312,13 @@ class HolzapfelOgden(Material):
     afs: float = 0.216
     bfs: float = 11.436
     bulk_modulus: float = 1000.0
+    isochoric: bool = True
 
     def energy(self, E, frame=None):
         f, s = _frame_rows(frame, 2, "Holzapfel-Ogden")
         d = E.shape[0]
         C = 2.0 * E + jnp.eye(d)
-        I1bar = det(C) ** (-1.0 / d) * jnp.trace(C)
+        I1bar = det(C) ** (-1.0 / d) * jnp.trace(C) if self.isochoric else jnp.trace(C)
         # I4 - 1 = 2 a.E a and I8 = 2 f.E s for a unit, orthogonal frame: exactly 0 at E = 0.
         tension = lambda a: jnp.where(a @ E @ a > 0.0, 2.0 * (a @ E @ a), 0.0)
         return (self.a / (2 * self.b) * jnp.expm1(self.b * (I1bar - d))
@@ -330,6 +334,8 @@ class HolzapfelOgden(Material):
                       {"a": self.a, "b": self.b, "bf": self.bf, "bs": self.bs, "bfs": self.bfs,
                        "bulk_modulus": self.bulk_modulus},
                       {"af": self.af, "as": self.as_, "afs": self.afs})
+        _require(isinstance(self.isochoric, bool),
+                 f"Holzapfel-Ogden: isochoric must be True or False, got {self.isochoric!r}")
         return self
 
 
