@@ -36,3 +36,10 @@ def test_example_simulates(tmp_path, capsys, name, degree):
     assert code == 0, capsys.readouterr().err
     summary = json.loads((out / "summary.json").read_text())
     assert math.isfinite(summary["pressure_max"]) and summary["volume_drift"] < 1e-8
+
+
+@pytest.mark.parametrize("name", sorted(p.name for p in EXAMPLES.glob("*.toml")))
+def test_every_example_declares_its_units(name):
+    """The figures of every example carry its units (``[output] units``, "-" where dimensionless)."""
+    units = tomllib.loads((EXAMPLES / name).read_text()).get("output", {}).get("units", {})
+    assert set(units) == {"time", "length", "pressure", "control"}
