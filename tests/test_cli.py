@@ -110,6 +110,18 @@ def test_no_progress_bars_when_stderr_is_not_a_terminal(tmp_path, capsys):
     assert "\r" not in err and "compiling" not in err and "time steps" not in err
 
 
+def test_pressure_extrema_leave_out_extrapolated_levels(tmp_path, capsys):
+    """The end levels' pressures extrapolate the computed mid-step multipliers: the summary's extrema
+    are over the interior levels (here a constant load, whose pressure grows to the end)."""
+    cfg = _write(tmp_path, SMALL_1D.replace('"0.05 * sin(pi * t)"', '"0.05"'))
+    assert main(["simulate", str(cfg), "--out", str(tmp_path / "o"), "--set", "dynamics.dt=0.1"]) == 0
+    summary, data = json.loads((tmp_path / "o" / "summary.json").read_text()), read_npz(tmp_path / "o" / "results.npz")
+    assert np.argmax(data["p"]) == data["t"].size - 1  # the extrapolated end level would be the maximum
+    assert summary["pressure_max"] == np.max(data["p"][1:-1]) and summary["t_pressure_max"] == data["t"][-2]
+    assert summary["pressure_min"] == np.min(data["p"][1:-1])
+    assert f"max p = {summary['pressure_max']:.6g} at t = {data['t'][-2]:.6g};" in capsys.readouterr().out
+
+
 @pytest.mark.parametrize(
     "change, message",
     [

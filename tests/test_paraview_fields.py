@@ -33,11 +33,11 @@ def _contraction(tmp_path, monkeypatch):
     summary = write_state_outputs(tmp_path, sol, frames=_frames, series_every=1)
     pvd = tmp_path / summary["files"]["time_series"]
     last = [d.get("file") for d in ET.parse(pvd).getroot().iter("DataSet")][-1]
-    return model, sol, meshio.read(pvd.parent / last)
+    return model, sol, meshio.read(pvd.parent / last), summary
 
 
 def test_paraview_fields_read_back(tmp_path, monkeypatch):
-    model, sol, mesh = _contraction(tmp_path, monkeypatch)
+    model, sol, mesh, _ = _contraction(tmp_path, monkeypatch)
     nc = model.mesh.num_cells
     assert mesh.point_data["control"].shape == (model.space.num_nodes,)  # a scalar, not (xi, 0, 0)
     np.testing.assert_array_equal(mesh.point_data["control"], -TENSION)
@@ -59,3 +59,18 @@ def test_paraview_fields_read_back(tmp_path, monkeypatch):
     E_ff = np.einsum("i,cij,j->c", FRAME[0], E, FRAME[0])
     np.testing.assert_allclose(mesh.cell_data["E_ff"][0], E_ff, rtol=0, atol=1e-14)
     assert np.mean(E_ff) < 0  # the fibres shorten under the contraction
+
+
+def test_a_3d_mesh_without_the_cavity_wall_says_so(tmp_path, monkeypatch):
+    """No ``cavity_volume`` without the wall named by ``cavity`` (default "endocardium"), and a warning
+    naming the mesh's boundaries; the wall is ``[fibres] inner`` when the config has fibres."""
+    from hyperoc.app.config import parse_config
+
+    *_, summary = _contraction(tmp_path, monkeypatch)
+    assert "cavity_volume_0" not in summary
+    assert [w for w in summary["warnings"] if w.startswith("no cavity_volume: the mesh has no boundary 'endocardium' "
+                                                           "(its boundaries: ")]
+    fibres = {"kind": "rule_based", "inner": "endo"}
+    assert parse_config({"mesh": {"kind": "ventricle"}, "fibres": fibres}).cavity_wall() == "endo"
+    assert parse_config({"mesh": {"kind": "ventricle"}}).cavity_wall() == "endocardium"
+    assert parse_config({"mesh": {"kind": "box"}}).cavity_wall() is None

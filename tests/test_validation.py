@@ -61,7 +61,6 @@ BAD_SETTINGS = [
     ("optimize.gtol=-1e-6", "gtol must be >= 0"),
     ("optimize.tau0=nan", "tau0 must be a finite number"),
     ("optimize.tau0=5.0", "[optimize] tau0 = 5 must lie in (0, T - eps)"),
-    ("optimize.tau_starts=[0.5, 2.5]", "[optimize] tau_starts[1] = 2.5 must lie in (0, T - eps)"),
     ("optimize.nonmonotone=-1", "nonmonotone must be >= 0"),
     ("optimize.checkpoint_snapshots=3", None),  # valid: the next case adds the conflicting option
     ("output.snapshot_times=0.5", "snapshot_times must be a list"),
@@ -289,6 +288,9 @@ def test_simulate_does_not_read_the_optimizers_tau(tmp_path, capsys):
     cfg = load_config(ROOT / "examples" / "ventricle-3d.toml", ["dynamics.T=4"])
     with pytest.raises(InputError, match=r"\[optimize\] tau0 = 10 must lie in \(0, T - eps\) = \(0, 3\)"):
         cfg.tau_starts()
+    starts = _write(tmp_path / "starts.toml", SMALL_1D.replace("tau0 = 1.0", "tau_starts = [0.5, 2.5]"))
+    with pytest.raises(InputError, match=r"\[optimize\] tau_starts\[1\] = 2.5 must lie in \(0, T - eps\)"):
+        load_config(starts).tau_starts()
     path, out = _write(tmp_path / "c.toml", SMALL_1D), tmp_path / "out"
     assert main(["simulate", str(path), "--out", str(out), "--no-progress", "--set", "optimize.tau0=5",
                  "--set", "dynamics.dt=0.1"]) == 0
@@ -306,7 +308,10 @@ def test_paths_resolve_from_the_config_or_from_where_set_is_typed(tmp_path, monk
     monkeypatch.chdir(tmp_path / "work")
     assert load_config(path).control_path() == tmp_path / "configs" / "xi.npz"
     assert load_config(path, ['control.file="xi.npz"']).control_path() == tmp_path / "work" / "xi.npz"
-    assert load_config(path, ['mesh.kind="file"', 'mesh.file="m.msh"']).mesh_path() == tmp_path / "work" / "m.msh"
+    mesh = _write(tmp_path / "configs" / "m.toml", SMALL_1D.replace('kind = "interval"\nn = 20',
+                                                                    'kind = "file"\nfile = "m.msh"'))
+    assert load_config(mesh).mesh_path() == tmp_path / "configs" / "m.msh"
+    assert load_config(mesh, ['mesh.file="m.msh"']).mesh_path() == tmp_path / "work" / "m.msh"
     out = tmp_path / "out"
     _assert_refused(main(["simulate", str(path), "--out", str(out)]), capsys, out,
                     f"control file not found: {tmp_path / 'configs' / 'xi.npz'} ([control] file = 'xi.npz'; "
