@@ -51,6 +51,7 @@ def site(tmp_path_factory) -> Path:
 
 @pytest.mark.slow  # a whole mkdocs build (~20 s)
 def test_built_site_loads_nothing_from_outside(site):
+    """No page or style sheet of the built site loads a URL with a host; every local one it loads exists."""
     pages = sorted(site.rglob("*.html"))
     assert len(pages) > 5
     missing, external = [], []
@@ -75,6 +76,7 @@ def test_built_site_loads_nothing_from_outside(site):
 
 @pytest.mark.slow
 def test_mathematics_is_rendered_by_the_sites_own_mathjax(site):
+    """The maths page loads the MathJax copied into the site, fonts included."""
     page = (site / "mathematics" / "index.html").read_text(encoding="utf-8")
     assert 'class="arithmatex"' in page
     parser = _Resources()
