@@ -184,6 +184,8 @@ def write_optimization_outputs(out: Path, cfg: Config, J: ReducedFunctional, res
         write_npz(out / BEST_FILE, xi=res.best["point"].xi, tau=np.float64(res.best["point"].tau),
                   objective=np.float64(res.best["objective"]), iteration=np.int64(res.best["iteration"]))
         summary["best"]["file"] = BEST_FILE
+    else:  # a resumed run that went past it leaves no earlier better iterate behind
+        (out / BEST_FILE).unlink(missing_ok=True)
     o = cfg["output"]
     return write_state_outputs(out, sol, tau=res.point.tau, eps=J.transform.eps or None, history=hist,
                                snapshot_times=o.get("snapshot_times"), series_every=o.get("series_every"),
