@@ -72,7 +72,15 @@ def test_check_gradient_json(tmp_path, capsys):
         assert 1.9 <= r["rate"] <= 2.1 and r["passed"]
 
 
-def test_progress_bar_labels_the_compilation(tmp_path, capsys):
+@pytest.fixture
+def terminal(monkeypatch):
+    """stderr taken for a terminal, where the progress bars are drawn (capsys' stderr is not one)."""
+    import hyperoc.app.cli
+
+    monkeypatch.setattr(hyperoc.app.cli, "_stderr_is_terminal", lambda: True)
+
+
+def test_progress_bar_labels_the_compilation(tmp_path, capsys, terminal):
     """Steps driven from Python (here a host sparse solver): the bar says "compiling" until the
     first step has run, then counts time steps."""
     cfg = _write(tmp_path, SMALL_1D)
@@ -81,7 +89,7 @@ def test_progress_bar_labels_the_compilation(tmp_path, capsys):
     assert err.index("compiling:") < err.index("time steps:")
 
 
-def test_simulate_1d_progress_by_blocks_gives_the_same_solution(tmp_path, capsys):
+def test_simulate_1d_progress_by_blocks_gives_the_same_solution(tmp_path, capsys, terminal):
     """1D P1 (compiled loop): the bar advances by blocks of steps after "compiling", and the solution
     is bitwise the one of the loop run in one piece (--no-progress)."""
     cfg = _write(tmp_path, SMALL_1D)
@@ -92,6 +100,26 @@ def test_simulate_1d_progress_by_blocks_gives_the_same_solution(tmp_path, capsys
     bar, quiet = (np.load(tmp_path / name / "results.npz") for name in ("bar", "quiet"))
     for key in ("displacement", "velocity", "p", "volume"):
         np.testing.assert_array_equal(bar[key], quiet[key])
+
+
+def test_no_progress_bars_when_stderr_is_not_a_terminal(tmp_path, capsys):
+    """Output going to a file or a pipe gets no progress bar frames (carriage-return redraws)."""
+    cfg = _write(tmp_path, SMALL_1D)
+    assert main(["simulate", str(cfg), "--out", str(tmp_path / "o"), "--set", "dynamics.dt=0.1"]) == 0
+    err = capsys.readouterr().err
+    assert "\r" not in err and "compiling" not in err and "time steps" not in err
+
+
+def test_pressure_extrema_leave_out_extrapolated_levels(tmp_path, capsys):
+    """The end levels' pressures extrapolate the computed mid-step multipliers: the summary's extrema
+    are over the interior levels (here a constant load, whose pressure grows to the end)."""
+    cfg = _write(tmp_path, SMALL_1D.replace('"0.05 * sin(pi * t)"', '"0.05"'))
+    assert main(["simulate", str(cfg), "--out", str(tmp_path / "o"), "--set", "dynamics.dt=0.1"]) == 0
+    summary, data = json.loads((tmp_path / "o" / "summary.json").read_text()), read_npz(tmp_path / "o" / "results.npz")
+    assert np.argmax(data["p"]) == data["t"].size - 1  # the extrapolated end level would be the maximum
+    assert summary["pressure_max"] == np.max(data["p"][1:-1]) and summary["t_pressure_max"] == data["t"][-2]
+    assert summary["pressure_min"] == np.min(data["p"][1:-1])
+    assert f"max p = {summary['pressure_max']:.6g} at t = {data['t'][-2]:.6g};" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize(
@@ -234,7 +262,7 @@ def test_set_overrides_config_entries_and_optimize_records_what_ran(tmp_path, ca
     """``--set`` and ``--method`` change the run (here a bound |xi| <= 0.01 that the optimizer hits,
     and L-BFGS-B or Newton-CG with at most 3 Hessian products per iteration); the output folder's
     config.toml is the configuration that ran, so reloading it gives the same sections, and
-    ``--resume`` refuses new overrides."""
+    ``--resume`` refuses an override that changes the problem, naming the key."""
     from hyperoc.app.config import load_config
 
     cfg, out = _write(tmp_path, SMALL_1D), tmp_path / "o"
@@ -249,8 +277,8 @@ def test_set_overrides_config_entries_and_optimize_records_what_ran(tmp_path, ca
     products = summary["optimization"]["evaluations"].get("hessian_products", 0)
     assert (0 < products <= 3 * summary["iterations"]) if method == "newton" else products == 0
     capsys.readouterr()
-    assert main(["optimize", "--resume", str(out), "--set", "optimize.max_iter=5"]) == 2
-    assert "--resume continues the run" in capsys.readouterr().err
+    assert main(["optimize", "--resume", str(out), "--set", "optimize.xi_bounds=[-0.02, 0.02]"]) == 2
+    assert "--resume: optimize.xi_bounds would change the problem" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("override, message", [

@@ -41,3 +41,10 @@ def test_example_simulates(tmp_path, capsys, name, degree):
         assert summary["volume_drift"] < 1e-8
     else:  # no multiplier: the pressure reported is 0
         assert summary["pressure_max"] == summary["pressure_min"] == 0.0
+
+
+@pytest.mark.parametrize("name", sorted(p.name for p in EXAMPLES.glob("*.toml")))
+def test_every_example_declares_its_units(name):
+    """The figures of every example carry its units (``[output] units``, "-" where dimensionless)."""
+    units = tomllib.loads((EXAMPLES / name).read_text()).get("output", {}).get("units", {})
+    assert set(units) == {"time", "length", "pressure", "control"}

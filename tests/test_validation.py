@@ -60,7 +60,7 @@ BAD_SETTINGS = [
     ("optimize.max_iter=-1", "max_iter must be >= 1"),
     ("optimize.gtol=-1e-6", "gtol must be >= 0"),
     ("optimize.tau0=nan", "tau0 must be a finite number"),
-    ("optimize.tau0=5.0", "tau = 5 must lie in (0, T - eps)"),
+    ("optimize.tau0=5.0", "[optimize] tau0 = 5 must lie in (0, T - eps)"),
     ("optimize.nonmonotone=-1", "nonmonotone must be >= 0"),
     ("optimize.checkpoint_snapshots=3", None),  # valid: the next case adds the conflicting option
     ("output.snapshot_times=0.5", "snapshot_times must be a list"),
@@ -136,7 +136,8 @@ def _control_file(tmp_path, kind: str) -> str:
 @pytest.mark.parametrize("kind, fragment", [
     ("missing", "control file not found"), ("text", "not a readable NPZ archive"), ("npy", "not an NPZ archive"),
     ("no xi", "has no array 'xi' (found: control)"), ("nan", "non-finite value (nan) at level 3, entry 2"),
-    ("shape", "must have shape (levels, n_ctrl) = (41, 6), got (40, 6)"), ("strings", "2D real array"),
+    ("shape", "must have shape (levels, n_ctrl) = (41, 6), got (40, 6)"),
+    ("strings", "must be a real array (levels, n_ctrl) or (levels, n_nodes, components)"),
 ])
 def test_bad_control_file_exit_2(tmp_path, capsys, kind, fragment):
     name = _control_file(tmp_path, kind)
@@ -277,3 +278,43 @@ def test_material_errors_need_no_jax():
                          text=True, check=True)
     assert out.stdout.split() == ["2", "False"]
     assert "mu must be > 0" in out.stderr and not (root / "never-written").exists()
+
+
+def test_simulate_does_not_read_the_optimizers_tau(tmp_path, capsys):
+    """``[optimize] tau0`` is read by the commands that optimize: with T below it, ``simulate`` runs and
+    ``optimize`` names the key it reads."""
+    from hyperoc.app.config import load_config
+    from hyperoc.errors import InputError
+
+    cfg = load_config(ROOT / "examples" / "ventricle-3d.toml", ["dynamics.T=4"])
+    with pytest.raises(InputError, match=r"\[optimize\] tau0 = 10 must lie in \(0, T - eps\) = \(0, 3\)"):
+        cfg.tau_starts()
+    starts = _write(tmp_path / "starts.toml", SMALL_1D.replace("tau0 = 1.0", "tau_starts = [0.5, 2.5]"))
+    with pytest.raises(InputError, match=r"\[optimize\] tau_starts\[1\] = 2.5 must lie in \(0, T - eps\)"):
+        load_config(starts).tau_starts()
+    path, out = _write(tmp_path / "c.toml", SMALL_1D), tmp_path / "out"
+    assert main(["simulate", str(path), "--out", str(out), "--no-progress", "--set", "optimize.tau0=5",
+                 "--set", "dynamics.dt=0.1"]) == 0
+
+
+def test_paths_resolve_from_the_config_or_from_where_set_is_typed(tmp_path, monkeypatch, capsys):
+    """A relative ``file`` in a config is taken from the config's folder; one given with ``--set`` from
+    the working directory; a missing one is named resolved, with the rule."""
+    from hyperoc.app.config import load_config
+
+    (tmp_path / "configs").mkdir()
+    (tmp_path / "work").mkdir()
+    path = _write(tmp_path / "configs" / "c.toml", SMALL_1D.replace('value = "0.05 * sin(pi * t)"',
+                                                                   'file = "xi.npz"'))
+    monkeypatch.chdir(tmp_path / "work")
+    assert load_config(path).control_path() == tmp_path / "configs" / "xi.npz"
+    assert load_config(path, ['control.file="xi.npz"']).control_path() == tmp_path / "work" / "xi.npz"
+    mesh = _write(tmp_path / "configs" / "m.toml", SMALL_1D.replace('kind = "interval"\nn = 20',
+                                                                    'kind = "file"\nfile = "m.msh"'))
+    assert load_config(mesh).mesh_path() == tmp_path / "configs" / "m.msh"
+    assert load_config(mesh, ['mesh.file="m.msh"']).mesh_path() == tmp_path / "work" / "m.msh"
+    out = tmp_path / "out"
+    _assert_refused(main(["simulate", str(path), "--out", str(out)]), capsys, out,
+                    f"control file not found: {tmp_path / 'configs' / 'xi.npz'} ([control] file = 'xi.npz'; "
+                    f"a relative path is taken from the config's folder {tmp_path / 'configs'}, one given with --set "
+                    "from the working directory)")

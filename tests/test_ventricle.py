@@ -172,7 +172,8 @@ def test_example_optimizes_and_writes_the_paraview_fields(coarse, tmp_path):
         assert (tmp_path / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     point_data, cell_data = last_time_series_level(tmp_path / summary["files"]["time_series"])
     assert {"displacement", "velocity", "control"} <= set(point_data)
-    assert {"det_F", "fibre", "sheet", "normal", "active_stress"} <= set(cell_data)
+    assert {"det_F", "fibre", "sheet", "normal", "active_stress", "cauchy_stress", "E_ff"} <= set(cell_data)
+    assert point_data["control"].shape == (model.space.num_nodes,)  # the scalar active stress as a scalar
     nc = model.mesh.num_cells
     assert cell_data["active_stress"][0].shape == (nc, 9) and cell_data["fibre"][0].shape == (nc, 3)
     assert np.all(cell_data["det_F"][0] > 0)

@@ -40,6 +40,8 @@ config sections (all optional; reference: docs/configuration.md, or python -m hy
 example:
   hyperoc simulate examples/simulate-1d.toml --out run --set dynamics.T=3
   hyperoc optimize examples/paper-1d.toml --out opt        (and, if interrupted: hyperoc optimize --resume opt)
+  hyperoc optimize --resume opt --set optimize.max_iter=200     (continue a run that stopped at its budget)
+  hyperoc simulate examples/paper-1d.toml --out replay --set 'control.file="opt/results.npz"'   (replay its control)
 """
 
 
@@ -66,7 +68,9 @@ def _parser() -> argparse.ArgumentParser:
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     o.add_argument("config", nargs="?", help=CONFIG_HELP)
     o.add_argument("--out", metavar="DIR", help=OUT_HELP)
-    o.add_argument("--resume", metavar="DIR", help="continue an interrupted run in DIR (its config.toml is reused)")
+    o.add_argument("--resume", metavar="DIR",
+                   help="continue an interrupted or stopped run in DIR (its config.toml is reused; --set may raise "
+                        "optimize.max_iter or change optimize.gtol)")
     o.add_argument("--method", choices=["bb", "lbfgsb", "newton"], help="override [optimize] method")
     o.add_argument("--scheduler", metavar="ADDRESS", help="Dask scheduler for multi-start (default: local processes)")
     o.add_argument("--workers", type=int, default=2)
@@ -83,7 +87,8 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--workers", type=int, default=None,
                    help="processes running the independent studies in parallel (default: min(2, CPUs))")
     for q in (s, o, r):
-        q.add_argument("--no-progress", action="store_true", help="no progress bar")
+        q.add_argument("--no-progress", action="store_true",
+                       help="no progress bar (there is none either when stderr is not a terminal)")
     for q in (s, o, g):
         q.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", dest="overrides",
                        help="override a config entry, e.g. --set optimize.xi_bounds=[-0.05,0.05] (repeatable; "
@@ -110,6 +115,23 @@ def _checked_config(config, overrides, out, command: str, force: bool):
     return cfg, check_run(cfg, command, mesh)
 
 
+def _check_resume_changes(config: Path, overrides: list) -> None:
+    """`InputError` naming the first entry that ``overrides`` change in the recorded ``config``, other
+    than the optimizer's budget (`hyperoc.app.config.BUDGET_KEYS`, which leaves every iterate before
+    the stop as it was: the cached evaluations replay them): a resumed run continues the recorded problem."""
+    from .config import BUDGET_KEYS, load_config
+
+    allowed = [f"optimize.{k}" for k in BUDGET_KEYS]
+    recorded, changed = load_config(config).sections, load_config(config, overrides).sections
+    for section, entries in changed.items():
+        for key in sorted(set(entries) | set(recorded[section])):
+            name = f"{section}.{key}"
+            if name not in allowed and entries.get(key) != recorded[section].get(key):
+                raise InputError(f"--resume: {name} would change the problem recorded in {config} "
+                                 f"({recorded[section].get(key)!r} -> {entries.get(key)!r}); only "
+                                 f"{', '.join(allowed)} may change on resume (a new run needs CONFIG --out DIR)")
+
+
 def _optimize(args) -> None:
     overrides = args.overrides + ([f"optimize.method={args.method}"] if args.method else [])
     if args.resume:
@@ -117,9 +139,9 @@ def _optimize(args) -> None:
         config = out / "config.toml"
         if not config.is_file():
             raise InputError(f"--resume: {out} has no config.toml (is it an optimize output folder?)")
-        if overrides or args.config or args.out:
-            raise InputError(f"--resume continues the run configured in {config}; CONFIG, --out, --set and --method "
-                             "apply to a new run")
+        if args.config or args.out:
+            raise InputError(f"--resume continues the run configured in {config}; CONFIG and --out apply to a new run")
+        _check_resume_changes(config, overrides)
     else:
         if not (args.config and args.out):
             raise InputError("optimize needs CONFIG and --out DIR (or --resume DIR)")
@@ -135,10 +157,10 @@ def _optimize(args) -> None:
                   file=sys.stderr)
         done = state["iterations"]
         print(f"resuming: {state['evaluations']} evaluations cached, {done} iterations done", file=sys.stderr)
-    else:
-        _record_config(cfg, out)  # --resume continues this very problem
+    # --resume continues this very problem (with the budget given last, so that a further --resume keeps it)
+    _record_config(cfg, out)
     # a resumed run reads the copy out/config.toml: its folder names it in the figures
-    summary = optimize(cfg, out, progress=not args.no_progress, scheduler=args.scheduler, workers=args.workers,
+    summary = optimize(cfg, out, progress=_progress(args), scheduler=args.scheduler, workers=args.workers,
                        model=model, iterations_done=done, title=out.resolve().name if args.resume else None)
     print(f"tau = {summary.get('tau', float('nan')):.6g}  J = {summary.get('objective', float('nan')):.6g}  "
           f"converged = {summary.get('converged')}  -> {out / 'summary.json'}")
@@ -156,6 +178,16 @@ def _print_stop(summary: dict, out: Path) -> None:
               f"above the final J = {opt['objective']:.6g}: {out / best['file']}")
     for w in summary.get("warnings", []):
         print(f"warning: {w}", file=sys.stderr)
+
+
+def _stderr_is_terminal() -> bool:
+    return sys.stderr.isatty()
+
+
+def _progress(args) -> bool:
+    """Progress bars: unless ``--no-progress``, and only on a terminal: redrawn with carriage returns,
+    they would fill a log file (a pipe, ``nohup``, CI) with frames."""
+    return not args.no_progress and _stderr_is_terminal()
 
 
 def _start_compiler() -> None:
@@ -184,7 +216,7 @@ def _simulate(args) -> None:
     from .workflows import simulate
 
     _record_config(cfg, Path(args.out))
-    summary = simulate(cfg, args.out, progress=not (args.no_progress or args.log_steps),
+    summary = simulate(cfg, args.out, progress=_progress(args) and not args.log_steps,
                        monitor=_print_step if args.log_steps else None, model=model)
     print(f"max p = {summary['pressure_max']:.6g} at t = {summary['t_pressure_max']:.6g}; "
           f"volume drift {summary['volume_drift']:.2e} -> {Path(args.out) / 'summary.json'}")
@@ -217,7 +249,7 @@ def _reproduce(args) -> None:
 
     cache_environment()  # for the workers' JAX (this process imports none)
 
-    reproduce_paper_1d(out, quick=args.quick, progress=not args.no_progress, workers=args.workers)
+    reproduce_paper_1d(out, quick=args.quick, progress=_progress(args), workers=args.workers)
 
 
 COMMANDS = {"simulate": _simulate, "optimize": _optimize, "check-gradient": _check_gradient, "reproduce": _reproduce}

@@ -27,7 +27,14 @@ import numpy as np
 from ..errors import InputError
 from .schema import reference_markdown, validate_sections
 
-__all__ = ["Config", "load_config", "parse_config", "apply_overrides", "reference_markdown"]
+__all__ = ["Config", "load_config", "parse_config", "apply_overrides", "reference_markdown", "BUDGET_KEYS"]
+
+#: the name of every key that holds a path (``[mesh] file``, ``[control] file``)
+PATH_KEY = "file"
+
+#: the ``[optimize]`` entries that bound the optimizer's run (its budget and stopping test) without
+#: changing any iterate before it stops: the only ones ``optimize --resume`` may change
+BUDGET_KEYS = ("max_iter", "gtol")
 
 
 @dataclass(frozen=True)
@@ -50,8 +57,8 @@ class Config:
         for name, section in self.sections.items():
             lines.append(f"[{name}]")
             for key, value in section.items():
-                if key == "file":
-                    value = str((self.base / value).resolve())
+                if key == PATH_KEY:
+                    value = str(self.path(name))
                 lines.append(f"{key} = {_toml_value(value)}")
             lines.append("")
         return "\n".join(lines)
@@ -82,25 +89,36 @@ class Config:
         return geometry.from_file(self.mesh_path(), dirichlet=c["dirichlet_tag"], neumann=c["neumann_tag"],
                                   control=c["control_tag"], tags=c.get("tags"))
 
+    def path(self, section: str) -> Path:
+        """The ``file`` of ``[section]`` as an absolute path: a relative one is taken from the config's
+        folder (`apply_overrides` has made those given with ``--set`` absolute, from the working directory)."""
+        return (self.base / Path(self[section][PATH_KEY]).expanduser()).resolve()
+
+    def missing_file(self, section: str, what: str) -> str:
+        """The message for a ``[section] file`` that is not a file: the resolved path and the rule."""
+        path = self.path(section)
+        found = "not found" if not path.exists() else "is not a file"
+        return (f"{what} file {found}: {path} ([{section}] file = {self[section][PATH_KEY]!r}; a relative path "
+                f"is taken from the config's folder {self.base.resolve()}, one given with --set from the working "
+                "directory)")
+
     def mesh_path(self) -> Path | None:
-        """``[mesh] file`` resolved against the config's folder, the shipped file of ``kind = "cardiac_benchmark"``,
-        or None for a generated mesh."""
+        """``[mesh] file`` as an absolute path (`path`), the shipped file of ``kind = "cardiac_benchmark"``, or
+        None for a generated mesh."""
         c = self["mesh"]
         if c["kind"] == "cardiac_benchmark":
             from ..cardiac.benchmark_geometry import mesh_file
 
             return mesh_file(c["variant"])
-        return (self.base / c["file"]).resolve() if c["kind"] == "file" else None
+        return self.path("mesh") if c["kind"] == "file" else None
 
     def fibres_path(self) -> Path | None:
         """``[fibres] file`` resolved against the config's folder (None without one)."""
-        c = self["fibres"]
-        return (self.base / c["file"]).resolve() if "file" in c else None
+        return self.path("fibres") if PATH_KEY in self["fibres"] else None
 
     def control_path(self) -> Path | None:
-        """``[control] file`` resolved against the config's folder (None without one)."""
-        c = self["control"]
-        return (self.base / c["file"]).resolve() if "file" in c else None
+        """``[control] file`` as an absolute path (`path`; None without one)."""
+        return self.path("control") if PATH_KEY in self["control"] else None
 
     def _straight_mesh(self, kind: str):
         from ..fem.mesh import box, interval, rectangle
@@ -148,6 +166,14 @@ class Config:
         axis = c["long_axis"]
         return rule_based_fibres(mesh, helix_endo=float(c["helix_endo"]), helix_epi=float(c["helix_epi"]),
                                  long_axis=tuple(float(v) for v in axis), inner=c["inner"], outer=c["outer"])
+
+    def cavity_wall(self) -> str | None:
+        """The boundary enclosing the cavity whose volume a run reports: ``[fibres] inner`` with
+        rule-based fibres, else ``"endocardium"`` on a ventricle or a mesh file; None for the other
+        generated meshes (no cavity)."""
+        if self["fibres"]["kind"] == "rule_based":
+            return self["fibres"]["inner"]
+        return "endocardium" if self["mesh"]["kind"] in ("ventricle", "file") else None
 
     def control_operator(self, frames=None):
         """The control of ``[control]``; active stress follows ``frames``' fibres when given."""
@@ -240,10 +266,22 @@ class Config:
                       max_iter=int(d["newton_max_iter"]), newton=d["newton"])
 
     def grid(self):
-        from ..dynamics.timegrid import uniform_grid
+        """The time levels of a run: uniform (``[dynamics] T, dt``), or those of the ``[control] file``
+        when it holds an array ``t`` (the levels of the run that wrote it: an optimization's grid
+        depends on its tau), which must be T / dt + 1 increasing levels from 0 to T."""
+        from ..dynamics.timegrid import TimeGrid, uniform_grid
 
         d = self["dynamics"]
-        return uniform_grid(float(d["T"]), float(d["dt"]))
+        grid = uniform_grid(float(d["T"]), float(d["dt"]))
+        path = self.control_path()
+        t = None if path is None else read_control_times(path)
+        if t is None:
+            return grid
+        if t.shape != grid.t.shape or t[0] != 0.0 or not np.isclose(t[-1], grid.t[-1], rtol=1e-12, atol=0.0):
+            raise InputError(f"control file {path}: 't' must hold the {grid.t.size} levels from 0 to T = "
+                             f"{grid.t[-1]:g} (T / dt + 1), got {t.size} from {t[0]:g} to {t[-1]:g}")
+        with _in_section("control"):
+            return TimeGrid(t)
 
     def objective(self):
         from ..control.objectives import objective_from_config
@@ -261,11 +299,20 @@ class Config:
         return TimeTransform.for_step(T, float(d["dt"]), tau, eps)
 
     def tau_starts(self) -> list:
+        """The starts of tau of ``[optimize]`` (``tau_starts``, else ``[tau0]``, else ``[T / 2]``);
+        `InputError` naming the key of one outside (0, T - eps). Only the commands that optimize read them."""
         o, T = self["optimize"], float(self["dynamics"]["T"])
-        starts = o.get("tau_starts") or [o.get("tau0", T / 2)]
-        for t in starts:
-            self.transform(float(t))
+        eps = float(self["objective"].get("eps", 0.0))
+        key, starts = ("tau_starts", o["tau_starts"]) if o.get("tau_starts") else ("tau0", [o.get("tau0", T / 2)])
+        for k, t in enumerate(starts):
+            if not 0 < t < T - eps:
+                where = f"{key}[{k}]" if key == "tau_starts" else key
+                raise InputError(f"config: [optimize] {where} = {t:g} must lie in (0, T - eps) = (0, {T - eps:g})")
         return [float(t) for t in starts]
+
+    def budget(self) -> dict:
+        """``{key: value}`` of the `BUDGET_KEYS` of ``[optimize]``."""
+        return {k: self["optimize"][k] for k in BUDGET_KEYS}
 
     def xi_bounds(self):
         b = self["optimize"].get("xi_bounds")
@@ -365,13 +412,31 @@ def _control_from_npz(path: Path, size: int, levels: int) -> np.ndarray:
     xi = read_control_file(path)
     if xi.shape != (levels, size):
         raise InputError(f"control file {path}: 'xi' must have shape (levels, n_ctrl) = {(levels, size)}, "
-                         f"got {xi.shape}")
+                         f"got {xi.shape} (after flattening nodal values)")
     return xi
 
 
+def read_control_times(path: Path) -> np.ndarray | None:
+    """The time levels ``t`` (levels,) of an NPZ control file as float64, or None if it has none
+    (`read_control_file` checks the file itself)."""
+    read_control_file(path)
+    with np.load(path, allow_pickle=False) as data:
+        if "t" not in data.files:
+            return None
+        t = data["t"]
+    if t.ndim != 1 or not np.issubdtype(t.dtype, np.number) or np.iscomplexobj(t) or not np.all(np.isfinite(t)):
+        raise InputError(f"control file {path}: 't' must be a 1D array of finite times, got {t.dtype} {t.shape}")
+    return t.astype(np.float64)
+
+
 def read_control_file(path: Path) -> np.ndarray:
-    """The array ``xi`` of an NPZ control file, as float64; `InputError` if the file is missing, is
-    not an NPZ archive, has no finite 2D float array ``xi``."""
+    """The array ``xi`` of an NPZ control file as float64 (levels, n_ctrl); `InputError` if the file is
+    missing, is not an NPZ archive, has no finite real array ``xi``.
+
+    ``xi`` is either the control vectors (levels, n_ctrl) or their nodal values (levels, n_nodes,
+    components), the layout ``results.npz`` holds (`hyperoc.mechanics.controls.ControlData.nodal`):
+    n_ctrl = n_nodes * components, node-major, so the nodal values flatten to the control vectors and
+    a run's ``results.npz`` replays as written."""
     import zipfile
 
     if not path.is_file():
@@ -390,10 +455,10 @@ def read_control_file(path: Path) -> np.ndarray:
             xi = data["xi"]
         except (zipfile.BadZipFile, ValueError, OSError, EOFError) as err:
             raise InputError(f"control file {path}: array 'xi' is unreadable ({type(err).__name__})") from None
-    if xi.ndim != 2 or not np.issubdtype(xi.dtype, np.number) or np.iscomplexobj(xi):
-        raise InputError(f"control file {path}: 'xi' must be a 2D real array (levels, n_ctrl), "
-                         f"got {xi.dtype} {xi.shape}")
-    xi = xi.astype(np.float64)
+    if xi.ndim not in (2, 3) or not np.issubdtype(xi.dtype, np.number) or np.iscomplexobj(xi):
+        raise InputError(f"control file {path}: 'xi' must be a real array (levels, n_ctrl) or "
+                         f"(levels, n_nodes, components), got {xi.dtype} {xi.shape}")
+    xi = xi.astype(np.float64).reshape(xi.shape[0], -1)
     if not np.all(np.isfinite(xi)):
         k, j = np.argwhere(~np.isfinite(xi))[0]
         raise InputError(f"control file {path}: 'xi' has a non-finite value ({xi[k, j]}) at level {k}, entry {j}")
@@ -426,14 +491,19 @@ def apply_overrides(data: dict, overrides) -> dict:
     """``data`` (a config as read from TOML) with each ``"SECTION.KEY=VALUE"`` of ``overrides`` set,
     e.g. ``optimize.xi_bounds=[-0.05, 0.05]`` or ``control.region.kind=box`` (a key path of any
     depth). VALUE is read as a TOML value (``0.05``, ``[1, 2]``, ``"svk"``, ``true``, ``{ a = 1 }``)
-    or, when it is none, taken as a string (``material.law=svk``). The result is validated like the
-    file by `parse_config`."""
+    or, when it is none, taken as a string (``material.law=svk``). A relative path (a key named
+    ``file``) given here is taken from the working directory, where the command is typed; one in the
+    config file from the config's folder (`Config.path`). The result is validated like the file by
+    `parse_config`."""
     entries = {}
     for item in overrides:
         path, sep, text = item.partition("=")
         if not sep:
             raise InputError(f"override {item!r}: expected SECTION.KEY=VALUE, e.g. dynamics.dt=0.01")
-        entries[path.strip()] = _read_value(text.strip())
+        value = _read_value(text.strip())
+        if path.strip().split(".")[-1] == PATH_KEY and isinstance(value, str):
+            value = str(Path.cwd() / Path(value).expanduser())  # typed on the command line: from where it is typed
+        entries[path.strip()] = value
     return set_entries(data, entries)
 
 

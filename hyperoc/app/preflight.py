@@ -33,15 +33,16 @@ LOCAL_NODES = {(1, 1): 2, (1, 2): 3, (2, 1): 3, (2, 2): 6, (3, 1): 4, (3, 2): 10
 def check_inputs(cfg, command: str, force: bool = False):
     """The checks of a run that need no solver: the files ``cfg`` names, the problem's size
     (`check_resources`), the material's parameters, the mesh and control region, the time grid and, for
-    ``simulate``, the prescribed control on the actual space-time grid. Returns the mesh, for the model to
-    reuse."""
+    ``simulate``, the prescribed control on the actual space-time grid, else the starts of tau. Returns the
+    mesh, for the model to reuse."""
     from .config import read_control_file
 
     mesh_file, control_file = cfg.mesh_path(), cfg.control_path()
     if mesh_file is not None and not mesh_file.is_file():
-        raise InputError(f"mesh file not found: {mesh_file}" if not mesh_file.exists()
-                         else f"mesh file {mesh_file} is not a file")
+        raise InputError(cfg.missing_file("mesh", "mesh"))
     if control_file is not None:
+        if not control_file.is_file():
+            raise InputError(cfg.missing_file("control", "control"))
         read_control_file(control_file)
     check_resources(cfg, command, force)
     cfg.material()
@@ -50,6 +51,8 @@ def check_inputs(cfg, command: str, force: bool = False):
     control, space = cfg.control_data(mesh)
     if command == "simulate":
         cfg.control_values(control, space, grid.t)
+    else:
+        cfg.tau_starts()
     return mesh
 
 

@@ -16,7 +16,6 @@ from .._jax import on_device
 from ..dynamics.stepper import StateSolution
 from ..fem.volumes import cavity_volume
 from ..io import write_json, write_npz, write_time_series
-from ..mechanics.fibres import FibreFrames
 from ..mechanics.materials import det
 from .plotting import Units, plot_control_spacetime, plot_history, plot_pressure, plot_snapshots
 
@@ -53,50 +52,104 @@ def cell_det_F(sol: StateSolution, levels: np.ndarray) -> np.ndarray:
     return np.stack([np.asarray(fn(on_device(sol.y0[n]))) for n in levels])
 
 
-def _cell_series(sol: StateSolution, levels: np.ndarray, frames: FibreFrames | None) -> dict:
-    """Cell fields of the ParaView series, each (len(levels), nc[, k]).
+def _cell_series(sol: StateSolution, levels: np.ndarray, frames) -> dict:
+    """Cell fields of the ParaView series, each (len(levels), nc[, k]); tensors have 9 components, a 1D or
+    2D tensor padded with zeros to 3 x 3 as ParaView and XDMF expect.
 
-    ``det_F`` (min over the cell's quadrature points); with ``frames`` the unit vectors ``fibre``,
-    ``sheet``, ``normal`` at the centroids (constant in time); with an active-stress control the tensor
-    ``active_stress = xi_c fhat (x) fhat`` (9 components, a 2D tensor padded with zeros to 3 x 3 as
-    ParaView and XDMF expect, stress units, zero outside omega; ``xi_c`` the mean of the cell's nodal
-    control values, ``fhat`` the control's fibre at the centroid).
+    ``det_F`` (min over the cell's quadrature points); ``cauchy_stress`` (`_stress_and_fibre_strain`);
+    with an active-stress control ``active_stress = -xi_c fhat (x) fhat``, the first Piola-Kirchhoff stress
+    the control adds, with the sign it acts with (a contraction, fibre tension T_a = -xi_c > 0, is
+    positive; stress units, zero outside omega; ``xi_c`` the mean of the cell's nodal control values,
+    ``fhat`` the control's fibre at the centroid, `hyperoc.mechanics.controls.ActiveStress`). With
+    ``frames`` (`hyperoc.mechanics.fibres.FibreFrames`, or any callable ``x (nc, nq, 3) -> (nc, nq, k,
+    3)`` as `hyperoc.mechanics.model.StateModel` takes) the unit vectors ``fibre``, ``sheet``, ``normal``
+    at the centroids (constant in time) and the fibre strain ``E_ff``.
     """
-    model, nc = sol.model, sol.model.mesh.num_cells
+    model, nc, d = sol.model, sol.model.mesh.num_cells, sol.model.dim
     fields = {"det_F": cell_det_F(sol, levels)}
+    fibre = None
     if frames is not None:
-        R = frames.cell_frames()
-        for k, name in enumerate(("fibre", "sheet", "normal")):
+        R = np.asarray(frames(model.mesh.cell_centroids()[:, None, :]))[:, 0]  # (nc, k, 3)
+        for k, name in enumerate(("fibre", "sheet", "normal")[:R.shape[1]]):
             fields[name] = np.broadcast_to(R[:, k], (levels.size, nc, 3))
+        fibre = np.asarray(frames(model.quad.x))[..., 0, :]  # (nc, nq, d) at the quadrature points
+    active = np.zeros((levels.size, nc, d, d))
     control = model.control
     if sol.xi is not None and control is not None and control.fibres is not None:
         f = control.fibres
         xi_c = control.cell_values(sol.xi[levels])[..., 0]  # (nl, nc_omega)
-        d = model.dim
-        stress = np.zeros((levels.size, nc, 3, 3))
-        stress[:, control.cell_mask, :d, :d] = xi_c[..., None, None] * np.einsum("ci,cj->cij", f, f)
-        fields["active_stress"] = stress.reshape(levels.size, nc, 9)
+        active[:, control.cell_mask] = -xi_c[..., None, None] * np.einsum("ci,cj->cij", f, f)
+        fields["active_stress"] = _padded_tensor(active)
+    sigma, E_ff = _stress_and_fibre_strain(sol, levels, active, fibre)
+    fields["cauchy_stress"] = _padded_tensor(sigma)
+    if E_ff is not None:
+        fields["E_ff"] = E_ff
     return fields
+
+
+def _padded_tensor(a: np.ndarray) -> np.ndarray:
+    """Tensors (..., d, d) as (..., 9), zero-padded to 3 x 3."""
+    d = a.shape[-1]
+    out = np.zeros((*a.shape[:-2], 3, 3))
+    out[..., :d, :d] = a
+    return out.reshape(*a.shape[:-2], 9)
+
+
+def _stress_and_fibre_strain(sol: StateSolution, levels: np.ndarray, active: np.ndarray, fibre):
+    """Per cell and level, the means over the cell's quadrature points (weights ``w dx``) of
+
+    - the Cauchy stress ``sigma = J^-1 (P(F) + P_a) F^T`` (nl, nc, d, d), stress units: P = dW/dF the
+      material law's first Piola-Kirchhoff stress (its bulk term at each point, also for ``volumetric =
+      "cell-mean"``), P_a the control's active stress (``active`` (nl, nc, d, d), zero without one); the
+      volume multiplier p is not in it: it acts as the pressure ``-p cof(F) N`` on the free walls. The
+      law's part is symmetric; the active part ``J^-1 P_a F^T = -xi J^-1 fhat (x) F fhat`` of the paper's
+      control operator is not;
+    - with ``fibre`` (nc, nq, d), the unit fibre at the quadrature points, the fibre strain
+      ``E_ff = f . E f``, ``E = (F^T F - I) / 2`` (nl, nc), dimensionless; else None.
+    """
+    model = sol.model
+    w = np.asarray(model.quad.wdx)
+    law = model.material.energy_of_F
+    first_piola = jax.grad(law)
+
+    def fields(u, P_a):
+        F = model.deformation_gradient(u)
+        P = model._pointwise(first_piola, F) + P_a[:, None]  # the law at the model's own material frames
+        sigma = jnp.einsum("cqij,cqkj->cqik", P, F) / det(F)[..., None, None]
+        E = 0.5 * (jnp.einsum("cqki,cqkj->cqij", F, F) - jnp.eye(model.dim))
+        E_ff = jnp.zeros(F.shape[:2]) if fibre is None else jnp.einsum("cqi,cqij,cqj->cq", fibre, E, fibre)
+        return sigma, E_ff
+
+    fn = jax.jit(fields)
+    weights = w / w.sum(axis=1, keepdims=True)
+    out = [fn(on_device(sol.y0[n]), on_device(P_a)) for n, P_a in zip(levels, active)]
+    sigma = np.stack([np.einsum("cq,cqij->cij", weights, np.asarray(s)) for s, _ in out])
+    E_ff = None if fibre is None else np.stack([np.einsum("cq,cq->c", weights, np.asarray(e)) for _, e in out])
+    return sigma, E_ff
 
 
 def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = None, eps: float | None = None,
                         snapshot_times=None, series_every: int | None = None, extra_summary: dict | None = None,
-                        history: dict | None = None, frames: FibreFrames | None = None, title: str | None = None,
-                        units: Units | None = None, pressure_marks=None) -> dict:
+                        history: dict | None = None, frames=None, title: str | None = None,
+                        units: Units | None = None, pressure_marks=None, cavity: str | None = "endocardium") -> dict:
     """Write results.npz, summary.json, pressure.png, the ParaView series and figures.
 
     results.npz holds ``t, p, p_steps, volume, nodes, displacement, velocity`` (all levels), the
-    per-step monitors ``newton_iterations, min_det_F``, the control ``xi`` with its node
-    coordinates ``xi_nodes`` when there is a control, and in 3D with an ``endocardium`` boundary the
-    `cavity_volume`. pressure.png shows p (tau marked), the body-volume drift and the cavity volume;
-    control.png the control's space-time map (1D; 2D/3D scalar controls: means over slices of the
-    last coordinate, the long axis of a ventricle); 1D adds snapshot figures. The series ``paraview/state``
-    has the point fields ``displacement``, ``velocity``, ``control`` (the control's space-time field, zero
-    outside omega) and the cell fields of `_cell_series` (``frames``: the fibre frames, for output only).
+    per-step monitors ``newton_iterations, min_det_F``, the control ``xi`` (levels, n_nodes, components)
+    with its time levels ``t`` and node coordinates ``xi_nodes`` when there is a control (a control file
+    as written: ``[control] file`` replays it on its levels), and in 3D the `cavity_volume` enclosed by the
+    boundary ``cavity`` (default ``"endocardium"``; a 3D mesh without it gets a warning saying so,
+    unless ``cavity`` is None: a body with no cavity). pressure.png shows p (tau marked), the body-volume
+    drift and the cavity volume; control.png the control's space-time map (1D; 2D/3D scalar controls:
+    means over slices of the last coordinate, the long axis of a ventricle); 1D adds snapshot figures.
+    The series ``paraview/state`` has the point fields ``displacement``, ``velocity``, ``control`` (the
+    control's space-time field, zero outside omega; a scalar for an active stress) and the cell fields
+    of `_cell_series` (``frames``: the fibre frames, for output only).
 
     Every figure is titled ``"{title}: {figure}"`` (``title``: the run's name, default
     `DEFAULT_TITLE`) and its axes carry ``units`` (`hyperoc.app.plotting.Units`, default dimensionless);
-    ``pressure_marks``: ``[(t, label), ...]`` marked on the pressure panel. Returns the summary.
+    ``pressure_marks``: ``[(t, label), ...]`` marked on the pressure panel. Returns the summary, whose
+    pressure extrema leave out extrapolated levels (`_pressure_extrema`).
     """
     title, units = title or DEFAULT_TITLE, units or Units()
     out = Path(out)
@@ -111,22 +164,25 @@ def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = No
         arrays.update(xi=xi_nodal, xi_nodes=model.control.coordinates(model.space))
 
     files = {"results": "results.npz", "pressure_plot": "pressure.png"}
-    cavity, cavity_summary = None, {}
-    if model.dim == 3 and "endocardium" in model.mesh.boundaries:
-        cavity = cavity_volume(model.space, u)
-        arrays["cavity_volume"] = cavity
-        cavity_summary = {"cavity_volume_0": float(cavity[0]),
-                          "cavity_volume_change_max": float(np.max(np.abs(cavity / cavity[0] - 1.0)))}
+    cavity_values, cavity_summary = None, {}
+    if model.dim == 3 and cavity in model.mesh.boundaries:
+        cavity_values = cavity_volume(model.space, u, boundary=cavity)
+        arrays["cavity_volume"] = cavity_values
+        cavity_summary = {"cavity_volume_0": float(cavity_values[0]),
+                          "cavity_volume_change_max": float(np.max(np.abs(cavity_values / cavity_values[0] - 1.0)))}
+    elif model.dim == 3 and cavity is not None:
+        sol.warnings = [*sol.warnings, f"no cavity_volume: the mesh has no boundary {cavity!r} (its boundaries: "
+                        f"{', '.join(sorted(model.mesh.boundaries))}); [fibres] inner names the cavity's wall"]
     write_npz(out / "results.npz", **arrays)
-    plot_pressure(out / "pressure.png", sol.t, sol.pressure, tau=tau, eps=eps, volume=sol.volume, cavity=cavity,
+    plot_pressure(out / "pressure.png", sol.t, sol.pressure, tau=tau, eps=eps, volume=sol.volume, cavity=cavity_values,
                   title=f"{title}: pressure", units=units, marks=pressure_marks)
     cells, cell_type = _vtk_cells(sol)
     levels = _series_levels(sol.t.size, series_every)
     point_data = {"displacement": u[levels], "velocity": v[levels]}
-    if xi_nodal is not None:
+    if xi_nodal is not None:  # a scalar control (active stress) as a scalar field: its sign is its meaning
         full = np.zeros((levels.size, model.space.num_nodes, xi_nodal.shape[-1]))
         full[:, model.control.nodes] = xi_nodal[levels]
-        point_data["control"] = full
+        point_data["control"] = full[..., 0] if full.shape[-1] == 1 else full
     series = write_time_series(out / "paraview", "state", model.space.nodes, cells, cell_type, sol.t[levels],
                                point_data, cell_data=_cell_series(sol, levels, frames))
     files["time_series"] = str(Path(series).relative_to(out))
@@ -141,10 +197,21 @@ def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = No
     if history:
         plot_history(out / "history.png", history, title=f"{title}: optimizer history")
         files["history_plot"] = "history.png"
-    summary = {**sol.summary(), "newton_iterations_mean": float(np.mean(sol.newton_iterations)), **cavity_summary,
-               "files": files, **(extra_summary or {})}
+    summary = {**sol.summary(), **_pressure_extrema(sol), **cavity_summary,
+               "newton_iterations_mean": float(np.mean(sol.newton_iterations)), "files": files, **(extra_summary or {})}
     write_json(out / "summary.json", summary)
     return summary
+
+
+def _pressure_extrema(sol: StateSolution) -> dict:
+    """``pressure_max``, ``t_pressure_max``, ``pressure_min`` over the levels whose pressure comes from
+    computed multipliers: every level when the multipliers are level values (``multiplier = "theta"``),
+    else the interior ones, each between two computed mid-step values; the two end levels extrapolate
+    them (`hyperoc.dynamics.stepper.level_pressure`) and are left out, unless there is no interior level."""
+    computed = slice(None) if sol.p_steps.shape[0] == sol.t.size or sol.t.size < 3 else slice(1, -1)
+    p, t = sol.pressure[computed], sol.t[computed]
+    k = int(np.argmax(p))
+    return {"pressure_max": float(p[k]), "t_pressure_max": float(t[k]), "pressure_min": float(np.min(p))}
 
 
 def _slice_means(z: np.ndarray, values: np.ndarray, n_slices: int = 20) -> tuple[np.ndarray, np.ndarray]:

@@ -80,7 +80,7 @@ def simulate(cfg: Config, out, *, progress: bool = False, monitor=None, model=No
     o = cfg["output"]
     return write_state_outputs(Path(out), sol, snapshot_times=o.get("snapshot_times"),
                                series_every=o.get("series_every"), frames=cfg.fibres(model.mesh),
-                               title=title or run_title(cfg), units=figure_units(cfg))
+                               title=title or run_title(cfg), units=figure_units(cfg), cavity=cfg.cavity_wall())
 
 
 def build_reduced(cfg: Config, tau0: float, model=None) -> ReducedFunctional:
@@ -182,17 +182,19 @@ def write_optimization_outputs(out: Path, cfg: Config, J: ReducedFunctional, res
     sol.warnings = detect_regimes(sol)
     parts = J.objective_terms(sol)
     summary = {**res.summary(), "objective_terms": parts, "tau0": float(res.history["tau"][0]),
-               **(extra or {})}
+               "budget": cfg.budget(), **(extra or {})}
     hist = {"objective": res.history["objective"], "grad_norm": res.history["grad_norm"], "tau": res.history["tau"]}
     if res.best is not None:  # the final iterate is written below; the better earlier one beside it
         write_npz(out / BEST_FILE, xi=res.best["point"].xi, tau=np.float64(res.best["point"].tau),
                   objective=np.float64(res.best["objective"]), iteration=np.int64(res.best["iteration"]))
         summary["best"]["file"] = BEST_FILE
+    else:  # a resumed run that went past it leaves no earlier better iterate behind
+        (out / BEST_FILE).unlink(missing_ok=True)
     o = cfg["output"]
     return write_state_outputs(out, sol, tau=res.point.tau, eps=J.transform.eps or None, history=hist,
                                snapshot_times=o.get("snapshot_times"), series_every=o.get("series_every"),
                                frames=cfg.fibres(J.model.mesh), title=title or run_title(cfg),
-                               units=figure_units(cfg), pressure_marks=pressure_marks,
+                               units=figure_units(cfg), pressure_marks=pressure_marks, cavity=cfg.cavity_wall(),
                                extra_summary={"optimization": summary, "tau": summary["tau"],
                                               "objective": summary["objective"], "iterations": summary["iterations"],
                                               "converged": summary["converged"],
@@ -238,8 +240,9 @@ def optimize(cfg: Config, out, *, progress: bool = False, scheduler: str | None 
              model=None, iterations_done: int = 0, title: str | None = None) -> dict:
     """Optimize from every tau start of ``[optimize]``; several starts run in parallel on Dask.
 
-    Each start writes into its own folder; a start whose ``summary.json`` exists is not recomputed
-    (resume). The best start's outputs are also written at the top level of ``out``. ``model``: the
+    Each start writes into its own folder; a start whose ``summary.json`` exists with the same
+    budget (`Config.budget`) is not recomputed (resume); with another budget it runs again, its
+    cached evaluations replayed. The best start's outputs are also written at the top level of ``out``. ``model``: the
     config's model if already built (`check_run`), used by a single start (each start of several
     builds its own, on its worker); ``iterations_done``: a resumed single start's completed
     iterations (`resume_state`), where its progress bar starts; ``title``: the run's name in the
@@ -270,7 +273,8 @@ def _multistart(cfg: Config, out: Path, starts, scheduler, workers, title: str) 
     for k, tau0 in enumerate(starts):
         folder = _start_dir(out, k, tau0)
         done = folder / "summary.json"
-        if done.exists():
+        # a start that ran with another budget (a resume that extends it) runs again, replaying its cache
+        if done.exists() and read_json(done).get("optimization", {}).get("budget") == cfg.budget():
             s = read_json(done)
             results[k] = {"tau0": tau0, "status": "ok", "tau": s["tau"], "objective": s["objective"],
                           "converged": s["converged"], "iterations": s["iterations"], "folder": folder.name,
