@@ -4,8 +4,14 @@ observation of p(tau) and the local injectivity penalty (values and exact gradie
 import numpy as np
 import pytest
 
-from hyperoc.control.objectives import ControlCost, InjectivityPenalty, Objective, PressureAt, PressureMean
-from hyperoc.control.objectives import objective_from_config
+from hyperoc.control.objectives import (
+    ControlCost,
+    InjectivityPenalty,
+    Objective,
+    PressureAt,
+    PressureMean,
+    objective_from_config,
+)
 from hyperoc.control.reduced import ControlPoint, ReducedFunctional
 from hyperoc.control.verification import random_directions, taylor_test
 from hyperoc.dynamics.timegrid import TimeTransform
