@@ -1,10 +1,17 @@
-"""Objective terms for well-posed variants of the paper's problem: the windowed mean pressure and the
-local injectivity penalty (values and exact gradients)."""
+"""Objective terms for well-posed variants of the paper's problem: the windowed mean pressure, the causal
+observation of p(tau) and the local injectivity penalty (values and exact gradients)."""
 
 import numpy as np
 import pytest
 
-from hyperoc.control.objectives import ControlCost, InjectivityPenalty, Objective, PressureMean, objective_from_config
+from hyperoc.control.objectives import (
+    ControlCost,
+    InjectivityPenalty,
+    Objective,
+    PressureAt,
+    PressureMean,
+    objective_from_config,
+)
 from hyperoc.control.reduced import ControlPoint, ReducedFunctional
 from hyperoc.control.verification import random_directions, taylor_test
 from hyperoc.dynamics.timegrid import TimeTransform
@@ -74,3 +81,47 @@ def test_config_builds_the_windowed_pressure():
     objective = objective_from_config({"phi1": "pressure_mean", "eps": 0.5, "alpha": 2e-3, "beta": 1e-3})
     assert isinstance(objective.at_tau, PressureMean) and objective.eps == 0.5
     assert objective.control_weights == (2e-3, 1e-3)
+
+
+@pytest.fixture(scope="module")
+def causal():
+    return _bar(PressureAt("causal"))
+
+
+@pytest.mark.parametrize("observation", ["centred", "causal"])
+def test_only_the_causal_observation_ignores_the_control_after_tau(observation):
+    """Changing xi at the levels after tau's leaves the causal p(tau) unchanged to the last bit; the centred
+    value, which interpolates the multiplier of the step after tau, moves with it."""
+    J = _bar(PressureAt(observation))
+    m = ControlPoint(_control(J, 0.05), 1.2)
+    k = J.transform.tau_index
+    later = m.xi.copy()
+    later[k + 1:] += 0.05
+    before, after = J(m), J(ControlPoint(later, m.tau))
+    cost = ControlCost(2e-3)
+    change = (before - after) - (float(cost.value(J.trajectory(J.state(m))))
+                                 - float(cost.value(J.trajectory(J.state(ControlPoint(later, m.tau))))))
+    if observation == "causal":
+        assert change == pytest.approx(0.0, abs=1e-15)
+    else:
+        assert abs(change) > 1e-6
+
+
+def test_causal_observation_is_the_extrapolation_of_the_steps_before_tau(causal):
+    """p_{k-1/2} + (p_{k-1/2} - p_{k-3/2}) dt_{k-1} / (dt_{k-1} + dt_{k-2}), k the level of tau."""
+    m = ControlPoint(_control(causal, 0.05), 1.2)
+    sol = causal.state(m)
+    k, dt, p = causal.transform.tau_index, np.diff(sol.t), sol.p_steps
+    expected = p[k - 1] + (p[k - 1] - p[k - 2]) * dt[k - 1] / (dt[k - 1] + dt[k - 2])
+    assert float(PressureAt("causal").value(causal.trajectory(sol))) == pytest.approx(expected, rel=1e-13)
+
+
+@pytest.mark.parametrize("direction", [pytest.param("xi", marks=pytest.mark.slow),
+                                       pytest.param("tau", marks=pytest.mark.slow), "joint"])
+def test_taylor_rates_of_the_causal_observation(causal, direction):
+    m = ControlPoint(_control(causal, 0.05), 1.2)
+    assert abs(taylor_test(causal, m, random_directions(causal, m)[direction]).rates[-1] - 2.0) <= 0.05
+
+
+def test_config_builds_the_causal_observation():
+    assert objective_from_config({"phi1": "pressure", "observation": "causal"}).at_tau == PressureAt("causal")

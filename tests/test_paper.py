@@ -1,8 +1,8 @@
 """The README's main job, ``hyperoc reproduce paper-1d``, on coarse grids.
 
 The full run is measured by bench/bench_paper_job.py; here the same code path runs on coarse grids, so that
-the job's structure (headline, diagnostics, files, parallel workers) cannot rot, and the headline's
-Newton-CG run is checked to reach the KKT tolerance.
+the job's structure (headline, the other formulations, the value profile, files, parallel workers) cannot
+rot, and the headline's projected Newton-CG run is checked to reach the KKT tolerance.
 """
 
 import json
@@ -11,13 +11,25 @@ import numpy as np
 import pytest
 
 from hyperoc.app.cli import main
-from hyperoc.app.paper import PAPER_REPORT, SPG_WINDOW, WELL_POSED, XI_MAX, reproduce_paper_1d, wellposed_config
-from hyperoc.app.workflows import build_reduced
-from hyperoc.control.optimize import lbfgsb
+from hyperoc.app.paper import (
+    FORMULATIONS,
+    HEADLINE,
+    OMEGA_INTERIOR,
+    PAPER_REPORT,
+    PROFILE_TAUS,
+    WELL_POSED,
+    XI_MAX,
+    formulation_config,
+    refined_maximum,
+    reproduce_paper_1d,
+)
+from hyperoc.app.workflows import build_reduced, optimize_single
+from hyperoc.control.optimize import _tau_range, lbfgsb, stationarity
 
 SMALL = {"mesh.n": 20, "dynamics.dt": 0.1, "optimize.max_iter": 3}
-HEADLINE_KEYS = ("tau", "objective", "iterations", "converged", "grad_norm_history", "objective_history",
-                 "tau_history", "alpha", "beta", "paper")
+COARSE = {"mesh.n": 20, "dynamics.dt": 0.1}  # h = 0.05: the paper's c dt / h
+HEADLINE_KEYS = ("tau", "objective", "iterations", "converged", "relative_gradient", "grad_norm_history",
+                 "objective_history", "tau_history", "alpha", "beta", "xi_bounds", "omega", "paper", "runs", "profile")
 FIGURES = ("pressure.png", "control.png", "displacement.png", "velocity.png", "control_snapshots.png",
            "history.png")
 
@@ -31,30 +43,53 @@ def parallel(tmp_path_factory):
 @pytest.mark.slow
 def test_every_study_writes_its_outputs(parallel):
     out, summary = parallel
-    for name in ("summary.json", "ray.json", "results.npz", *FIGURES):
+    for name in ("summary.json", "ray.json", "results.npz", "profile.json", "profile.png", *FIGURES):
         assert (out / name).is_file(), name
-    for folder in ("as_stated", "bounded"):
-        assert (out / folder / "summary.json").is_file(), folder
-        assert (out / folder / "pressure.png").is_file(), folder
+    for key in FORMULATIONS:
+        if key != HEADLINE:
+            assert (out / key / "summary.json").is_file(), key
+            assert (out / key / "pressure.png").is_file(), key
     on_disk = json.loads((out / "summary.json").read_text())
     assert on_disk["tau"] == summary["tau"] and on_disk["workers"] == 2
 
 
 @pytest.mark.slow
-def test_diagnostics_use_the_stated_variants(parallel):
+def test_runs_name_each_formulation(parallel):
     _, summary = parallel
     T = summary["config"]["dynamics"]["T"]
-    runs = summary["diagnostics"]
-    assert set(runs) == {"as_stated", "bounded"}
-    assert runs["as_stated"]["xi_bounds"] is None and runs["as_stated"]["beta"] == 0.0
-    assert runs["as_stated"]["alpha"] == PAPER_REPORT["alpha"] and runs["as_stated"]["method"] == "bb"
-    assert runs["as_stated"]["nonmonotone"] == 0  # the paper's Algorithm 1; the bounded run by SPG
-    assert runs["bounded"]["xi_bounds"] == [-XI_MAX, XI_MAX] and runs["bounded"]["max_abs_xi"] <= XI_MAX
-    assert runs["bounded"]["nonmonotone"] == SPG_WINDOW
+    runs = {r["name"]: r for r in summary["runs"]}
+    assert list(runs) == list(FORMULATIONS) and runs[HEADLINE]["folder"] == "."
+    for key in ("bounded", "interior"):  # the paper's weights with the bound of its Remark rk-box
+        assert (runs[key]["alpha"], runs[key]["beta"]) == (PAPER_REPORT["alpha"], 0.0)
+        assert runs[key]["xi_bounds"] == [-XI_MAX, XI_MAX] and runs[key]["max_abs_xi"] <= XI_MAX
+        assert runs[key]["method"] == "newton"
+    assert runs["bounded"]["omega"] == [0.75, 1.0] and runs["interior"]["omega"] == OMEGA_INTERIOR
+    assert (runs["smooth"]["alpha"], runs["smooth"]["beta"]) == (WELL_POSED["objective.alpha"],
+                                                                 WELL_POSED["objective.beta"])
+    assert runs["as_stated"]["xi_bounds"] is None and runs["as_stated"]["alpha"] == PAPER_REPORT["alpha"]
+    assert runs["as_stated"]["method"] == "bb" and runs["as_stated"]["nonmonotone"] == 0  # Algorithm 1
     for r in runs.values():
         assert 0 < r["tau"] < T and r["iterations"] <= SMALL["optimize.max_iter"]
+        assert set(r) >= {"converged", "relative_gradient", "objective", "tau"}
     scales = [row["scale"] for row in summary["ray"]]
     assert scales == sorted(scales) and 1.0 in scales
+
+
+@pytest.mark.slow
+def test_profile_covers_the_tau_grid(parallel):
+    """One fixed-tau solve per point of PROFILE_TAUS, in increasing tau, of the headline's formulation, its maximum
+    refined."""
+    _, summary = parallel
+    q = summary["profile"]
+    assert q["tau"] == list(PROFILE_TAUS) and len(q["J"]) == len(q["converged"]) == len(PROFILE_TAUS)
+    assert q["formulation"] == HEADLINE and all(np.isfinite(q["J"]))
+    assert q["tau"][0] <= q["tau_refined"] <= q["tau"][-1] and q["J_refined"] >= max(q["J"]) - 1e-15
+
+
+def test_refined_maximum_is_the_vertex_of_a_parabola():
+    taus = np.arange(1.0, 8.0)
+    assert refined_maximum(taus, -(taus - 3.3) ** 2 + 2.0) == pytest.approx((3.3, 2.0), abs=1e-12)
+    assert refined_maximum(taus, taus) == (7.0, 7.0)  # at an end: the grid point
 
 
 @pytest.mark.slow
@@ -62,17 +97,16 @@ def test_parallel_and_serial_headlines_agree(parallel, tmp_path):
     """The optimizers are deterministic: worker processes change where things are computed, not what."""
     _, summary = parallel
     serial = reproduce_paper_1d(tmp_path, quick=True, progress=False, workers=1, overrides=SMALL)
-    assert serial["diagnostics"] == {} and serial["ray"] == []
+    assert [r["name"] for r in serial["runs"]] == [HEADLINE] and serial["profile"] is None and serial["ray"] == []
     assert serial["tau"] == summary["tau"] and serial["objective"] == summary["objective"]
     np.testing.assert_array_equal(serial["grad_norm_history"], summary["grad_norm_history"])
 
 
 def test_headline_converges_to_the_kkt_tolerance(tmp_path):
     """The fast tier's run of the job: ``quick`` (the headline only), one process, h = 0.05, dt = 0.1.
-    The headline (Newton-CG) must end at a KKT point of the well-posed problem, relative gradient <= gtol,
-    and L-BFGS-B from the same start at the same maximizer."""
-    coarse = {"mesh.n": 20, "dynamics.dt": 0.1}
-    summary = reproduce_paper_1d(tmp_path, quick=True, progress=False, workers=1, overrides=coarse)
+    The headline (Newton-CG, alpha = beta = 10) must end at a KKT point, relative gradient <= gtol, and
+    L-BFGS-B from the same start at the same maximizer."""
+    summary = reproduce_paper_1d(tmp_path, quick=True, progress=False, workers=1, overrides=COARSE)
     for name in ("summary.json", "results.npz", *FIGURES):
         assert (tmp_path / name).is_file(), name
     on_disk = json.loads((tmp_path / "summary.json").read_text())
@@ -83,18 +117,30 @@ def test_headline_converges_to_the_kkt_tolerance(tmp_path):
     assert g[-1] <= summary["config"]["optimize"]["gtol"] * g[0]
     assert on_disk["relative_gradient"] == pytest.approx(g[-1] / g[0])
     assert (on_disk["alpha"], on_disk["beta"]) == (WELL_POSED["objective.alpha"], WELL_POSED["objective.beta"])
-    assert on_disk["paper"] == PAPER_REPORT and on_disk["diagnostics"] == {}
+    assert on_disk["paper"] == PAPER_REPORT and on_disk["profile"] is None
     T = summary["config"]["dynamics"]["T"]
     assert 0 < on_disk["tau"] < T and on_disk["objective"] > 0
     assert on_disk["min_det_F"] > 0.5  # the maximizer keeps every element well inside the elastic range
 
-    J = build_reduced(wellposed_config(coarse), PAPER_REPORT["tau0"])
+    J = build_reduced(formulation_config(HEADLINE, COARSE), PAPER_REPORT["tau0"])
     res = lbfgsb(J, J.zero(PAPER_REPORT["tau0"]), gtol=1e-6, max_iter=100)
     assert res.converged
     # Two points with relative gradients <= 1e-6 (|G| <= 2e-7 here) on a ridge whose curvature along tau
     # is ~1e-3 (the well-posedness page): |d tau| <~ |G| / 1e-3 = 2e-4, |d J| <~ |G|^2 / 2e-3 = 2e-11.
     assert abs(res.point.tau - on_disk["tau"]) <= 2e-4
     assert abs(res.objective - on_disk["objective"]) <= 1e-10
+
+
+def test_bounded_problem_reaches_a_kkt_point():
+    """The paper's weights with the bound |xi| <= XI_MAX: projected Newton-CG ends at a KKT point, the
+    projected gradient recomputed at its end point <= gtol times the zero control's, within the bound."""
+    cfg = formulation_config("bounded", COARSE)
+    J, res = optimize_single(cfg, PAPER_REPORT["tau0"])
+    assert res.converged and np.abs(res.point.xi).max() <= XI_MAX
+    bounds, tau_range = cfg.xi_bounds(), _tau_range(J, None, False, PAPER_REPORT["tau0"])
+    zero = J.zero(PAPER_REPORT["tau0"])
+    assert (stationarity(J, res.point, J.value_and_gradient(res.point)[1], tau_range, bounds)
+            <= cfg["optimize"]["gtol"] * stationarity(J, zero, J.value_and_gradient(zero)[1], tau_range, bounds))
 
 
 def test_bad_worker_count_is_an_input_error(tmp_path, capsys):

@@ -1,26 +1,29 @@
-"""``hyperoc reproduce paper-1d``: the paper's 1D experiment, posed so that it has an answer.
+"""``hyperoc reproduce paper-1d``: the paper's 1D experiment, with the paper's own bound and at small amplitude.
 
-All runs start from ``(xi, tau) = (0, T/2)`` on the setup of the paper's table of parameters
-(``hyperoc/data/paper-1d.toml``):
+All runs are on the setup of the paper's table of parameters (``hyperoc/data/paper-1d.toml``), by
+projected Newton-CG (`hyperoc.control.optimize.newton_cg`) to a relative projected gradient of ``gtol``
+(1e-6) unless named otherwise, from ``(xi, tau) = (0, T/2)``. The formulations (`FORMULATIONS`):
 
-1. the top level (the headline): the paper's problem with the control cost
-   ``alpha/2 ||xi||^2 + beta/2 ||d xi/dt||^2``, ``alpha = beta = 10`` (`WELL_POSED`), solved by
-   Newton-CG to a relative gradient of ``gtol`` (1e-6) in the H^1-in-time metric: a local maximizer.
-   With the paper's weight ``alpha = 2e-3`` (with or without beta) the problem has no maximizer
-   (docs/wellposedness.md); with weights at which the cost competes with the pressure it has one;
-2. ``as_stated/``: the paper's Algorithm 1 (Armijo, then Barzilai-Borwein) on the problem as stated
-   (a control is admissible when its state exists on all of [0, T]: ``horizon = "full"``),
-   and ``ray.json``: J along ``s * xi`` for the control it ends with (is there an interior maximum, or
-   does J grow until the body inverts?);
-3. ``bounded/``: the problem as stated with a pointwise bound ``|xi| <= XI_MAX`` (the paper's Remark
-   ``rk-box`` in pointwise form), by the spectral projected gradient method (Algorithm 1's BB steps,
-   projected, with a nonmonotone Armijo test over the last ``SPG_WINDOW`` values).
+1. ``bounded``: the paper's problem, ``alpha = 2e-3``, ``beta = 0``, with the norm bound of its Remark
+   ``rk-box`` in pointwise form, ``|xi| <= XI_MAX``, on the paper's ``omega = [0.75, 1]``;
+2. ``interior``: the same with ``omega = OMEGA_INTERIOR``, compactly inside the bar as the paper's
+   theory assumes (no load on the constrained node);
+3. ``smooth``: the cost ``alpha/2 ||xi||^2 + beta/2 ||d xi/dt||^2`` with ``alpha = beta = 10`` and no
+   bound: the paper's problem at small amplitude (tau* depends on beta / alpha only);
+4. ``as_stated``: the paper's Algorithm 1 on the problem as stated (no bound; a control is admissible when
+   its state exists on all of [0, T]), and ``ray.json``: J along ``s * xi`` for the control it ends with.
 
-Runs 2-3 are skipped with ``quick``. With two CPUs the three runs go to two worker processes, each
-bound to a CPU of its own, the headline and run 2 first, run 3 to the first one free; this process
-only starts them (it imports neither JAX nor SciPy) and writes the summary. The top-level
-``summary.json`` holds the headline run, the paper's reported values and the diagnostic runs 2-3 with
-their status.
+`HEADLINE`, decided by measurement, is the formulation closest to the paper with a verified KKT point and a
+mesh-converged tau*: the smooth one. The bounded problem has KKT points (projected gradient 1e-6 from the
+paper's start), but its J* grows by 28 % when dt alone is refined at h = 0.01 and those runs do not reach
+the KKT tolerance in 300 iterations, and its value profile grows towards T (docs/wellposedness.md).
+`HEADLINE` is written to the top level of the output folder, the others to folders of their names. The
+value profile ``J*(tau) = max_xi J(xi, tau)`` of the headline's formulation (`value_profile`) is solved on
+``PROFILE_TAUS`` in two halves, each point warm-started from its neighbour, into ``profile.json`` and
+``profile.png``. With ``quick`` only the headline runs. With two CPUs the jobs go to two worker
+processes, each bound to a CPU of its own, longest first; this process only starts them (it imports
+neither JAX nor SciPy) and writes the summary: the headline's keys at the top level, ``runs`` (every
+formulation's converged/KKT values), ``profile``, and the paper's reported values.
 """
 
 from __future__ import annotations
@@ -37,7 +40,8 @@ from ..io import read_json, write_json
 from ..solvers.threads import ONE_THREAD_POOL, bind_threads
 from .config import Config, parse_config, set_entries
 
-__all__ = ["paper_config", "wellposed_config", "reproduce_paper_1d", "PAPER_REPORT", "WELL_POSED"]
+__all__ = ["paper_config", "formulation_config", "reproduce_paper_1d", "value_profile", "transferred_control",
+           "PAPER_REPORT", "FORMULATIONS", "HEADLINE", "WELL_POSED", "XI_MAX", "OMEGA_INTERIOR"]
 
 PAPER_REPORT = {
     "tau": 7.9,
@@ -49,19 +53,35 @@ PAPER_REPORT = {
     "source": "Court, section 'Results' (Figures figControl, fig-pressure)",
 }
 
-# The headline's changes to the paper's setup: a control cost that competes with the pressure, H^1 in
-# time (sqrt(beta / alpha) = 1 time unit), and the second-order method that reaches the KKT tolerance
-# past the round-off of J (docs/wellposedness.md).
-# Its J and gradient are computed on the steps up to tau (`ReducedFunctional.horizon`): a smooth control
-# of that size keeps the state far from inversion (min det F 0.84 over [0, T] at the optimum).
+# The bound of Remark rk-box, pointwise: with it every element stays far from the compression limit at the
+# optimum (min det F ~0.89), where a bound 0.05 drives the wall element towards it (docs/wellposedness.md).
+XI_MAX = 0.02
+OMEGA_INTERIOR = [0.75, 0.95]  # omega compactly inside (0, 1), as the paper's control operator assumes
+# The bounded problem is not concave on its free values and ill-conditioned: projected Newton-CG reaches the
+# KKT tolerance where L-BFGS-B stalls far from it (docs/wellposedness.md); J and its gradient on the steps
+# up to tau (`ReducedFunctional.horizon`), which give the same values.
+BOUNDED = {"optimize.method": "newton", "optimize.xi_bounds": [-XI_MAX, XI_MAX], "optimize.horizon": "objective",
+           "optimize.max_iter": 200}
+# The smooth variant: a control cost that competes with the pressure, H^1 in time (sqrt(beta / alpha) = 1 time
+# unit); no bound is reached (min det F 0.84).
 WELL_POSED = {"objective.alpha": 10.0, "objective.beta": 10.0, "optimize.method": "newton",
               "optimize.horizon": "objective"}
-XI_MAX = 0.05  # bound of the bounded variant (same order as the control the paper's figures suggest)
-# The bounded variant's nonmonotone window (Birgin-Martinez-Raydan's SPG default): Algorithm 1's
-# unguarded BB steps let J fall to a tenth of its best value there.
-SPG_WINDOW = 10
-RUN_NAMES = {"wellposed": "well-posed (alpha = beta = 10), Newton-CG", "as_stated": "as stated, Algorithm 1",
-             "bounded": f"as stated with |xi| <= {XI_MAX}, SPG"}
+FORMULATIONS = {
+    "bounded": (f"paper's problem, |xi| <= {XI_MAX} (Remark rk-box), omega = [0.75, 1], Newton-CG", BOUNDED),
+    "interior": (f"paper's problem, |xi| <= {XI_MAX}, omega = {OMEGA_INTERIOR} (compactly inside), Newton-CG",
+                 {**BOUNDED, "control.region": {"kind": "box", "lower": OMEGA_INTERIOR[:1],
+                                                "upper": OMEGA_INTERIOR[1:]}}),
+    "smooth": ("paper's problem at small amplitude (alpha = beta = 10, tau* depends on beta/alpha only), "
+               "Newton-CG", WELL_POSED),
+    "as_stated": ("as stated, Algorithm 1", {}),
+}
+HEADLINE = "smooth"
+HEADLINE_REASON = ("headline: the formulation closest to the paper with a verified KKT point and a mesh-converged "
+                   "tau*; the bounded problem (bounded/) has KKT points, but its J* grows under dt refinement and its "
+                   "value profile rises towards T (docs/wellposedness.md)")
+PROFILE_TAUS = tuple(float(t) for t in np.arange(1.0, 14.5, 1.0))  # (0, T) at the spacing of the pressure peaks
+# The profile's grid: the paper's c dt / h (0.77) at h = 0.02; the headline's own grid is 4x the cost.
+PROFILE_GRID = {"mesh.n": 50, "dynamics.dt": 0.04}
 
 
 def paper_config(changes: dict | None = None) -> Config:
@@ -74,18 +94,9 @@ def paper_config(changes: dict | None = None) -> Config:
     return parse_config(set_entries(data, changes or {}))
 
 
-def wellposed_config(changes: dict | None = None) -> Config:
-    """The headline's configuration: the paper's with `WELL_POSED` (``alpha = beta = 10``, Newton-CG)."""
-    return paper_config({**WELL_POSED, **(changes or {})})
-
-
-def bounded_config(changes: dict | None = None) -> Config:
-    """The bounded variant of the paper's configuration: ``|xi| <= XI_MAX`` by SPG (window ``SPG_WINDOW``)."""
-    # The bound keeps the state far from inversion (min det F 0.70 over [0, T] at the end, no failed trial
-    # point), so J and the gradient are computed on the steps up to tau, as the headline's.
-    bounds = {"optimize.xi_bounds": [-XI_MAX, XI_MAX], "optimize.nonmonotone": SPG_WINDOW,
-              "optimize.horizon": "objective"}
-    return paper_config({**bounds, **(changes or {})})
+def formulation_config(key: str, changes: dict | None = None) -> Config:
+    """The configuration of formulation ``key`` of `FORMULATIONS` with ``changes`` on top."""
+    return paper_config({**FORMULATIONS[key][1], **(changes or {})})
 
 
 def _run(cfg: Config, key: str, out: Path, *, progress: bool) -> tuple[dict, object, object]:
@@ -98,23 +109,28 @@ def _run(cfg: Config, key: str, out: Path, *, progress: bool) -> tuple[dict, obj
     J, res = optimize_single(cfg, float(cfg["optimize"]["tau0"]), cache_dir=out / CACHE_DIR, progress=progress)
     optimized, (compiled, compilations_after) = time.perf_counter(), compilation_clock()
     marks = [(t, "paper's pressure maxima") for t in PAPER_REPORT["pressure_maxima_near_t"]]
-    summary = write_optimization_outputs(out, cfg, J, res, extra={"label": RUN_NAMES[key]},
-                                         title=f"paper-1d, {RUN_NAMES[key]}", pressure_marks=marks)
+    label = FORMULATIONS[key][0]
+    summary = write_optimization_outputs(out, cfg, J, res, extra={"label": label}, title=f"paper-1d, {label}",
+                                         pressure_marks=marks)
     sol = J.state(res.point)  # the outputs' solve on [0, T], kept for the last point
     timings = {"compilation_s": compiled - compiling, "compilations": compilations_after - compilations,
                "optimization_s": optimized - started - (compiled - compiling),
                "outputs_s": time.perf_counter() - optimized}
     g = summary["grad_norm_history"]
     maxima_t, maxima_p = _local_maxima(sol.t, sol.pressure)
+    region = cfg["control"]["region"]
     return {
-        "label": RUN_NAMES[key],
-        "folder": "." if key == "wellposed" else key,
+        "name": key,
+        "label": label,
+        "folder": "." if key == HEADLINE else key,
         "dt": float(cfg["dynamics"]["dt"]),
         "h": 1.0 / cfg["mesh"]["n"],
         "alpha": float(cfg["objective"]["alpha"]),
         "beta": float(cfg["objective"].get("beta", 0.0)),
         "method": cfg["optimize"]["method"],
         "xi_bounds": cfg["optimize"].get("xi_bounds"),
+        "omega": [region["lower"][0], region["upper"][0]],
+        "observation": cfg["objective"].get("observation", "centred"),
         "nonmonotone": int(cfg["optimize"].get("nonmonotone", 0)),
         "tau": summary["tau"],
         "objective": summary["objective"],
@@ -166,33 +182,116 @@ def ray_study(J, point, scales=(0.25, 0.5, 0.75, 1.0, 1.1, 1.25, 1.5, 2.0)) -> l
     return rows
 
 
-def _headline_job(overrides: dict, out: Path, progress: bool) -> dict:
-    """The well-posed problem solved by Newton-CG, written to the top level of ``out``."""
-    row, _, _ = _run(wellposed_config(overrides), "wellposed", out, progress=progress)
-    return {"headline": row}
-
-
-def _as_stated_job(overrides: dict, out: Path, progress: bool) -> dict:
-    """The problem as stated: Algorithm 1, then the ray study at its end point."""
-    as_stated, J, res = _run(paper_config(overrides), "as_stated", out / "as_stated", progress=progress)
+def _formulation_job(key: str, overrides: dict, out: Path, progress: bool) -> dict:
+    """Formulation ``key`` from ``(0, tau0)``, written to the top level of ``out`` (the headline) or to
+    ``out/key``; the problem as stated is followed by the ray study at its end point. ``interior`` runs on
+    ``PROFILE_GRID``: on the paper's grid Newton-CG does not reach the KKT tolerance in 300 iterations
+    (docs/wellposedness.md)."""
+    grid = PROFILE_GRID if key == "interior" else {}
+    row, J, res = _run(formulation_config(key, {**grid, **overrides}), key, out if key == HEADLINE else out / key,
+                       progress=progress)
+    if key != "as_stated":
+        return {key: row}
     ray = ray_study(J, res.point)
     write_json(out / "ray.json", ray)
-    return {"as_stated": as_stated, "ray": ray}
+    return {key: row, "ray": ray}
 
 
-def _bounded_job(overrides: dict, out: Path, progress: bool) -> dict:
-    """The bounded variant |xi| <= XI_MAX of the problem as stated (SPG)."""
-    bounded, _, _ = _run(bounded_config(overrides), "bounded", out / "bounded", progress=progress)
-    return {"bounded": bounded}
+def transferred_control(J_from, m, J_to, tau: float) -> np.ndarray:
+    """The control of ``m`` (a `hyperoc.control.reduced.ControlPoint` of ``J_from``) on the time levels of
+    ``J_to`` at ``tau`` and its control nodes, shifted in time by ``tau - m.tau`` (it keeps its timing before
+    tau): linear interpolation in t and x, zero before 0 and after T. Shape (levels of J_to, nodes of J_to's
+    omega); 1D bodies (one control component)."""
+    t_from = J_from.transform.grid(m.tau).t
+    t_to = J_to.transform.grid(tau).t - (tau - m.tau)
+    x_from, x_to = (J.model.control.coordinates(J.model.space)[:, 0] for J in (J_from, J_to))
+    order = np.argsort(x_from)
+    in_space = np.array([np.interp(x_to, x_from[order], row[order]) for row in m.xi])
+    return np.array([np.interp(t_to, t_from, col, left=0.0, right=0.0) for col in in_space.T]).T
+
+
+def value_profile(cfg: Config, taus, *, warm_start=None) -> list:
+    """``J*(tau) = max_xi J(xi, tau)`` at each of ``taus`` (in that order) for ``cfg`` with tau fixed, by
+    projected Newton-CG with ``cfg``'s bounds, each solve warm-started from the previous one's control
+    (shifted to the new tau, `transferred_control`; the first from ``warm_start``, a ``(J, point)`` pair, or
+    zero) and stopped at a projected gradient ``gtol`` times that of the zero control at the same tau.
+
+    The points share one time transform, built at the largest tau, so that they share compiled solves: the
+    steps on [0, tau] are ``tau / N1``, at most the configured dt. Returns one row per tau: J*, whether the
+    stopping test was met, the relative projected gradient, iterations, dt on [0, tau], min det F up to tau
+    and max |xi|."""
+    from ..control.optimize import newton_cg, stationarity
+    from ..control.reduced import ControlPoint
+    from .workflows import build_reduced
+
+    J = build_reduced(cfg, max(taus))
+    o, bounds = cfg["optimize"], cfg.xi_bounds()
+    previous = warm_start
+    rows = []
+    for tau in taus:
+        zero = J.zero(tau)
+        _, g_zero = J.value_and_gradient(zero)
+        cold = stationarity(J, zero, g_zero, (tau, tau), bounds)
+        xi0 = zero.xi if previous is None else transferred_control(*previous, J, tau)
+        res = newton_cg(J, ControlPoint(np.clip(xi0, *bounds) if bounds != (None, None) else xi0, tau),
+                        xi_bounds=bounds, gtol=0.0, gtol_abs=float(o["gtol"]) * cold, max_iter=int(o["max_iter"]),
+                        max_cg=int(o["max_cg"]), fix_tau=True)
+        sol = J.state(res.point)
+        k = J.transform.tau_index
+        rows.append({"tau": tau, "h": 1.0 / cfg["mesh"]["n"], "J": res.objective, "converged": res.converged,
+                     "relative_gradient": res.history["grad_norm"][-1] / cold, "iterations": res.iterations,
+                     "dt": float(np.diff(sol.t[:k + 1]).max()), "min_det_F": float(sol.min_det_F[:k + 1].min()),
+                     "max_abs_xi": float(np.abs(res.point.xi[:k + 1]).max())})
+        previous = (J, res.point)
+    return rows
+
+
+def _profile_job(taus: list, overrides: dict, out: Path, progress: bool) -> dict:
+    """`value_profile` of the headline's formulation on ``PROFILE_GRID`` (``overrides`` on top) at ``taus``."""
+    return {f"profile_{taus[0]:g}": value_profile(formulation_config(HEADLINE, {**PROFILE_GRID, **overrides}), taus)}
+
+
+def refined_maximum(taus, values) -> tuple[float, float]:
+    """``(tau, J)`` at the vertex of the parabola through the largest of ``values`` and its neighbours (the
+    grid point itself at an end of the grid)."""
+    k = int(np.argmax(values))
+    if k in (0, len(values) - 1):
+        return float(taus[k]), float(values[k])
+    c = np.polyfit(taus[k - 1:k + 2], values[k - 1:k + 2], 2)
+    tau = -c[1] / (2 * c[0])
+    return float(tau), float(np.polyval(c, tau))
+
+
+def _profile_summary(halves: list, headline: dict, out: Path) -> dict:
+    """The two halves of the profile as one table in increasing tau, written to ``profile.json`` and drawn
+    with the paper's tau and the headline's tau* in ``profile.png``."""
+    from .plotting import plot_value_profile
+
+    rows = sorted((row for half in halves for row in half), key=lambda r: r["tau"])
+    table = {key: [r[key] for r in rows] for key in rows[0]}
+    tau_max, value_max = refined_maximum(np.array(table["tau"]), np.array(table["J"]))
+    profile = {**table, "tau_refined": tau_max, "J_refined": value_max, "formulation": HEADLINE}
+    write_json(out / "profile.json", profile)
+    plot_value_profile(out / "profile.png", table["tau"], table["J"], table["converged"],
+                       marks=[(PAPER_REPORT["tau"], f"paper's tau = {PAPER_REPORT['tau']}"),
+                              (headline["tau"], f"tau* = {headline['tau']:.3f} (headline)")],
+                       title=f"paper-1d, value profile: {FORMULATIONS[HEADLINE][0]}")
+    return profile
 
 
 def _jobs(out: Path, quick: bool, overrides: dict) -> dict:
     """The studies as independent jobs ``key -> (function, kwargs)``, longest first (a free worker takes the
-    next): the headline and, unless ``quick``, the problem as stated and its bounded variant."""
-    jobs = {"headline": (_headline_job, dict(overrides=overrides, out=out))}
-    if not quick:
-        jobs["as_stated"] = (_as_stated_job, dict(overrides=overrides, out=out))
-        jobs["bounded"] = (_bounded_job, dict(overrides=overrides, out=out))
+    next): the headline and, unless ``quick``, the two halves of the profile (outwards from T/2, each starting
+    cold) and the other formulations."""
+    jobs = {HEADLINE: (_formulation_job, dict(key=HEADLINE, overrides=overrides, out=out))}
+    if quick:
+        return jobs
+    middle = len(PROFILE_TAUS) // 2
+    for taus in (PROFILE_TAUS[middle:], PROFILE_TAUS[:middle][::-1]):
+        jobs[f"profile_{taus[0]:g}"] = (_profile_job, dict(taus=list(taus), overrides=overrides, out=out))
+    for key in FORMULATIONS:
+        if key != HEADLINE:
+            jobs[key] = (_formulation_job, dict(key=key, overrides=overrides, out=out))
     return jobs
 
 
@@ -265,21 +364,25 @@ def reproduce_paper_1d(out: Path, *, quick: bool = False, progress: bool = True,
     workers = min(2, os.cpu_count() or 1) if workers is None else int(workers)
     if workers < 1:
         raise InputError(f"workers must be >= 1, got {workers}")
-    wellposed_config(overrides), bounded_config(overrides)  # bad overrides: InputError before anything is written
+    for key in FORMULATIONS:  # bad overrides: InputError before anything is written
+        formulation_config(key, overrides)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
-    results = _run_jobs(_jobs(out, quick, overrides), workers, progress)
-    headline = results["headline"]["headline"]
-    diagnostics = {k: v for job in results.values() for k, v in job.items()}
+    results = {k: v for job in _run_jobs(_jobs(out, quick, overrides), workers, progress).values()
+               for k, v in job.items()}
+    headline = results[HEADLINE]
+    runs = [results[key] for key in FORMULATIONS if key in results]
+    halves = [v for k, v in results.items() if k.startswith("profile_")]
     run_summary = read_json(out / "summary.json")  # the headline run's own summary (histories, files)
-    summary = {**run_summary, **{k: headline[k] for k in ("label", "alpha", "beta", "method", "relative_gradient",
-                                                           "pressure_at_tau", "control_off_from_t",
-                                                           "pressure_local_maxima_t", "pressure_local_maxima_p",
-                                                           "min_det_F", "max_abs_xi", "timings")},
-               "paper": PAPER_REPORT, "diagnostics": {k: diagnostics[k] for k in ("as_stated", "bounded")
-                                                     if k in diagnostics},
-               "ray": diagnostics.get("ray", []), "config": wellposed_config(overrides).sections,
+    summary = {**run_summary, **{k: headline[k] for k in ("name", "label", "alpha", "beta", "method", "xi_bounds",
+                                                           "omega", "relative_gradient", "pressure_at_tau",
+                                                           "control_off_from_t", "pressure_local_maxima_t",
+                                                           "pressure_local_maxima_p", "min_det_F", "max_abs_xi",
+                                                           "timings")},
+               "runs": runs, "profile": _profile_summary(halves, headline, out) if halves else None,
+               "paper": PAPER_REPORT, "ray": results.get("ray", []),
+               "config": formulation_config(HEADLINE, overrides).sections,
                "workers": workers, "wall_time_s": time.perf_counter() - started}
     write_json(out / "summary.json", summary)
     _print_report(out, summary)
@@ -287,19 +390,28 @@ def reproduce_paper_1d(out: Path, *, quick: bool = False, progress: bool = True,
 
 
 def _print_report(out: Path, summary: dict) -> None:
-    """The headline first (one line), then the paper's values and the diagnostics."""
-    print(f"{summary['label']}: tau* = {summary['tau']:.4f}, J* = {summary['objective']:.6g}, "
-          f"converged = {summary['converged']} (relative gradient {summary['relative_gradient']:.2g} after "
-          f"{summary['iterations']} iterations), pressure maxima at t = "
-          f"{[round(x, 2) for x in summary['pressure_local_maxima_t']]}, control off from t = "
+    """The headline first (one line), then the paper's values, the other formulations and the profile."""
+    print(f"{summary['label']}: tau* = {summary['tau']:.3f}, J* = {summary['objective']:.6g}, "
+          f"converged = {summary['converged']} (relative projected gradient {summary['relative_gradient']:.2g} "
+          f"after {summary['iterations']} iterations), min det F = {summary['min_det_F']:.3g}, pressure maxima "
+          f"at t = {[round(x, 2) for x in summary['pressure_local_maxima_t']]}, control off from t = "
           f"{_rounded(summary['control_off_from_t'])}")
+    print(HEADLINE_REASON)
     p = summary["paper"]
     print(f"paper (alpha = {p['alpha']:g}, beta = 0): tau ~ {p['tau']}, control off from t ~ "
           f"{p['control_off_from_t']}, pressure maxima near t = {p['pressure_maxima_near_t']}")
-    for r in summary["diagnostics"].values():
-        print(f"  diagnostic, {r['label']} ({r['folder']}/): tau = {r['tau']:.4f}, J = {r['objective']:.5g}, "
-              f"iterations = {r['iterations']}, converged = {r['converged']} ({r['message']}), "
-              f"min det F = {r['min_det_F']:.3g}")
+    for r in summary["runs"]:
+        if r["name"] != summary["name"]:
+            print(f"  {r['label']} ({r['folder']}/): tau = {r['tau']:.3f}, J = {r['objective']:.5g}, "
+                  f"iterations = {r['iterations']}, converged = {r['converged']} (relative gradient "
+                  f"{r['relative_gradient']:.2g}), min det F = {r['min_det_F']:.3g}")
+    q = summary["profile"]
+    if q:
+        spread = (max(q["J"]) - min(v for v, t in zip(q["J"], q["tau"]) if abs(t - q["tau_refined"]) <= 1.5))
+        print(f"  value profile J*(tau) on tau = {q['tau'][0]:g} .. {q['tau'][-1]:g} (h = {q['h'][0]:g}, "
+              f"dt <= {max(q['dt']):.3g}): maximum at tau = {q['tau_refined']:.2f}, J* = "
+              f"{q['J_refined']:.5g}; J* varies by {spread / max(q['J']):.1%} within 1.5 of it; "
+              f"{sum(q['converged'])}/{len(q['tau'])} points converged (profile.png)")
     print(f"-> {out / 'summary.json'} ({summary['wall_time_s']:.0f} s)")
 
 

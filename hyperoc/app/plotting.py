@@ -22,7 +22,8 @@ from matplotlib.ticker import MaxNLocator
 
 from ..io import atomic_write_bytes
 
-__all__ = ["Units", "axis_label", "plot_pressure", "plot_control_spacetime", "plot_snapshots", "plot_history"]
+__all__ = ["Units", "axis_label", "plot_pressure", "plot_control_spacetime", "plot_snapshots", "plot_history",
+           "plot_value_profile"]
 
 _DPI = 150
 _MARK_COLOR = "C3"  # the vertical markers of `plot_pressure`: dotted, apart from p (C0) and tau (black)
@@ -319,4 +320,25 @@ def plot_history(path, histories: dict, *, logy_keys=("grad_norm",), title=None)
     axes[-1].xaxis.set_major_locator(MaxNLocator(integer=True))
     if title:
         fig.suptitle(title)
+    return _save(fig, path)
+
+
+def plot_value_profile(path, tau, value, converged, *, marks=(), title=None) -> Path:
+    """The value profile ``J*(tau) = max_xi J(xi, tau)`` against tau: converged points filled, the others
+    hollow; ``marks`` ``[(t, label), ...]`` as dotted vertical lines (e.g. the paper's tau and tau*)."""
+    tau, value = _as_1d("tau", tau), _as_1d("J*", value, np.size(tau))
+    ok = np.asarray(converged, dtype=bool)
+    fig = _new_figure(6.4, 3.6)
+    ax = fig.subplots()
+    ax.plot(tau, value, color="C0", lw=1)
+    ax.plot(tau[ok], value[ok], "o", color="C0", ms=4, label="converged (KKT)")
+    if np.any(~ok):
+        ax.plot(tau[~ok], value[~ok], "o", mfc="none", color="C0", ms=4, label="not converged")
+    for k, (t, label) in enumerate(marks):
+        ax.axvline(t, ls=":", color=f"C{k + 1}", label=label)
+    ax.set_xlabel("tau")
+    ax.set_ylabel("J*(tau) = max over xi of J(xi, tau)")
+    ax.legend(fontsize="small")
+    if title:
+        ax.set_title(title)
     return _save(fig, path)

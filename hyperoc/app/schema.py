@@ -400,7 +400,7 @@ class Objective(Section):
     """J = phi1 - alpha/2 ||xi||^2 - beta/2 ||d xi/dt||^2 (maximized)."""
 
     KIND_KEY: ClassVar[str] = "phi1"
-    KINDS: ClassVar[dict] = {"pressure": set(), "pressure_rise": {"eps"}, "pressure_mean": {"eps"}}
+    KINDS: ClassVar[dict] = {"pressure": {"observation"}, "pressure_rise": {"eps"}, "pressure_mean": {"eps"}}
 
     phi1: Literal["pressure", "pressure_rise", "pressure_mean"] = Field(
         "pressure", description="p(tau), the rise (p(tau + eps) - p(tau)) / eps, or the mean (1/eps) "
@@ -409,6 +409,9 @@ class Objective(Section):
     beta: NonNegative = Field(
         0.0, description="weight of the cost beta/2 ||d xi/dt||^2_{L2(0,T;L2(omega))} (controls regular in time)")
     eps: NonNegative = Field(0.0, description="pressure_rise, pressure_mean: the length of the window after tau")
+    observation: Literal["centred", "causal"] = Field(
+        "centred", description="pressure: p(tau) from the step pressures on both sides of tau, or from those "
+                               "before it only (causal)")
 
     @model_validator(mode="after")
     def _window_needs_eps(self):

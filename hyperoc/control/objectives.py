@@ -26,6 +26,8 @@ from ..dynamics.stepper import level_pressure, level_pressure_steps
 from ..errors import InputError
 from ..mechanics.materials import det
 
+OBSERVATIONS = ("centred", "causal")  # how `PressureAt` reads p(tau) from the step multipliers
+
 __all__ = ["Trajectory", "Objective", "ControlCost", "ControlRateCost", "PressureAt", "PressureMean", "PressureRise",
            "Terminal", "objective_from_config"]
 
@@ -149,13 +151,34 @@ class InjectivityPenalty(Running):
 
 @dataclass(frozen=True)
 class PressureAt(AtTau):
-    """``phi1 = p(tau)`` (the paper's 1D experiment)."""
+    """``phi1 = p(tau)`` (the paper's 1D experiment), observed from the step multipliers ``p_{n+1/2}``
+    (mid-step values, at ``t_n + dt_n / 2``).
+
+    ``observation = "centred"``: the level value of `level_pressure`, the interpolation of the mid-step
+    values on both sides of tau, ``(dt_k p_{k-1/2} + dt_{k-1} p_{k+1/2}) / (dt_{k-1} + dt_k)`` (k the level of
+    tau). ``"causal"``: the linear extrapolation of the two mid-step values before tau,
+    ``p_{k-1/2} + (p_{k-1/2} - p_{k-3/2}) dt_{k-1} / (dt_{k-1} + dt_{k-2})``. Both are second order in dt for a
+    smooth pressure. Why the causal one: ``p_{k+1/2}`` depends on the control on ``[tau, tau + dt]``, so
+    the centred value lets a control after tau move p(tau); the causal value reads the states at the levels
+    0 .. k and the controls at times up to tau only, as the paper's p(tau).
+    """
+
+    observation: str = "centred"
+
+    def __post_init__(self):
+        if self.observation not in OBSERVATIONS:
+            raise InputError(f"objective: unknown observation {self.observation!r} ({', '.join(OBSERVATIONS)})")
 
     def value(self, traj):
-        return traj.pressure[traj.tau_index]
+        if self.observation == "centred":
+            return traj.pressure[traj.tau_index]
+        k = traj.tau_index  # the last level of `level_pressure` on the steps before tau is its extrapolation
+        return level_pressure(traj.p_steps[:k], traj.dt[:k])[-1]
 
     def steps_read(self, tau_index, eps_index, num_steps):
-        return level_pressure_steps(tau_index, num_steps)
+        if self.observation == "centred":
+            return level_pressure_steps(tau_index, num_steps)
+        return max(tau_index, 2)
 
 
 @dataclass(frozen=True)
@@ -228,10 +251,12 @@ class Objective:
 
 
 def objective_from_config(cfg: dict) -> Objective:
-    """``{"phi1": "pressure" | "pressure_mean" | "pressure_rise", "eps": 0.1, "alpha": 2e-3, "beta": 0.0}``
-    -> Objective; beta > 0 adds the `ControlRateCost` (controls H^1 in time)."""
+    """``{"phi1": "pressure" | "pressure_mean" | "pressure_rise", "eps": 0.1, "alpha": 2e-3, "beta": 0.0,
+    "observation": "centred" | "causal"}`` -> Objective; beta > 0 adds the `ControlRateCost` (controls H^1
+    in time); ``observation`` is how `PressureAt` reads p(tau)."""
     cfg = dict(cfg or {})
     phi1 = cfg.pop("phi1", "pressure")
+    observation = cfg.pop("observation", "centred")
     alpha = cfg.pop("alpha", 2e-3)
     beta = cfg.pop("beta", 0.0)
     eps = cfg.pop("eps", 0.0)
@@ -247,7 +272,9 @@ def objective_from_config(cfg: dict) -> Objective:
     if phi1 == "pressure":
         if eps:
             raise InputError("objective: eps is only used with phi1 = 'pressure_rise'")
-        return Objective(running=running, at_tau=PressureAt())
+        return Objective(running=running, at_tau=PressureAt(observation))
+    if observation != "centred":
+        raise InputError("objective: observation is only used with phi1 = 'pressure'")
     windowed = {"pressure_rise": PressureRise, "pressure_mean": PressureMean}
     if phi1 in windowed:
         if not eps > 0:

@@ -516,7 +516,8 @@ def _coordinates(J: ReducedFunctional, xi_bounds) -> ControlSpace:
 
 
 def newton_cg(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gtol: float = 1e-6,
-              max_iter: int = 100, max_cg: int = 20, tau_margin: float | None = None, fix_tau: bool = False,
+              gtol_abs: float = 0.0, max_iter: int = 100, max_cg: int = 20, tau_margin: float | None = None,
+              fix_tau: bool = False,
               armijo: float = 0.5, max_backtracks: int = 30, cache_dir=None, callback=None) -> OptimizationResult:
     """Projected truncated Newton-CG (the projected Newton method of Bertsekas, SIAM J. Control Optim.
     20, 1982, with CG stopped at nonconcavity as in Steihaug's method): second-order steps from
@@ -547,9 +548,10 @@ def newton_cg(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None),
     rate to linear with that factor); each costs one state and one adjoint solve, and is not cached
     (a resumed run recomputes them; the iterates, trial points and their evaluations are cached as in
     `barzilai_borwein`, so it ends where an uninterrupted run ends). Stops when the projected gradient
-    norm is ``<= gtol`` times its initial value. ``callback(k, m, J(m), measure)`` as in `barzilai_borwein`.
-    ``evaluations`` counts the Hessian-vector products, the iterations where CG met nonconcavity and the
-    gradient steps taken where the Newton direction's search failed.
+    norm is ``<= max(gtol ||G0||, gtol_abs)`` (``gtol_abs``: a warm start's test relative to a cold start's
+    gradient). ``callback(k, m, J(m), measure)`` as in `barzilai_borwein`. ``evaluations`` counts the
+    Hessian-vector products, the iterations where CG met nonconcavity and the gradient steps taken where the
+    Newton direction's search failed.
     """
     start = time.perf_counter()
     tau_range = _tau_range(J, tau_margin, fix_tau, m0.tau)
@@ -559,9 +561,10 @@ def newton_cg(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None),
     counts = {"hessian_products": 0, "nonconcave_iterations": 0, "gradient_steps": 0}
     res = OptimizationResult(m0, np.nan, 0, False, "")
     m, value, G, gnorm = _first_iterate(J, metric, evaluate, m0, tau_range, xi_bounds, res)
-    g0, preconditioner = gnorm, CurvaturePairs(metric)
+    target, preconditioner = max(gtol * gnorm, gtol_abs), CurvaturePairs(metric)
+    g0 = gnorm
     for k in range(1, max_iter + 1):
-        if gnorm <= gtol * g0:
+        if gnorm <= target:
             break
         free = _free_values(J, m, G, tau_range, xi_bounds)
         d, nonconcave = _newton_direction(J, metric, m, G, free, min(0.5, np.sqrt(gnorm / g0)), max_cg, counts,
@@ -580,8 +583,8 @@ def newton_cg(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None),
             res.message = "no admissible step (state solver fails or no ascent along the Newton direction nor G)"
             break
         m, value, G, _, gnorm = _take(J, metric, res, k, step, tau_range, xi_bounds, callback)
-    res.converged = gnorm <= gtol * g0
-    res.message = ("projected ||G|| <= gtol ||G0||" if res.converged
+    res.converged = gnorm <= target
+    res.message = ("projected ||G|| <= max(gtol ||G0||, gtol_abs)" if res.converged
                    else res.message or f"maximum number of iterations ({max_iter}) reached")
     res.point, res.objective = m, value
     res.wall_time = time.perf_counter() - start
