@@ -9,8 +9,13 @@ from the Bestel ODEs (package ``circulation``), density 1000 kg/m^3, generalized
 dt = 1 ms. This script runs the same model, with fenicsx-pulse's own parameters, on the benchmark's reference
 mesh shipped with hyperoc (`hyperoc.cardiac.benchmark_geometry.reference_mesh`, facet tags 1 endocardium,
 2 epicardium, 3 base) and hyperoc's analytic benchmark fibres (`benchmark_fibres`: the fibre and sheet vectors at
-the vertices, as P1 vector fields), displacement P1 or P2, and records per step the Newton iterations, wall time,
-the displacements of p0 and p1 and the cavity volume (fenicsx-pulse's ``volume_form`` over the endocardium).
+the vertices, as P1 vector fields). fenicsx-pulse's demo takes its fibres from ``cardiac-geometriesx``
+(``cardiac_geometries.fibers.lv_ellipsoid.compute_system``), whose frame is `benchmark_frames`' term for term (the
+same e_mu, e_theta, f = sin(alpha) e_mu + cos(alpha) e_theta, s = f x (e_mu x e_theta), alpha linear in a Laplace
+transmural coordinate) evaluated at quadrature points, but the demo passes helix angles +60 (endocardium) and -60
+(epicardium), the opposite of `HELIX` = (-60, 60): its fibres are hyperoc's mirrored, so its twist has the
+opposite sense; this script uses hyperoc's. Displacement P1 or P2, and records per step the Newton iterations,
+wall time, the displacements of p0 and p1 and the cavity volume (fenicsx-pulse's ``volume_form`` over the endocardium).
 
 Environment (fenicsx-pulse runs in its own venv; hyperoc's python prepares the mesh and fibres)::
 
