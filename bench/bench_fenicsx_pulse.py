@@ -21,15 +21,17 @@ Environment (fenicsx-pulse runs in its own venv; hyperoc's python prepares the m
 
     python3.12 -m venv VENV
     VENV/bin/pip install dolfinx-solver-real scipy
-    VENV/bin/pip install --no-deps "fenicsx-pulse==0.12.*" circulation scifem pint flexcache flexparser \\
-        platformdirs typing_extensions rich rich-argparse markdown-it-py mdurl pygments
-    LD_LIBRARY_PATH=VENV/lib VENV/bin/python -c "import pulse"
+    VENV/bin/pip install --no-deps "fenicsx-pulse==0.12.*" circulation pint flexcache flexparser platformdirs \\
+        typing_extensions packaging rich rich-argparse markdown-it-py mdurl pygments
+    VENV/bin/pip install --no-deps scifem
+    LD_LIBRARY_PATH=VENV/lib VENV/bin/python -c "import pulse, circulation.bestel"
 
 ``--setup VENV`` runs these commands. The DOLFINx wheel links the MPI library it installs in ``VENV/lib``, hence
-``LD_LIBRARY_PATH``. fenicsx-pulse imports ``scifem`` at import time; ``scifem`` is published as source only and
-its C++ extension builds against DOLFINx's C++ headers and CMake configuration, which the binary wheel does not
-ship: with PyPI alone the last two commands fail (``scifem``: "Could not find a package configuration file
-provided by DOLFINX"), and ``--setup`` stops there with that message. With a DOLFINx that ships its development
+``LD_LIBRARY_PATH``. fenicsx-pulse imports ``scifem`` at import time (``pulse.problem``, ``pulse.utils``) although
+this problem (no cavity or rigid-body multiplier) solves with DOLFINx's own SNES problem; ``scifem`` is published as
+source only and its C++ extension builds against DOLFINx's C++ headers and CMake configuration, which the binary
+wheel does not ship: with PyPI alone the last two commands fail (``scifem``: "Could not find a package
+configuration file provided by DOLFINX"), and ``--setup`` stops there. With a DOLFINx that ships its development
 files (a source build), ``pip install --no-deps scifem`` completes the environment.
 
 Usage::
@@ -57,8 +59,9 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 PIP_STEPS = (
     ["dolfinx-solver-real", "scipy"],
-    ["--no-deps", "fenicsx-pulse==0.12.*", "circulation", "scifem", "pint", "flexcache", "flexparser", "platformdirs",
-     "typing_extensions", "rich", "rich-argparse", "markdown-it-py", "mdurl", "pygments"],
+    ["--no-deps", "fenicsx-pulse==0.12.*", "circulation", "pint", "flexcache", "flexparser", "platformdirs",
+     "typing_extensions", "packaging", "rich", "rich-argparse", "markdown-it-py", "mdurl", "pygments"],
+    ["--no-deps", "scifem"],
 )
 COLUMNS = ["step", "t (s)", "Newton iterations", "step wall (s)", "p0 ux (m)", "p0 uy (m)", "p0 uz (m)",
            "p1 ux (m)", "p1 uy (m)", "p1 uz (m)", "cavity volume (m^3)"]
