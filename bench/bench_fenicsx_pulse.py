@@ -229,7 +229,8 @@ def _pulse_problem(mesh, facet_tags, f0, s0, degree: int, quadrature: int):
                                    neumann=(pulse.NeumannBC(traction=pressure, marker=markers["ENDO"][0]),))
     problem = pulse.problem.DynamicProblem(
         model=model, geometry=geometry, bcs=bcs,
-        parameters={"base_bc": pulse.problem.BaseBC.free, "u_space": f"P_{degree}"})
+        # A step whose Newton iteration fails ends the run (fenicsx-pulse's default would go on from it).
+        parameters={"base_bc": pulse.problem.BaseBC.free, "u_space": f"P_{degree}", "raise_on_failure": True})
     form = dolfinx.fem.form(geometry.volume_form(u=problem.u) * geometry.ds(markers["ENDO"][0]))
     return problem, pressure, tension, lambda: float(dolfinx.fem.assemble_scalar(form))
 
