@@ -34,9 +34,8 @@ wheel does not ship: with PyPI alone the last two commands fail (``scifem``: "Co
 configuration file provided by DOLFINX"), and ``--setup`` stops there. With a DOLFINx that ships its development
 files (a source build), ``pip install --no-deps scifem`` completes the environment.
 
-Usage::
+Usage (the venv made first by ``--setup /tmp/venv-pulse``)::
 
-    python bench/bench_fenicsx_pulse.py --setup /tmp/venv-pulse
     python bench/bench_fenicsx_pulse.py --venv /tmp/venv-pulse --degrees 1 2 --steps 20
 
 Writes ``bench/results/bench_fenicsx_pulse.json`` (`bench/results.py`) after every step, so that a cut run
