@@ -71,7 +71,7 @@ def _write(tmp_path, text):
     ((BOX[BOX.index('law = "holzapfel'):BOX.index('[dynamics]')], 'law = "neo-hookean"\nmu = 1.0\nlambda = 1.0\n'),
      "activation needs fibres"),
     (('times = [0.0, 0.02, 0.04]', 'times = [0.0, 0.04, 0.02]'), "strictly increasing"),
-    (('boundary = "left"', 'boundary = "nowhere"'), "no boundary named 'nowhere'"),
+    (('boundary = "left"', 'boundary = "nowhere"'), "no boundary tag 'nowhere'"),
     (('direction = "normal"', 'direction = "tangential"'), "direction"),
     (('law = "2.0*t"', 'law = "2.0*q"'), "q"),
     (('viscosity = 0.5', 'viscosity = -0.5'), "viscosity"),

@@ -173,7 +173,7 @@ class Config:
         generated meshes (no cavity)."""
         if self["fibres"]["kind"] == "rule_based":
             return self["fibres"]["inner"]
-        return "endocardium" if self["mesh"]["kind"] in ("ventricle", "file") else None
+        return "endocardium" if self["mesh"]["kind"] in ("ventricle", "file", "cardiac_benchmark") else None
 
     def control_operator(self, frames=None):
         """The control of ``[control]``; active stress follows ``frames``' fibres when given."""

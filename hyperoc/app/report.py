@@ -167,6 +167,10 @@ def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = No
     cavity_values, cavity_summary = None, {}
     if model.dim == 3 and cavity in model.mesh.boundaries:
         cavity_values = cavity_volume(model.space, u, boundary=cavity)
+    if cavity_values is not None and not cavity_values[0] > 0:  # a wall that encloses no cavity (a flat face)
+        sol.warnings = [*sol.warnings, f"no cavity_volume: the boundary {cavity!r} encloses no cavity"]
+        cavity_values = None
+    elif cavity_values is not None:
         arrays["cavity_volume"] = cavity_values
         cavity_summary = {"cavity_volume_0": float(cavity_values[0]),
                           "cavity_volume_change_max": float(np.max(np.abs(cavity_values / cavity_values[0] - 1.0)))}
