@@ -115,50 +115,45 @@ class RobinBoundary(BoundaryFacets):
         return self.damping * y1 @ self._apply(y1)
 
 
-class DynamicPressure:
+class _ScaledLoad:
+    """A state-dependent load ``f(y0)`` of unit amplitude (`load`: `FollowerPressure`, `FibreTension`, with
+    ``force(u, factor)``, ``add_stiffness(blocks, u, factor)`` and ``restricted``) times ``law(t)``:
+    ``A = -law(t) f(y0)``, its tangent ``a law(t) K(y0)`` (K = -df/du, the load's stiffness)."""
+
+    def restricted(self, model, local, cells, dofs):
+        out = copy.copy(self)
+        out.load = self.load.restricted(model, local, cells, dofs)
+        return out
+
+    def force(self, y0, y1, t):
+        return -self.load.force(y0, self.law(t))
+
+    def add_tangent(self, blocks, y0, y1, t, a, b):
+        return self.load.add_stiffness(blocks, y0, a * self.law(t))
+
+    def power(self, y0, y1, t):
+        """The load's power ``law(t) f(y0) . y1``."""
+        return self.load.force(y0, self.law(t)) @ y1
+
+
+class DynamicPressure(_ScaledLoad):
     """Follower pressure ``law(t)`` (stress units; positive pushes into the body) on the deformed ``boundary``."""
 
     symmetric = False
 
     def __init__(self, model, boundary: str, law):
-        self.pressure = FollowerPressure(model, boundary, 1.0)
+        self.load = FollowerPressure(model, boundary, 1.0)
         self.law, self.boundary = _law(law), boundary
 
-    def restricted(self, model, local, cells, dofs):
-        out = copy.copy(self)
-        out.pressure = self.pressure.restricted(model, local, cells, dofs)
-        return out
 
-    def force(self, y0, y1, t):
-        return -self.pressure.force(y0, self.law(t))
-
-    def add_tangent(self, blocks, y0, y1, t, a, b):
-        return self.pressure.add_stiffness(blocks, y0, a * self.law(t))
-
-    def power(self, y0, y1, t):
-        """The load's power ``f(y0, t) . y1``."""
-        return self.pressure.force(y0, self.law(t)) @ y1
-
-
-class PrescribedTension:
+class PrescribedTension(_ScaledLoad):
     """Active tension ``law(t)`` (stress units) along the fibres of ``model`` times ``profile(X)`` (default 1)."""
 
     symmetric = True
 
     def __init__(self, model, law, profile=None):
-        self.tension = FibreTension(model, 1.0, profile)
+        self.load = FibreTension(model, 1.0, profile)
         self.law = _law(law)
-
-    def restricted(self, model, local, cells, dofs):
-        out = copy.copy(self)
-        out.tension = self.tension.restricted(model, local, cells, dofs)
-        return out
-
-    def force(self, y0, y1, t):
-        return -self.tension.force(y0, self.law(t))
-
-    def add_tangent(self, blocks, y0, y1, t, a, b):
-        return self.tension.add_stiffness(blocks, y0, a * self.law(t))
 
 
 class Viscosity:
