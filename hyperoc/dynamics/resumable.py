@@ -18,6 +18,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import resource
 import time
 from pathlib import Path
 
@@ -27,19 +28,25 @@ from ..errors import InputError
 from .stepper import StateSolution, TimeStepper
 from .timegrid import TimeGrid
 
-__all__ = ["run_resumable", "SEGMENT_OUTPUTS"]
+__all__ = ["run_resumable", "segment_costs", "SEGMENT_OUTPUTS", "SEGMENT_COST"]
 
 #: the per-step outputs of `TimeStepper.march_levels` a segment file holds, in its order
 SEGMENT_OUTPUTS = ("y0", "y1", "p", "newton_iterations", "status", "min_det_F", "max_grad")
+#: what a segment file records of its solve: seconds, and the solving process's peak resident memory (MiB)
+SEGMENT_COST = ("wall_time", "peak_memory_mib")
 
 
 def run_resumable(stepper: TimeStepper, grid: TimeGrid, xi=None, *, folder, every: int, u0=None, v0=None,
-                  external=None, progress: bool = False) -> StateSolution:
+                  external=None, progress: bool = False, on_segment=None) -> StateSolution:
     """`TimeStepper.run` in segments of ``every`` steps saved to ``folder`` (created if needed), resuming
     from the segments already there. Same arguments and result as `TimeStepper.run` (multiplier "step"
     only: the "theta" weighting carries p across steps as a state the segments would have to agree on).
     `hyperoc.errors.SolverError` names the first failed step as `run` does; the segments before it stay
-    saved."""
+    saved.
+
+    ``on_segment(index, count, segment, solved)``: called after each segment (``solved`` False for one read
+    back), e.g. to log progress to a file. The result's ``wall_time`` is the sum over all segments, those
+    solved by an earlier process included (`SEGMENT_COST`); `segment_costs` reads them back."""
     if every < 1:
         raise InputError(f"checkpoint segments need every >= 1 step, got {every}")
     if stepper.scheme.multiplier != "step":
@@ -52,21 +59,24 @@ def run_resumable(stepper: TimeStepper, grid: TimeGrid, xi=None, *, folder, ever
     folder = Path(folder)
     _claim(folder, _fingerprint(stepper, grid, xis, fs, y0, y1, every))
     V0 = stepper.deformed_volume(y0)
-    state, outputs, wall = (y0, y1, 0.0), [], 0.0
+    state, outputs = (y0, y1, 0.0), []
     starts = range(0, N, every)
     from tqdm.auto import tqdm
 
-    for k in tqdm(starts, disable=not progress, desc="segments", leave=False):
+    for index, k in enumerate(tqdm(starts, disable=not progress, desc="segments", leave=False)):
         levels = slice(k, min(k + every, N) + 1)
-        path = folder / f"segment_{k // every:05d}.npz"
-        if path.exists():
-            segment = _read_segment(path)
-        else:
+        path = _segment_path(folder, index)
+        solved = not path.exists()
+        if solved:
             start = time.perf_counter()
             segment = _solve_segment(stepper, state, grid.t[levels], xis[levels], fs[levels], V0)
-            wall += time.perf_counter() - start
+            segment.update(wall_time=time.perf_counter() - start, peak_memory_mib=_peak_memory_mib())
             _write_segment(path, segment)
+        else:
+            segment = _read_segment(path)
         outputs.append(segment)
+        if on_segment is not None:
+            on_segment(index, len(starts), segment, solved)
         stepper.raise_on_failure(*(np.concatenate([o[name] for o in outputs]) if name else grid
                                    for name in ("status", None, "newton_iterations", "min_det_F")))
         state = (segment["y0"][-1], segment["y1"][-1], float(segment["p"][-1]))
@@ -74,7 +84,27 @@ def run_resumable(stepper: TimeStepper, grid: TimeGrid, xi=None, *, folder, ever
     Y0 = np.concatenate([y0[None], stacked["y0"]])
     Y1 = np.concatenate([y1[None], stacked["y1"]])
     monitors = (stacked["newton_iterations"], stacked["min_det_F"], stacked["max_grad"])
+    wall = float(sum(o["wall_time"] for o in outputs))
     return stepper.solution(grid, Y0, Y1, stacked["p"], monitors, xis, wall, diagnose=True)
+
+
+def segment_costs(folder) -> dict:
+    """``{"wall_time": s, "peak_memory_mib": MiB, "segments": k}`` of the segments saved in ``folder``: the
+    total solve time and the largest peak memory of the processes that solved them."""
+    paths = sorted(Path(folder).glob("segment_*.npz"))
+    costs = [_read_segment(path) for path in paths]
+    return {"wall_time": float(sum(c["wall_time"] for c in costs)),
+            "peak_memory_mib": float(max((c["peak_memory_mib"] for c in costs), default=0.0)),
+            "segments": len(costs)}
+
+
+def _segment_path(folder: Path, index: int) -> Path:
+    return folder / f"segment_{index:05d}.npz"
+
+
+def _peak_memory_mib() -> float:
+    """This process's peak resident memory so far, MiB (Linux reports ru_maxrss in KiB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def _solve_segment(stepper: TimeStepper, state, t, xis, fs, V0) -> dict:
@@ -98,7 +128,9 @@ def _write_segment(path: Path, segment: dict) -> None:
 
 def _read_segment(path: Path) -> dict:
     with np.load(path) as data:
-        return {name: data[name] for name in SEGMENT_OUTPUTS}
+        segment = {name: data[name] for name in SEGMENT_OUTPUTS}
+        segment.update({name: float(data[name]) for name in SEGMENT_COST})
+        return segment
 
 
 def _fingerprint(stepper: TimeStepper, grid: TimeGrid, xis, fs, y0, y1, every: int) -> dict:

@@ -1,0 +1,154 @@
+"""The cardiac elastodynamics benchmark (monoventricular problem 1 of Aróstica et al. 2025), run and compared.
+
+R. Aróstica et al., "A software benchmark for cardiac elastodynamics", Comput. Methods Appl. Mech. Engrg. 435
+(2025) 117485. The problem is the shipped configuration ``hyperoc/data/cardiac-benchmark.toml`` (step 1: the
+endocardial pressure and the active tension of the benchmark's Bestel laws on its reference mesh); its steps
+
+- ``"0A"``: the active tension alone (no endocardial pressure),
+- ``"0B"``: the endocardial pressure alone (no active tension),
+- ``"1"``: both,
+
+are that configuration with a load left out (`benchmark_config`). `run_benchmark` solves a step in checkpointed
+segments (`hyperoc.dynamics.resumable.run_resumable`: an interrupted run resumes bitwise), records the
+displacements of the probe points p0 and p1 (`hyperoc.cardiac.benchmark_geometry.P0`, ``P1``; m), the cavity
+volume enclosed by the endocardium and its deformed rim (m^3), the pressure and the active tension (Pa), and
+compares them with the band the ten participating codes span (`hyperoc.cardiac.benchmark_curves`).
+"""
+
+from __future__ import annotations
+
+import tomllib
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from .benchmark_curves import STEPS, curve_band, reference_curves
+from .benchmark_geometry import P0, P1
+
+__all__ = ["STEPS", "SAMPLE_DT", "benchmark_config", "run_benchmark", "benchmark_curves", "compare_with_codes"]
+
+#: The loads each step keeps, of ``[dynamics] pressure`` and ``[dynamics] activation``.
+STEP_LOADS = {"0A": ("activation",), "0B": ("pressure",), "1": ("pressure", "activation")}
+#: The codes' sampling interval (s): the comparison and the results JSON use these times.
+SAMPLE_DT = 0.01
+#: Time steps per checkpoint segment.
+CHECKPOINT_EVERY = 50
+
+
+def benchmark_config(step: str = "1", *, degree: int = 1, mesh: str = "reference", T: float | None = None):
+    """The `hyperoc.app.config.Config` of benchmark step ``step`` (`STEP_LOADS`): Lagrange ``degree`` 1 or 2,
+    ``mesh`` ``"reference"`` (the benchmark's) or ``"coarse"``, the end time ``T`` (s; default the beat, 1 s)."""
+    from ..app.config import parse_config
+
+    step = _step(step)
+    if degree not in (1, 2):
+        raise InputError(f"cardiac benchmark: degree must be 1 or 2, got {degree}")
+    source = resources.files("hyperoc").joinpath("data", "cardiac-benchmark.toml")
+    data = tomllib.loads(source.read_text(encoding="utf-8"))
+    data["mesh"].update(degree=degree, variant=mesh)
+    for load in ("pressure", "activation"):
+        if load not in STEP_LOADS[step]:
+            del data["dynamics"][load]
+    if T is not None:
+        data["dynamics"]["T"] = float(T)
+    return parse_config(data, Path("."), f"cardiac benchmark step {step} (P{degree}, {mesh} mesh)")
+
+
+def _step(step) -> str:
+    step = str(step).upper()
+    if step not in STEPS:
+        raise InputError(f"cardiac benchmark: unknown step {step!r} (steps: {', '.join(STEPS)})")
+    return step
+
+
+def run_benchmark(step: str, out, *, degree: int = 1, mesh: str = "reference", T: float | None = None,
+                  progress: bool = False, on_segment=None) -> dict:
+    """Solve benchmark step ``step`` (`benchmark_config`) with checkpoints in ``out/segments`` and return the
+    record `benchmark_curves` makes of it, with the comparison `compare_with_codes` under ``"comparison"``
+    and the run's cost. A run started again on the same ``out`` resumes from its last segment."""
+    from ..dynamics.resumable import run_resumable, segment_costs
+
+    cfg = benchmark_config(step, degree=degree, mesh=mesh, T=T)
+    model = cfg.model()
+    stepper, grid = cfg.stepper(model), cfg.grid()
+    segments = Path(out) / "segments"
+    sol = run_resumable(stepper, grid, None, folder=segments, every=CHECKPOINT_EVERY, progress=progress,
+                        on_segment=on_segment)
+    record = benchmark_curves(sol, stepper)
+    record.update(step=_step(step), mesh={"variant": mesh, "vertices": int(len(model.mesh.points)),
+                                          "cells": int(len(model.mesh.cells))},
+                  degree=degree, dt=float(cfg["dynamics"]["dt"]), unknowns=int(model.n),
+                  scheme={"theta": float(cfg["dynamics"]["theta"]), "newton": cfg["dynamics"]["newton"]},
+                  newton_iterations={"total": int(np.sum(sol.newton_iterations)),
+                                     "mean": float(np.mean(sol.newton_iterations)),
+                                     "max": int(np.max(sol.newton_iterations))},
+                  **segment_costs(segments))
+    record["comparison"] = compare_with_codes(record)
+    return record
+
+
+def benchmark_curves(sol, stepper) -> dict:
+    """What the benchmark reports of a solve ``sol`` (`hyperoc.dynamics.stepper.StateSolution`) by ``stepper``,
+    at every level: ``t`` (N+1,) s; ``p0``, ``p1`` (N+1, 3) displacements of the probe points, m; ``volume``
+    (N+1,) the cavity volume, m^3; ``pressure`` and ``tension`` (N+1,) the endocardial pressure and the active
+    tension, Pa (zero for a load the step leaves out)."""
+    from ..fem.probes import probe_matrix
+    from ..mechanics.cavity import CavityVolume
+
+    model = sol.model
+    U = sol.displacement()  # (N+1, nodes, 3)
+    probes = probe_matrix(model.space, np.array([P0, P1]))
+    at_points = np.einsum("pn,lnc->lpc", probes.toarray(), U)
+    volume = CavityVolume(model, "endocardium", apex="rim").volumes(sol.y0)
+    return {"t": sol.t, "p0": at_points[:, 0], "p1": at_points[:, 1], "volume": volume,
+            "pressure": _law_values(stepper, "DynamicPressure", sol.t),
+            "tension": _law_values(stepper, "PrescribedTension", sol.t)}
+
+
+def _law_values(stepper, kind: str, t: np.ndarray) -> np.ndarray:
+    """The time law of ``stepper``'s term of class ``kind`` at ``t`` (zero without such a term)."""
+    for term in stepper.terms:
+        if type(term).__name__ == kind:
+            return np.array([float(term.law(s)) for s in t])
+    return np.zeros_like(t)
+
+
+def compare_with_codes(record: dict) -> dict:
+    """hyperoc's curves of ``record`` (`benchmark_curves` plus ``"step"``) against the band of the participating
+    codes (`hyperoc.cardiac.benchmark_curves.curve_band`) at their sampling times (`SAMPLE_DT`) up to the
+    record's end.
+
+    Per quantity (``p0``, ``p1`` components; ``|p0|``, ``|p1|``, ``volume``): ``inside``, the fraction of
+    samples (and components) inside the band; ``worst``, the largest distance outside it relative to the
+    band's largest magnitude; ``peak``, hyperoc's peak magnitude and the codes' range of theirs (only when the
+    record covers the whole beat)."""
+    curves = reference_curves(record["step"])
+    t = record["t"]
+    times = np.arange(0.0, t[-1] + 1e-9, SAMPLE_DT)
+    ours = _sampled(record, times)
+    result = {}
+    for quantity, values in ours.items():
+        band = curve_band(curves, times, quantity)
+        covered = band["count"] > 0
+        lower, upper, mine = band["lower"][covered], band["upper"][covered], values[covered]
+        outside = np.maximum(lower - mine, mine - upper).clip(min=0.0)
+        scale = np.nanmax(np.abs(np.concatenate([np.ravel(lower), np.ravel(upper)])))
+        entry = {"inside": float(np.mean(outside == 0.0)), "worst": float(np.max(outside) / scale)}
+        if quantity.startswith("|") and t[-1] >= 1.0 - 1e-9:
+            peaks = [np.max(np.linalg.norm(c[quantity.strip("|")], axis=1)) for c in curves.values()]
+            entry["peak"] = {"hyperoc": float(np.max(values)), "codes": [float(min(peaks)), float(max(peaks))]}
+        result[quantity] = entry
+    return result
+
+
+def _sampled(record: dict, times: np.ndarray) -> dict:
+    """The record's quantities interpolated onto ``times``: ``p0``, ``p1`` (m, 3), ``|p0|``, ``|p1|``, ``volume``
+    (m,)."""
+    t = record["t"]
+    on = lambda v: np.interp(times, t, v)
+    out = {name: np.stack([on(c) for c in np.asarray(record[name]).T], axis=1) for name in ("p0", "p1")}
+    out.update({f"|{name}|": np.linalg.norm(out[name], axis=1) for name in ("p0", "p1")})
+    out["volume"] = on(np.asarray(record["volume"]))
+    return out
