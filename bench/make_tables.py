@@ -6,8 +6,8 @@
 - every ``bench/results/<name>.json`` (written by `bench/results.py`'s `write_results`) becomes
   ``docs/results/<name>.md``: its tables, with the command that produced them;
 - every bench script that writes results gets ``docs/results/<script>.md``, which the docs pages
-  include: its results files (``<script>.json``, then ``<script>_*.json``) in one page, or, when none
-  is committed, how to produce them;
+  include: its results files (``<script>.json``, ``<script>_*.json`` and those whose recorded command ran
+  it) in one page, or, when none is committed, how to produce them;
 - ``docs/results/verification.md``: one row per test function of ``tests/``, with the first sentence
   of its docstring (or its name), read from the source without importing or running anything;
 - the table of the paper's experiment in ``README.md`` (between the ``paper-table`` markers), from
@@ -134,12 +134,14 @@ def pages() -> dict[Path, str]:
     """Every page: one per results file, and one per bench script that writes results,
     ``<script>.md``, gathering its results files (``<script>.json`` and ``<script>_*.json``) or saying
     how to produce them. The docs include the per-script pages."""
-    rendered = {path.stem: render_results(json.loads(path.read_text())) for path in sorted(RESULTS.glob("*.json"))}
+    data = {path.stem: json.loads(path.read_text()) for path in sorted(RESULTS.glob("*.json"))}
+    rendered = {name: render_results(d) for name, d in data.items()}
     out = {OUT / f"{name}.md": text for name, text in rendered.items()}
     for script in sorted((ROOT / "bench").glob("bench_*.py")):
         if "write_results(" not in script.read_text():
             continue
-        mine = [name for name in rendered if name == script.stem or name.startswith(script.stem + "_")]
+        mine = [name for name in rendered if name == script.stem or name.startswith(script.stem + "_")
+                or f"bench/{script.name}" in data[name]["command"].split()]
         out[OUT / f"{script.stem}.md"] = "\n".join(
             [rendered[name].removeprefix(MARK + "\n") if i else rendered[name] for i, name in enumerate(mine)]
         ) if mine else render_missing(script)

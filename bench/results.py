@@ -120,14 +120,15 @@ def run_json(cmd: list[str], out: Path, ranks: int | None) -> dict:
     return json.loads(Path(out).read_text())
 
 
-def write_results(name: str, command: str, tables: list[dict]) -> Path:
+def write_results(name: str, command: str, tables: list[dict], data: dict | None = None) -> Path:
     """Write ``bench/results/<name>.json`` atomically (a temporary file in the same folder, then
-    `os.replace`), so a reader never sees half a file; returns its path."""
+    `os.replace`), so a reader never sees half a file; returns its path. ``data``: further top-level
+    entries (e.g. the curves a comparison is made of), beside ``bench``, ``command`` and ``tables``."""
     if not name or "/" in name or name.startswith("."):
         raise ValueError(f"results name {name!r}: a plain file stem is expected")
     for t in tables:
         table(t["title"], t["columns"], t["rows"], t.get("notes", ""))  # validates the shape
-    data = {"bench": name, "command": command,
+    data = {**(data or {}), "bench": name, "command": command,
             "tables": [{"title": t["title"], "columns": list(t["columns"]), "rows": t["rows"],
                         "notes": t.get("notes", "")} for t in tables]}
     RESULTS_DIR.mkdir(parents=True, exist_ok=True)

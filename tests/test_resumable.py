@@ -3,6 +3,8 @@ resumed from its folder ends bitwise equal to one that ran through, on the chord
 kept factorization would otherwise differ) and on the compiled 1D path; a folder of another solve is
 refused."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -11,6 +13,8 @@ from hyperoc.dynamics import resumable
 from hyperoc.errors import InputError, SolverError
 from hyperoc.fem.geometry import annulus
 from hyperoc.solvers.linsolve import SparseSolver
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
@@ -87,3 +91,49 @@ def test_a_failing_step_is_named_and_the_segments_before_it_stay(problem, tmp_pa
         resumable.run_resumable(stepper(model), grid, crush, folder=tmp_path, every=2)
     step = failure.value.step
     assert len(list(tmp_path.glob("segment_*.npz"))) == step // 2 + 1
+
+
+SIMULATE_1D = ["examples/simulate-1d.toml", "--set", "dynamics.T=2.0", "--set", "output.checkpoint_every=20",
+               "--no-progress"]
+
+
+def test_simulate_resume_continues_a_checkpointed_run_to_the_same_results(tmp_path, monkeypatch):
+    """``hyperoc simulate --resume OUT`` on a folder holding the first segments of a run (as a killed run leaves
+    it) solves the rest and writes results bitwise equal to those of the run that went through."""
+    import shutil
+
+    from hyperoc.app.cli import main
+    from hyperoc.io import read_npz
+
+    monkeypatch.chdir(ROOT)
+    through, stopped = tmp_path / "through", tmp_path / "stopped"
+    assert main(["simulate", *SIMULATE_1D, "--out", str(through)]) == 0
+    segments = sorted((through / "segments").glob("segment_*.npz"))
+    assert len(segments) == 5
+    (stopped / "segments").mkdir(parents=True)
+    shutil.copy(through / "config.toml", stopped / "config.toml")
+    for path in [through / "segments" / "problem.json", *segments[:2]]:
+        shutil.copy(path, stopped / "segments" / path.name)
+    assert main(["simulate", "--resume", str(stopped), "--no-progress"]) == 0
+    a, b = read_npz(through / "results.npz"), read_npz(stopped / "results.npz")
+    for key in ("t", "p", "displacement", "velocity", "volume"):
+        assert np.array_equal(a[key], b[key]), key
+
+
+def test_simulate_refuses_to_mix_or_resume_what_is_not_a_checkpointed_run(tmp_path, monkeypatch, capsys):
+    """A folder holding checkpoints needs --resume; --resume needs checkpoints and takes no --set: exit 2, one line."""
+    from hyperoc.app.cli import main
+
+    monkeypatch.chdir(ROOT)
+    out = tmp_path / "run"
+    (out / "segments").mkdir(parents=True)
+    assert main(["simulate", *SIMULATE_1D, "--out", str(out)]) == 2
+    assert "holds a checkpointed run" in capsys.readouterr().err
+    plain = tmp_path / "plain"
+    assert main(["simulate", "examples/simulate-1d.toml", "--set", "dynamics.T=0.1", "--out", str(plain),
+                 "--no-progress"]) == 0
+    assert main(["simulate", "--resume", str(plain)]) == 2
+    assert "no [output] checkpoint_every" in capsys.readouterr().err
+    assert main(["simulate", "--resume", str(plain), "--set", "dynamics.T=0.2"]) == 2
+    assert "--set would change it" in capsys.readouterr().err
+    assert main(["simulate", "--resume", str(tmp_path / "none")]) == 2

@@ -1,4 +1,4 @@
-"""Command line: ``hyperoc simulate | optimize | check-gradient | reproduce``.
+"""Command line: ``hyperoc simulate | optimize | check-gradient | reproduce | benchmark``.
 
 Exit status: 0 success; 1 solver failure (the message names the time step and the cause);
 2 bad input (config, mesh or control file, output folder, parameter, a problem too large for the
@@ -42,6 +42,8 @@ example:
   hyperoc optimize examples/paper-1d.toml --out opt        (and, if interrupted: hyperoc optimize --resume opt)
   hyperoc optimize --resume opt --set optimize.max_iter=200     (continue a run that stopped at its budget)
   hyperoc simulate examples/paper-1d.toml --out replay --set 'control.file="opt/results.npz"'   (replay its control)
+  hyperoc simulate CONFIG --out run --set output.checkpoint_every=50   (and, if interrupted: hyperoc simulate --resume run)
+  hyperoc benchmark cardiac-elastodynamics --step 1 --out beat   (and, if interrupted: the same with --resume)
 """
 
 
@@ -59,8 +61,11 @@ def _parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
     s = sub.add_parser("simulate", help="forward solve with a prescribed control", epilog=EPILOG,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    s.add_argument("config", help=CONFIG_HELP)
-    s.add_argument("--out", required=True, metavar="DIR", help=OUT_HELP)
+    s.add_argument("config", nargs="?", help=CONFIG_HELP)
+    s.add_argument("--out", metavar="DIR", help=OUT_HELP)
+    s.add_argument("--resume", metavar="DIR",
+                   help="continue an interrupted run in DIR, checkpointed by [output] checkpoint_every (its "
+                        "config.toml is reused)")
     s.add_argument("--log-steps", action="store_true",
                    help="one line per time step on stderr (Newton iterations, min det F, volume drift, pressure) "
                         "instead of the progress bar, for output going to a file")
@@ -86,7 +91,21 @@ def _parser() -> argparse.ArgumentParser:
                    help="the headline only (skip the diagnostic runs of the problem as stated)")
     r.add_argument("--workers", type=int, default=None,
                    help="processes running the independent studies in parallel (default: min(2, CPUs))")
-    for q in (s, o, r):
+    b = sub.add_parser("benchmark", help="run a community benchmark and compare with its published curves",
+                       epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    b.add_argument("benchmark", choices=["cardiac-elastodynamics"],
+                   help="cardiac-elastodynamics: problem 1 of Arostica et al. (2025), CMAME 435:117485")
+    b.add_argument("--step", default="1", choices=["0A", "0B", "1"],
+                   help="0A: active tension only, 0B: endocardial pressure only, 1: both (default)")
+    b.add_argument("--out", required=True, metavar="DIR", help=OUT_HELP)
+    b.add_argument("--degree", type=int, default=1, choices=[1, 2], help="Lagrange degree of the displacement")
+    b.add_argument("--mesh", default="reference", choices=["reference", "coarse"],
+                   help="the benchmark's reference mesh (default) or hyperoc's coarse mesh of its domain")
+    b.add_argument("--end-time", type=float, default=None, metavar="T",
+                   help="stop at T seconds (default: the whole beat, 1 s)")
+    b.add_argument("--resume", action="store_true",
+                   help="continue the run checkpointed in DIR (every 50 steps), if there is one")
+    for q in (s, o, r, b):
         q.add_argument("--no-progress", action="store_true",
                        help="no progress bar (there is none either when stderr is not a terminal)")
     for q in (s, o, g):
@@ -132,20 +151,27 @@ def _check_resume_changes(config: Path, overrides: list) -> None:
                                  f"{', '.join(allowed)} may change on resume (a new run needs CONFIG --out DIR)")
 
 
-def _optimize(args) -> None:
-    overrides = args.overrides + ([f"optimize.method={args.method}"] if args.method else [])
+def _run_folder(args, command: str) -> tuple[Path, Path]:
+    """The output folder and the config of a new run (CONFIG --out DIR) or of a resumed one (--resume DIR:
+    DIR/config.toml)."""
     if args.resume:
         out = Path(args.resume)
         config = out / "config.toml"
         if not config.is_file():
-            raise InputError(f"--resume: {out} has no config.toml (is it an optimize output folder?)")
+            raise InputError(f"--resume: {out} has no config.toml (is it a {command} output folder?)")
         if args.config or args.out:
             raise InputError(f"--resume continues the run configured in {config}; CONFIG and --out apply to a new run")
+        return out, config
+    if not (args.config and args.out):
+        raise InputError(f"{command} needs CONFIG and --out DIR (or --resume DIR)")
+    return Path(args.out), Path(args.config)
+
+
+def _optimize(args) -> None:
+    overrides = args.overrides + ([f"optimize.method={args.method}"] if args.method else [])
+    out, config = _run_folder(args, "optimize")
+    if args.resume:
         _check_resume_changes(config, overrides)
-    else:
-        if not (args.config and args.out):
-            raise InputError("optimize needs CONFIG and --out DIR (or --resume DIR)")
-        out, config = Path(args.out), Path(args.config)
     cfg, model = _checked_config(config, overrides, out, "optimize", args.force)
     from .workflows import optimize, resume_state
 
@@ -212,14 +238,22 @@ def _print_step(record) -> None:
 
 
 def _simulate(args) -> None:
-    cfg, model = _checked_config(args.config, args.overrides, args.out, "simulate", args.force)
-    from .workflows import simulate
+    out, config = _run_folder(args, "simulate")
+    if args.resume and args.overrides:
+        raise InputError("--resume continues the recorded solve: --set would change it")
+    cfg, model = _checked_config(config, args.overrides, out, "simulate", args.force)
+    from .workflows import SEGMENTS_DIR, simulate
 
-    _record_config(cfg, Path(args.out))
-    summary = simulate(cfg, args.out, progress=_progress(args) and not args.log_steps,
-                       monitor=_print_step if args.log_steps else None, model=model)
+    if args.resume and not cfg["output"].get("checkpoint_every"):
+        raise InputError(f"--resume: {config} has no [output] checkpoint_every, so {out} holds no checkpoints")
+    if (out / SEGMENTS_DIR).exists() and not args.resume:
+        raise InputError(f"--out {out} holds a checkpointed run: use --resume {out} to continue it, or another folder")
+    _record_config(cfg, out)
+    summary = simulate(cfg, out, progress=_progress(args) and not args.log_steps,
+                       monitor=_print_step if args.log_steps else None,
+                       on_segment=_print_segment if args.log_steps else None, model=model)
     print(f"max p = {summary['pressure_max']:.6g} at t = {summary['t_pressure_max']:.6g}; "
-          f"volume drift {summary['volume_drift']:.2e} -> {Path(args.out) / 'summary.json'}")
+          f"volume drift {summary['volume_drift']:.2e} -> {out / 'summary.json'}")
     for w in summary["warnings"]:
         print(f"warning: {w}", file=sys.stderr)
 
@@ -252,7 +286,52 @@ def _reproduce(args) -> None:
     reproduce_paper_1d(out, quick=args.quick, progress=_progress(args), workers=args.workers)
 
 
-COMMANDS = {"simulate": _simulate, "optimize": _optimize, "check-gradient": _check_gradient, "reproduce": _reproduce}
+def _benchmark(args) -> None:
+    from .preflight import check_output_dir
+
+    out = check_output_dir(args.out)
+    if (out / "segments").exists() and not args.resume:
+        raise InputError(f"--out {out} holds a checkpointed run: add --resume to continue it, or choose another folder")
+    if args.end_time is not None and not 0.0 < args.end_time <= 1.0:
+        raise InputError(f"--end-time must lie in (0, 1] s, got {args.end_time}")
+    from ..cardiac.benchmark import benchmark_config
+
+    cfg = benchmark_config(args.step, degree=args.degree, mesh=args.mesh, T=args.end_time)
+    from .workflows import check_run
+
+    check_run(cfg, "simulate")
+    _start_compiler()
+    from ..cardiac.benchmark import run_benchmark
+    from ..cardiac.benchmark_report import write_benchmark_outputs
+
+    progress = _progress(args)
+    record = run_benchmark(args.step, out, degree=args.degree, mesh=args.mesh, T=args.end_time, progress=progress,
+                           on_segment=None if progress else _print_segment)
+    write_benchmark_outputs(out, record)
+    _print_comparison(record, out)
+
+
+def _print_segment(index: int, count: int, segment: dict, solved: bool) -> None:
+    """One line per checkpoint segment on stderr (a log file follows a long run)."""
+    what = f"solved in {segment['wall_time']:.1f} s" if solved else "read back"
+    print(f"segment {index + 1}/{count} {what}: {int(segment['newton_iterations'].sum())} Newton iterations",
+          file=sys.stderr, flush=True)
+
+
+def _print_comparison(record: dict, out: Path) -> None:
+    """Per quantity: the share of the codes' sampling times where hyperoc lies inside their band, and the peaks."""
+    print(f"step {record['step']}, P{record['degree']}, {record['unknowns']} unknowns, {record['wall_time']:.0f} s, "
+          f"{record['newton_iterations']['total']} Newton iterations")
+    for quantity, c in record["comparison"].items():
+        peak = c.get("peak")
+        peaks = f"; peak {peak['hyperoc']:.4g} (codes {peak['codes'][0]:.4g} to {peak['codes'][1]:.4g})" if peak else ""
+        print(f"  {quantity:7s} inside the codes' band at {100 * c['inside']:.0f} % of the times, "
+              f"worst {100 * c['worst']:.2g} % outside{peaks}")
+    print(f"-> {out / 'benchmark.json'}, {out / 'displacements.png'}, {out / 'volume.png'}")
+
+
+COMMANDS = {"simulate": _simulate, "optimize": _optimize, "check-gradient": _check_gradient, "reproduce": _reproduce,
+            "benchmark": _benchmark}
 
 
 def main(argv=None) -> int:

@@ -475,6 +475,9 @@ class Output(Section):
     snapshot_times: Optional[Annotated[list[NonNegative], Field(min_length=1)]] = Field(
         None, description="1D figures: times of the displacement snapshots, in [0, T]")
     series_every: Optional[Count] = Field(None, description="time series: every k-th level")
+    checkpoint_every: Optional[Count] = Field(
+        None, description="simulate: save the solve every k time steps in OUT/segments, so that `hyperoc simulate "
+                          "--resume OUT` continues an interrupted run (bitwise the same result)")
     units: OutputUnits = Field(
         OutputUnits(), description="figure axes: units of time, length, pressure and control (a table, see "
                                    "[output.units]; each \"-\", dimensionless, unless given)")

@@ -28,6 +28,7 @@ __all__ = ["check_run", "simulate", "build_reduced", "optimize_single", "optimiz
 ITERATIONS_FILE = "iterations.json"  # in a run's evaluation cache folder: the last iteration completed
 CACHE_DIR = "cache"  # a run's evaluation cache, OUT/cache (what --resume replays)
 BEST_FILE = "best.npz"  # an iterate with a higher J than the final one (`OptimizationResult.best`)
+SEGMENTS_DIR = "segments"  # a checkpointed forward solve, OUT/segments (what simulate --resume continues)
 
 
 def check_run(cfg: Config, command: str, mesh=None):
@@ -68,16 +69,25 @@ def figure_units(cfg: Config) -> Units:
     return Units(**(cfg["output"].get("units") or {}))
 
 
-def simulate(cfg: Config, out, *, progress: bool = False, monitor=None, model=None, title: str | None = None) -> dict:
+def simulate(cfg: Config, out, *, progress: bool = False, monitor=None, on_segment=None, model=None,
+             title: str | None = None) -> dict:
     """Forward solve with the prescribed control of ``[control]``; writes the standard outputs.
     ``monitor``: called with each step's `hyperoc.dynamics.stepper.StepRecord` (`TimeStepper.run`);
+    with ``[output] checkpoint_every`` the solve is saved in segments in ``out/segments`` instead and
+    resumes from them (`hyperoc.dynamics.resumable.run_resumable`, ``on_segment`` called after each);
     ``model``: the config's model if already built (`check_run`); ``title``: the run's name in the
     figures (default `run_title`)."""
+    from ..dynamics.resumable import run_resumable
+
     model = model or cfg.model()
     grid = cfg.grid()
     xi = cfg.prescribed_control(model, grid.t)
-    sol = cfg.stepper(model).run(grid, xi, progress=progress, monitor=monitor)
-    o = cfg["output"]
+    stepper, o = cfg.stepper(model), cfg["output"]
+    if o.get("checkpoint_every"):
+        sol = run_resumable(stepper, grid, xi, folder=Path(out) / SEGMENTS_DIR, every=o["checkpoint_every"],
+                            progress=progress, on_segment=on_segment, identity=cfg.sections)
+    else:
+        sol = stepper.run(grid, xi, progress=progress, monitor=monitor)
     return write_state_outputs(Path(out), sol, snapshot_times=o.get("snapshot_times"),
                                series_every=o.get("series_every"), frames=cfg.fibres(model.mesh),
                                title=title or run_title(cfg), units=figure_units(cfg), cavity=cfg.cavity_wall())

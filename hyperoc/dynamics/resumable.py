@@ -37,14 +37,16 @@ SEGMENT_COST = ("wall_time", "peak_memory_mib")
 
 
 def run_resumable(stepper: TimeStepper, grid: TimeGrid, xi=None, *, folder, every: int, u0=None, v0=None,
-                  external=None, progress: bool = False, on_segment=None) -> StateSolution:
+                  external=None, progress: bool = False, on_segment=None, identity: dict | None = None
+                  ) -> StateSolution:
     """`TimeStepper.run` in segments of ``every`` steps saved to ``folder`` (created if needed), resuming
     from the segments already there. Same arguments and result as `TimeStepper.run` (multiplier "step"
     only: the "theta" weighting carries p across steps as a state the segments would have to agree on).
     `hyperoc.errors.SolverError` names the first failed step as `run` does; the segments before it stay
     saved.
 
-    ``on_segment(index, count, segment, solved)``: called after each segment (``solved`` False for one read
+    ``identity``: JSON data naming the problem beyond what the fingerprint digests (e.g. a configuration's
+    sections), compared on resume. ``on_segment(index, count, segment, solved)``: called after each segment (``solved`` False for one read
     back), e.g. to log progress to a file. The result's ``wall_time`` is the sum over all segments, those
     solved by an earlier process included (`SEGMENT_COST`); `segment_costs` reads them back."""
     if every < 1:
@@ -57,7 +59,7 @@ def run_resumable(stepper: TimeStepper, grid: TimeGrid, xi=None, *, folder, ever
     xis, fs = stepper._controls(xi, N), stepper.external_loads(external, grid)
     stepper._check_initial_velocity(y0, y1)
     folder = Path(folder)
-    _claim(folder, _fingerprint(stepper, grid, xis, fs, y0, y1, every))
+    _claim(folder, _fingerprint(stepper, grid, xis, fs, y0, y1, every) | {"identity": _as_json(identity)})
     V0 = stepper.deformed_volume(y0)
     state, outputs = (y0, y1, 0.0), []
     starts = range(0, N, every)
@@ -134,15 +136,21 @@ def _read_segment(path: Path) -> dict:
 
 
 def _fingerprint(stepper: TimeStepper, grid: TimeGrid, xis, fs, y0, y1, every: int) -> dict:
-    """What a resumed run must agree on: sizes, the scheme, the segment length and digests of the grid,
-    the controls, the loads and the initial state."""
+    """What a resumed run must agree on: sizes, the scheme, the step's terms, the segment length and digests
+    of the grid, the controls, the loads and the initial state."""
     digest = hashlib.sha256()
     for a in (grid.t, xis, fs, y0, y1):
         digest.update(np.ascontiguousarray(a, dtype=np.float64).tobytes())
     scheme = stepper.scheme
     return {"unknowns": int(stepper.model.n), "steps": int(grid.num_steps), "every": int(every),
             "scheme": [scheme.theta, scheme.multiplier, scheme.rtol, scheme.atol, scheme.max_iter, scheme.newton],
+            "terms": [type(term).__name__ for term in stepper.terms],
             "data_sha256": digest.hexdigest()}
+
+
+def _as_json(data):
+    """``data`` as it reads back from JSON (tuples as lists, paths as strings), for comparing with a file's."""
+    return json.loads(json.dumps(data, default=str))
 
 
 def _claim(folder: Path, fingerprint: dict) -> None:
