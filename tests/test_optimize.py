@@ -76,10 +76,6 @@ def _converges_to_the_reference(method, ref, lam, J):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason="environment-dependent: with jax/jaxlib 0.10.1-0.10.2 and scipy 1.17 (a fresh "
-                   "install) L-BFGS-B and projected Newton-CG stop at a projected gradient 1.1-1.4e-6 of its start, "
-                   "just above the 1e-6 asked (jax 0.10.0: they pass). Not J's round-off (floor ~1e-9): "
-                   "to be found")
 def test_bounded_optimizers_reach_the_same_kkt_point(bar_reference):
     """Bounds ``|xi| <= b`` at half the unconstrained maximizer's largest value, so that they are
     active: projected BB and L-BFGS-B must both reach a projected gradient ``||P(m + G) - m||`` <=
@@ -194,9 +190,6 @@ def test_curvature_pairs_are_an_spd_inverse_satisfying_the_newest_secant_equatio
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason="environment-dependent: with jax/jaxlib 0.10.1-0.10.2 the forward-difference "
-                   "Hessian's noise reaches the iteration at ||G|| ~ 3e-8 (a half step, contraction 0.5-0.75) before "
-                   "the last full steps; the test's tail then is not monotone: to be made robust")
 def test_newton_cg_converges_superlinearly(bar_reference):
     """Near the nondegenerate maximizer Newton-CG with the forcing term ``min(0.5, sqrt(||G|| / ||G0||))``
     converges q-superlinearly (order 1.5 in exact arithmetic; the forward-difference Hessian adds a
