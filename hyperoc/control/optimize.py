@@ -416,8 +416,8 @@ def increase(value: float, trial_value: float, slope: float, trial_slope: float)
     Why: near a maximizer a step's increase is ``~ eps^2 / (2 c)`` (eps the projected gradient, c the
     curvature along the step), which for a stopping test ``eps <= 1e-6 ||G0||`` falls below the noise of J's
     evaluation. The pressure J reads is a Lagrange multiplier, a derivative quantity whose round-off is
-    hundreds of ulps (the bar of `hyperoc.control.problems.vibrating_bar`: J varies by 2e-16 to 8e-16, 50 to
-    200 ulps, over relative perturbations 1e-15 of xi), so a test on the values alone ends by chance
+    hundreds of ulps (the bar of `hyperoc.control.problems.vibrating_bar`: J varies by 8e-16, 200 ulps, over
+    relative perturbations 1e-15 of xi), so a test on the values alone ends by chance
     (L-BFGS-B's "no reduction", Newton-CG's "no admissible step") where the gradient still decides: the
     trapezoid rule's error is ``O(|s|^3)`` and that of J's exact gradient far below the value's
     (Hager and Zhang's approximate Armijo condition)."""
