@@ -20,16 +20,25 @@ from hyperoc import (
     barzilai_borwein,
     lbfgsb,
 )
+from hyperoc.control.adjoint import Adjoint
 from hyperoc.control.objectives import ControlCost, PressureAt
 from hyperoc.control.optimize import BBStepRule, CurvaturePairs, newton_cg, tau_scaling
 from hyperoc.control.problems import vibrating_bar
+from hyperoc.dynamics.stepper import TimeStepper
 from hyperoc.errors import InputError
 
 
 def _J(tau=1.0, T=3.0, dt=0.05, n=20, alpha=2e-2, omega=(0.75, 1.0), material=SaintVenantKirchhoff(0.05, 0.05)):
-    model = bar(n, omega=omega, material=material)
-    return ReducedFunctional(model, TimeTransform.for_step(T, dt, tau),
-                             Objective(running=(ControlCost(alpha),), at_tau=PressureAt()))
+    adjoint = _adjoint(n, omega, material)
+    return ReducedFunctional(adjoint.stepper.model, TimeTransform.for_step(T, dt, tau),
+                             Objective(running=(ControlCost(alpha),), at_tau=PressureAt()), adjoint=adjoint)
+
+
+@cache
+def _adjoint(n, omega, material):
+    """The state solver and adjoint of the bar, shared by the functionals of `_J` on it (each has its own
+    counts and evaluations), so that its step compiles once per process rather than once per functional."""
+    return Adjoint(TimeStepper(bar(n, omega=omega, material=material)))
 
 
 @pytest.mark.slow
@@ -314,7 +323,7 @@ class _FailsBeyond(ReducedFunctional):
 @pytest.mark.parametrize("run", [barzilai_borwein, lbfgsb, newton_cg])
 def test_failing_trial_points_are_rejected_not_fatal(run):
     base = _J()
-    J = _FailsBeyond(base.model, base.transform, base.objective)
+    J = _FailsBeyond(base.model, base.transform, base.objective, adjoint=base.adjoint)
     res = run(J, J.zero(1.0), max_iter=6)
     assert res.failed_trials > 0
     assert np.max(np.abs(res.point.xi)) <= J.limit
