@@ -4,12 +4,15 @@ Causality of the time stepping makes J and its exact gradient on the first K ste
 the whole solve; the only difference is which controls are admissible (a state failing after step K).
 """
 
+from functools import cache
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from helpers import bar, control_point
+from hyperoc.control.adjoint import Adjoint
 from hyperoc.control.objectives import (
     ControlCost,
     ControlRateCost,
@@ -21,6 +24,7 @@ from hyperoc.control.objectives import (
     Trajectory,
 )
 from hyperoc.control.reduced import ControlPoint, ReducedFunctional
+from hyperoc.dynamics.stepper import TimeStepper
 from hyperoc.dynamics.timegrid import TimeTransform
 from hyperoc.errors import SolverError
 
@@ -56,11 +60,19 @@ def test_steps_read_is_what_the_term_depends_on(term):
         assert not levels.any() and not steps.any()
 
 
+@cache
+def _adjoint():
+    """The state solver and adjoint of the bar with 10 cells, shared by the functionals of this file, so
+    that its step and loops compile once (the horizons and schedules differ in what they run, not in it)."""
+    return Adjoint(TimeStepper(bar(10)))
+
+
 def _functional(at_tau, horizon, **kwargs):
     eps = getattr(at_tau, "eps", 0.0)
-    return ReducedFunctional(bar(10), TimeTransform.for_step(3.0, 0.1, 1.2, eps),
+    adjoint = _adjoint()
+    return ReducedFunctional(adjoint.stepper.model, TimeTransform.for_step(3.0, 0.1, 1.2, eps),
                              Objective(running=(ControlCost(2e-3), ControlRateCost(1e-3)), at_tau=at_tau),
-                             horizon=horizon, **kwargs)
+                             horizon=horizon, adjoint=adjoint, **kwargs)
 
 
 @pytest.mark.parametrize("at_tau, checkpoints", [

@@ -307,7 +307,7 @@ def barzilai_borwein(J: ReducedFunctional, m0: ControlPoint, *, gtol: float = 1e
             alpha, concave = _bb_steps(metric, m - m_prev, G - G_prev, steps == "blockwise", alpha, rules)
         window = res.history["objective"][-nonmonotone:] if nonmonotone else [value]
         reference = min(window) if nonmonotone or not concave else None
-        step = _ascent_step(J, metric, evaluate, m, G, alpha, tau_range, xi_bounds, armijo, max_backtracks,
+        step = _ascent_step(J, metric, evaluate, m, value, G, alpha, tau_range, xi_bounds, armijo, max_backtracks,
                             reference=reference, res=res)
         if step is None:
             res.message = "no admissible step (state solver fails or no ascent along G)"
@@ -376,12 +376,13 @@ def _bb_steps(metric, s: ControlPoint, y: ControlPoint, blockwise: bool, previou
     return (a_xi, a_tau), c_xi and c_tau
 
 
-def _ascent_step(J, metric, evaluate, m, G, alpha, tau_range, xi_bounds, armijo, max_backtracks, reference, res,
-                 direction=None):
+def _ascent_step(J, metric, evaluate, m, value, G, alpha, tau_range, xi_bounds, armijo, max_backtracks, reference,
+                 res, direction=None):
     """Trial ``P(m + (alpha_xi d_xi, alpha_tau d_tau))``, d = ``direction`` (default G, the gradient in
     ``metric``); backtrack both steps on solver failure, and, unless ``reference`` is None, on lack of
-    ascent over it (Armijo: ``J(trial) >= reference + 1e-4 <G, trial - m>``; reference = J(m) is the
-    monotone test). Returns ``(trial, evaluate(trial), alpha)`` or None."""
+    ascent over it (Armijo: ``J(m) + increase >= reference + 1e-4 <G, s>``, s = trial - m, the increase
+    ``J(trial) - J(m)`` as `increase` judges it from ``value = J(m)``; reference = J(m) is the monotone
+    test). Returns ``(trial, evaluate(trial), alpha)`` or None."""
     a_xi, a_tau = alpha
     d = G if direction is None else direction
     for _ in range(max_backtracks):
@@ -389,10 +390,41 @@ def _ascent_step(J, metric, evaluate, m, G, alpha, tau_range, xi_bounds, armijo,
         out = _safe_eval(evaluate, trial)
         if out is None:
             res.failed_trials += 1
-        elif reference is None or out[0] >= reference + 1e-4 * metric.inner(G, trial - m):
+        elif reference is None or _sufficient_increase(metric, value, G, out, trial - m, reference):
             return trial, out, (a_xi, a_tau)
         a_xi, a_tau = a_xi * armijo, a_tau * armijo
     return None
+
+
+def _sufficient_increase(metric, value: float, G: ControlPoint, out, s: ControlPoint, reference: float) -> bool:
+    """Armijo's test of the step s from m (J(m) = value, gradient G) to the trial ``out = (J, g, G)``:
+    ``J(m) + increase >= reference + 1e-4 <G, s>``, the increase from `increase`."""
+    slope = metric.inner(G, s)
+    return value + increase(value, out[0], slope, metric.inner(out[2], s)) >= reference + 1e-4 * slope
+
+
+#: Relative change of J below which the line searches judge a step by J's gradient (`increase`): the
+#: epsilon of the approximate Wolfe conditions of Hager and Zhang (SIAM J. Optim. 16, 2005), their default.
+VALUE_RESOLUTION = 1e-6
+
+
+def increase(value: float, trial_value: float, slope: float, trial_slope: float) -> float:
+    """``J(m + s) - J(m)`` as the line searches judge it: the difference of the values ``trial_value - value``,
+    or, where that is at most ``VALUE_RESOLUTION |J(m)|``, the trapezoid rule along the segment,
+    ``(slope + trial_slope) / 2`` with ``slope = dJ(m).s`` and ``trial_slope = dJ(m + s).s``.
+
+    Why: near a maximizer a step's increase is ``~ eps^2 / (2 c)`` (eps the projected gradient, c the
+    curvature along the step), which for a stopping test ``eps <= 1e-6 ||G0||`` falls below the noise of J's
+    evaluation. The pressure J reads is a Lagrange multiplier, a derivative quantity whose round-off is
+    hundreds of ulps (the bar of `hyperoc.control.problems.vibrating_bar`: J varies by 8e-16, 200 ulps, over
+    relative perturbations 1e-15 of xi), so a test on the values alone ends by chance
+    (L-BFGS-B's "no reduction", Newton-CG's "no admissible step") where the gradient still decides: the
+    trapezoid rule's error is ``O(|s|^3)`` and that of J's exact gradient far below the value's
+    (Hager and Zhang's approximate Armijo condition)."""
+    change = trial_value - value
+    if abs(change) > VALUE_RESOLUTION * abs(value):
+        return change
+    return 0.5 * (slope + trial_slope)
 
 
 def tau_scaling(J: ReducedFunctional, tau_scale: float | str, tau_range, xi_bounds) -> float:
@@ -441,7 +473,9 @@ def lbfgsb(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gt
     tau is scaled by ``tau_scale`` (`tau_scaling`: by default, with bounds on xi, both blocks
     normalized to their admissible ranges). A trial point where the state solver fails gets the
     value ``-J_best + |J_best| + 1`` (worse than any point seen) and the last gradient, so the line
-    search backtracks. Stops when the projected gradient norm is ``<= gtol`` times its initial value.
+    search backtracks. scipy's line search sees ``J(iterate) + increase``, the increase from the iterate
+    to the trial as `increase` judges it (by the gradient where J's change is at its resolution). Stops
+    when the projected gradient norm is ``<= gtol`` times its initial value.
     ``callback(k, m, J(m), measure)`` after iteration k, with that norm (as in ``history["grad_norm"]``).
     """
     start = time.perf_counter()
@@ -451,7 +485,8 @@ def lbfgsb(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gt
     coords = _coordinates(J, xi_bounds)
     shape = m0.xi.shape
     res = OptimizationResult(m0, np.nan, 0, False, "")
-    state = {"target": None, "last": None, "best": -np.inf, "grad": None}
+    # last: (m, J, gradient, J as judged) of the last evaluation; anchor: the same of scipy's current iterate
+    state = {"target": None, "last": None, "anchor": None, "best": -np.inf, "grad": None}
 
     def to_point(z):  # projected: unscaling a value on a bound can leave it one ulp outside
         return _project(J, ControlPoint(coords.from_coordinates(z[:-1].reshape(shape)), float(z[-1]) / tau_scale),
@@ -466,12 +501,18 @@ def lbfgsb(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gt
         value, g = out
         dual = J.dual(g)  # dJ/dxi as a dual vector
         grad_z = -np.concatenate([coords.coordinate_gradient(dual.xi).ravel(), [dual.tau / tau_scale]])
-        state["last"] = (m, value, g)
+        judged = value
+        if state["anchor"] is not None:  # scipy's line search compares this value with its iterate's
+            m_a, value_a, g_a, judged_a = state["anchor"]
+            s = m - m_a
+            judged = judged_a + increase(value_a, value, J.inner(g_a, s), J.inner(g, s))
+        state["last"] = (m, value, g, judged)
         state["best"], state["grad"] = max(state["best"], value), grad_z
-        return -value, grad_z
+        return -judged, grad_z
 
     def cb(z):
-        m, value, g = state["last"]
+        state["anchor"] = state["last"]
+        m, value, g, _ = state["last"]
         gnorm = stationarity(J, m, g, tau_range, xi_bounds)
         res.iterations += 1
         _record(res, value, m, 0.0, gnorm)
@@ -489,7 +530,8 @@ def lbfgsb(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gt
     if _safe_eval(evaluate, m_init) is None:
         raise SolverError(0, 0.0, "initial point", "the state solver fails at the initial control")
     fun(z0)
-    _, v_init, g_init = state["last"]
+    state["anchor"] = state["last"]
+    _, v_init, g_init, _ = state["last"]
     g0 = stationarity(J, m_init, g_init, tau_range, xi_bounds)
     state["target"] = gtol * g0
     _record(res, v_init, m_init, 0.0, g0)
@@ -570,13 +612,13 @@ def newton_cg(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None),
         d, nonconcave = _newton_direction(J, metric, m, G, free, min(0.5, np.sqrt(gnorm / g0)), max_cg, counts,
                                           preconditioner)
         search = dict(reference=value, res=res)
-        step = _ascent_step(J, metric, evaluate, m, G, (1.0, 1.0), tau_range, xi_bounds, armijo, max_backtracks,
-                            direction=d, **search)
+        step = _ascent_step(J, metric, evaluate, m, value, G, (1.0, 1.0), tau_range, xi_bounds, armijo,
+                            max_backtracks, direction=d, **search)
         counts["nonconcave_iterations"] += nonconcave
         if step is None:  # the gradient is an ascent direction whatever the curvature model says
             counts["gradient_steps"] += 1
-            step = _ascent_step(J, metric, evaluate, m, G, (1.0, 1.0), tau_range, xi_bounds, armijo, max_backtracks,
-                                **search)
+            step = _ascent_step(J, metric, evaluate, m, value, G, (1.0, 1.0), tau_range, xi_bounds, armijo,
+                                max_backtracks, **search)
         elif nonconcave and step[2][0] == 1.0:  # only along d: nonconcavity says nothing about G
             step = _extend(J, evaluate, m, d, step, tau_range, xi_bounds)
         if step is None:
