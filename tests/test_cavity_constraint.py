@@ -62,7 +62,7 @@ def stepper_of(cfg, model, constraint):
     return TimeStepper(model, cfg.scheme(), "lu", terms=terms, constraint=constraint)
 
 
-@pytest.mark.parametrize("degree", [1, 2])
+@pytest.mark.parametrize("degree", [1, pytest.param(2, marks=pytest.mark.slow)])  # P2: about 40 s
 def test_the_cavity_volume_follows_its_target_at_every_step(degree):
     cfg = parse_config(benchmark_config(**{"mesh.degree": degree}))
     model = cfg.model()
