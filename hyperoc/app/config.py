@@ -256,7 +256,25 @@ class Config:
         from ..dynamics.stepper import TimeStepper
 
         return TimeStepper(model, self.scheme(), self["dynamics"]["solver"], terms=self.step_terms(model),
-                           constraint=self["dynamics"]["constraint"])
+                           constraint=self.constraint(model))
+
+    def constraint(self, model, t=None):
+        """The constraint of ``[dynamics] constraint`` on ``model`` (`hyperoc.dynamics.constraint`), the cavity's
+        of ``[dynamics.cavity]``; `InputError` for a wall the mesh lacks, one that encloses no volume, or (given
+        the levels ``t``) a volume change not finite on them."""
+        from ..dynamics.constraint import CavityVolumeConstraint, make_constraint
+
+        d = self["dynamics"]
+        if d["constraint"] != "cavity_volume":
+            return make_constraint(model, d["constraint"])
+        cavity = d.get("cavity") or {}
+        change = cavity.get("volume_change")
+        with _in_section("dynamics.cavity"):
+            constraint = CavityVolumeConstraint(model, cavity.get("boundary", "endocardium"),
+                                                None if change is None else time_law(change))
+            if t is not None:
+                constraint.check_targets(t)
+        return constraint
 
     def scheme(self):
         from ..dynamics.stepper import Scheme
@@ -547,7 +565,7 @@ def _toml_value(value) -> str:
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(_toml_value(v) for v in value) + "]"
     if isinstance(value, dict):
-        return "{ " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in value.items()) + " }"
+        return "{ " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in value.items() if v is not None) + " }"
     raise TypeError(f"no TOML form for {value!r}")
 
 

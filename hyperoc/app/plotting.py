@@ -116,7 +116,7 @@ def plot_pressure(path, t, p, *, tau=None, eps=None, volume=None, cavity=None, t
     volume : (nt,) array_like, optional
         Body volume ``int det F``; adds a panel with the relative drift ``volume / volume[0] - 1`` [-].
     cavity : (nt,) array_like, optional
-        Cavity volume (e.g. of a ventricle, `hyperoc.fem.volumes.cavity_volume`) [units.length^3]; adds a
+        Cavity volume (e.g. of a ventricle, `hyperoc.mechanics.cavity.CavityVolume`) [units.length^3]; adds a
         panel with it.
     title : str, optional
         Figure title (e.g. the run's name).

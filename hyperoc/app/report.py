@@ -14,8 +14,9 @@ import numpy as np
 
 from .._jax import on_device
 from ..dynamics.stepper import StateSolution
-from ..fem.volumes import cavity_volume
+from ..errors import InputError
 from ..io import write_json, write_npz, write_time_series
+from ..mechanics.cavity import CavityVolume
 from ..mechanics.materials import det
 from .plotting import Units, plot_control_spacetime, plot_history, plot_pressure, plot_snapshots
 
@@ -138,8 +139,8 @@ def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = No
     per-step monitors ``newton_iterations, min_det_F``, the control ``xi`` (levels, n_nodes, components)
     with its time levels ``t`` and node coordinates ``xi_nodes`` when there is a control (a control file
     as written: ``[control] file`` replays it on its levels), and in 3D the `cavity_volume` enclosed by the
-    boundary ``cavity`` (default ``"endocardium"``; a 3D mesh without it gets a warning saying so,
-    unless ``cavity`` is None: a body with no cavity). pressure.png shows p (tau marked), the body-volume
+    boundary ``cavity`` (default ``"endocardium"``, `_cavity_volumes`; a 3D mesh without it gets a warning
+    saying so, unless ``cavity`` is None: a body with no cavity). pressure.png shows p (tau marked), the body-volume
     drift and the cavity volume; control.png the control's space-time map (1D; 2D/3D scalar controls:
     means over slices of the last coordinate, the long axis of a ventricle); 1D adds snapshot figures.
     The series ``paraview/state`` has the point fields ``displacement``, ``velocity``, ``control`` (the
@@ -164,19 +165,11 @@ def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = No
         arrays.update(xi=xi_nodal, xi_nodes=model.control.coordinates(model.space))
 
     files = {"results": "results.npz", "pressure_plot": "pressure.png"}
-    cavity_values, cavity_summary = None, {}
-    if model.dim == 3 and cavity in model.mesh.boundaries:
-        cavity_values = cavity_volume(model.space, u, boundary=cavity)
-    if cavity_values is not None and not cavity_values[0] > 0:  # a wall that encloses no cavity (a flat face)
-        sol.warnings = [*sol.warnings, f"no cavity_volume: the boundary {cavity!r} encloses no cavity"]
-        cavity_values = None
-    elif cavity_values is not None:
+    cavity_values, cavity_summary = _cavity_volumes(sol, cavity), {}
+    if cavity_values is not None:
         arrays["cavity_volume"] = cavity_values
         cavity_summary = {"cavity_volume_0": float(cavity_values[0]),
                           "cavity_volume_change_max": float(np.max(np.abs(cavity_values / cavity_values[0] - 1.0)))}
-    elif model.dim == 3 and cavity is not None:
-        sol.warnings = [*sol.warnings, f"no cavity_volume: the mesh has no boundary {cavity!r} (its boundaries: "
-                        f"{', '.join(sorted(model.mesh.boundaries))}); [fibres] inner names the cavity's wall"]
     write_npz(out / "results.npz", **arrays)
     plot_pressure(out / "pressure.png", sol.t, sol.pressure, tau=tau, eps=eps, volume=sol.volume, cavity=cavity_values,
                   title=f"{title}: pressure", units=units, marks=pressure_marks)
@@ -205,6 +198,25 @@ def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = No
                "newton_iterations_mean": float(np.mean(sol.newton_iterations)), "files": files, **(extra_summary or {})}
     write_json(out / "summary.json", summary)
     return summary
+
+
+def _cavity_volumes(sol: StateSolution, cavity: str | None) -> np.ndarray | None:
+    """In 3D, the volume (L,) of the cavity bounded by the wall ``cavity`` at each level, closed at its rim by
+    the lid from the deformed rim's centroid (`hyperoc.mechanics.cavity.CavityVolume` with ``apex="rim"``);
+    None, with a warning added to ``sol.warnings``, for a mesh without that wall or a wall that encloses no
+    cavity (a flat face, an outer wall); None without a warning in 2D or for ``cavity`` None."""
+    model = sol.model
+    if model.dim != 3 or cavity is None:
+        return None
+    if cavity not in model.mesh.boundaries:
+        sol.warnings = [*sol.warnings, f"no cavity_volume: the mesh has no boundary {cavity!r} (its boundaries: "
+                        f"{', '.join(sorted(model.mesh.boundaries))}); [fibres] inner names the cavity's wall"]
+        return None
+    try:
+        return CavityVolume(model, cavity, apex="rim").volumes(sol.y0)
+    except InputError:
+        sol.warnings = [*sol.warnings, f"no cavity_volume: the boundary {cavity!r} encloses no cavity"]
+        return None
 
 
 def _pressure_extrema(sol: StateSolution) -> dict:

@@ -275,6 +275,18 @@ class Activation(Section):
                                           "{bestel = 'activation'}")
 
 
+class Cavity(Section):
+    """``[dynamics.cavity]``: the cavity whose volume ``constraint = "cavity_volume"`` holds, its multiplier the
+    cavity (left-ventricular) pressure acting on the wall."""
+
+    boundary: str = Field("endocardium", description="the cavity's wall (a boundary of the mesh, closed or open on "
+                                                     "one rim, which the lid from its centroid closes)")
+    volume_change: Optional[TimeLawValue] = Field(
+        None, description="dV(t): the cavity volume is held at V(0) + dV(t) (length^3, e.g. m^3); none: at V(0), "
+                          "an isovolumic phase; a time law finite on the grid",
+        json_schema_extra={"type": "number, expression of t, table or Bestel law"})
+
+
 class Fibres(Section):
     """Fibre frames for fibre-dependent laws and active stress: the helix-angle rule
     (`hyperoc.mechanics.fibres.rule_based_fibres`), fields from a file (`hyperoc.mechanics.fibres.read_fibres`)
@@ -331,9 +343,12 @@ class Dynamics(Section):
     newton: Literal["auto", "full", "chord"] = Field(
         "auto", description="auto: chord Newton (a kept factorization) with the sparse solvers, full Newton otherwise")
     traction: Optional[Numbers] = Field(None, description="constant traction on gamma_n, one number per dimension")
-    constraint: Literal["tissue_volume", "none"] = Field(
-        "tissue_volume", description="the tissue volume held by a multiplier (the paper's), or none (only the "
-                                     "material's bulk term; the reported pressure is then 0)")
+    constraint: Literal["tissue_volume", "cavity_volume", "none"] = Field(
+        "tissue_volume", description="the tissue volume held by a multiplier (the paper's); the volume of the cavity "
+                                     "of [dynamics.cavity] held by the cavity pressure (the reported pressure, "
+                                     "positive pushing the wall out of the cavity); or none (only the material's "
+                                     "bulk term; the reported pressure is then 0)")
+    cavity: Optional[Cavity] = Field(None, description="constraint = 'cavity_volume': the cavity, [dynamics.cavity]")
     robin: Optional[list[Robin]] = Field(None, description="spring-dashpot boundaries, [[dynamics.robin]] tables")
     pressure: Optional[BoundaryPressure] = Field(None, description="follower pressure p(t) on a boundary")
     activation: Optional[Activation] = Field(None, description="prescribed active tension T_a(t) along the fibres")
@@ -342,6 +357,8 @@ class Dynamics(Section):
     def _step_fits(self):
         if self.dt > self.T:
             raise ValueError(f"dt = {self.dt:g} must be <= T = {self.T:g}")
+        if self.cavity is not None and self.constraint != "cavity_volume":
+            raise ValueError(f"[dynamics.cavity] applies to constraint = 'cavity_volume', got {self.constraint!r}")
         return self
 
 
@@ -628,6 +645,7 @@ def reference_markdown() -> str:
     parts += _section_table("output.units", OutputUnits)
     parts += _section_table("dynamics.robin", Robin)
     parts += _section_table("dynamics.pressure", BoundaryPressure)
+    parts += _section_table("dynamics.cavity", Cavity)
     parts += _section_table("dynamics.activation", Activation)
     parts += ["A time `law` is a number (constant), an expression of `t` (e.g. `\"1e3*sin(pi*t)\"`), a table "
               "`{ times = [...], values = [...] }` (piecewise linear, times strictly increasing, constant outside) or "

@@ -48,6 +48,7 @@ def check_run(cfg: Config, command: str, mesh=None):
         raise InputError(f"config: [dynamics] solver {solver!r} unknown (auto, tridiagonal, dense, "
                          f"{', '.join(SparseSolver.methods)})")
     cfg.step_terms(model)  # a missing boundary tag, fibres an activation needs: before anything is written
+    cfg.constraint(model, grid.t)  # a cavity wall the mesh lacks or that encloses nothing, a law not finite on the grid
     if command == "simulate":
         cfg.prescribed_control(model, grid.t)
     elif command == "optimize":
@@ -96,9 +97,9 @@ def simulate(cfg: Config, out, *, progress: bool = False, monitor=None, on_segme
 def build_reduced(cfg: Config, tau0: float, model=None) -> ReducedFunctional:
     model = model or cfg.model()
     o = cfg["optimize"]
-    if cfg["dynamics"]["constraint"] != "tissue_volume":
+    if cfg["dynamics"]["constraint"] == "none":
         raise InputError("config: [objective] reads the pressure, the multiplier of [dynamics] constraint = "
-                         "'tissue_volume'; with constraint = 'none' there is none")
+                         "'tissue_volume' or 'cavity_volume'; with constraint = 'none' there is none")
     return ReducedFunctional(model, cfg.transform(tau0), cfg.objective(), adjoint=Adjoint(cfg.stepper(model)),
                              gradient=o["gradient"],
                              checkpoint_every=o.get("checkpoint_every"),

@@ -51,9 +51,9 @@ from ..dynamics.statics import solve_static
 from ..errors import InputError
 from ..fem.geometry import ventricle
 from ..fem.mesh import Mesh, box
-from ..fem.volumes import cavity_volume
 from ..io import read_npz, write_npz
 from ..mechanics.active import FibreTension, axis_taper
+from ..mechanics.cavity import CavityVolume
 from ..mechanics.fibres import prolate_fibres
 from ..mechanics.follower import FollowerPressure
 from ..mechanics.materials import Guccione, det
@@ -265,8 +265,8 @@ def ventricle_apex(h: float, *, bulk_modulus: float = 1000.0, degree: int = 2, s
                    monitor=None) -> BenchmarkResult:
     """Problem 2 (`ventricle_problem`) or 3 (``problem=3``, `contraction_problem`): ``values["z_endo"]``,
     ``values["z_epi"]`` = z of the deformed endocardial and epicardial apex (mm; -17 and -20 at rest),
-    ``values["V_cavity"]`` the deformed cavity volume (mm^3, `hyperoc.fem.volumes.cavity_volume`: the
-    endocardium closed by the base plane). ``taper``: problem 3 only, `contraction_problem`.
+    ``values["V_cavity"]`` the deformed cavity volume (mm^3, `hyperoc.mechanics.cavity.CavityVolume` with
+    ``apex="rim"``: the endocardium closed by the base plane). ``taper``: problem 3 only, `contraction_problem`.
     ``coarse``: this problem's result on the mesh of ``refinements - 1`` (nested iteration: Newton
     starts at the full load from its prolonged solution, and steps the load only if that fails;
     ``params["start"]`` says which). ``monitor``: `solve_static`'s, e.g.
@@ -279,7 +279,7 @@ def ventricle_apex(h: float, *, bulk_modulus: float = 1000.0, degree: int = 2, s
         raise InputError("ventricle_apex: taper (of the active tension) applies to problem 3 only")
     model, load = _ventricle_setup(problem, h, bulk_modulus=bulk_modulus, degree=degree, curved=curved, base=base,
                                    refinements=refinements, volumetric=volumetric, isochoric=isochoric, taper=taper)
-    cavity = lambda model, u: {"V_cavity": float(cavity_volume(model.space, model.expand(u)[None])[0])}
+    cavity = lambda model, u: {"V_cavity": float(CavityVolume(model, "endocardium", apex="rim").volume(u))}
     return _solve(model, load, steps, cutbacks, solver,
                   {"z_endo": VENTRICLE["endo_apex"], "z_epi": VENTRICLE["epi_apex"]},
                   {"problem": problem, "mesh_size": h, "bulk_modulus": bulk_modulus, "degree": degree, "steps": steps,

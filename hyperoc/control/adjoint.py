@@ -47,7 +47,8 @@ class Record:
     """A forward solve and the level states a schedule keeps (made by `Adjoint.record`).
 
     grid : TimeGrid, N steps; xi : (N+1, n_ctrl) controls; loads : (N+1, n) external loads (a
-    broadcast view when constant); V0 : the constrained volume ``int det F`` (length^d); schedule :
+    broadcast view when constant); V0 : the constrained quantity of the initial state (tissue or cavity
+    volume, length^d); schedule :
     the `Schedule`; keep : the levels asked for, ascending (J's partials are given there); p_steps :
     (N,) step multipliers (all kept); levels : (K,) the kept levels, ascending (the schedule's and
     keep); y0, y1 : (K, n) the states there; newton_iterations, min_det_F, max_grad : (N,) the steps'
@@ -168,7 +169,7 @@ class Adjoint:
         N, n = grid.num_steps, loads.shape[1]
         bounds, levels = schedule.forward(N)
         hold = {*levels, *keep}
-        V0, y0, y1 = self._initial_state(u0, v0)
+        V0, y0, y1 = self._initial_state(u0, v0, grid.t)
         rec = Record(grid, xi, loads, V0, schedule, tuple(sorted(set(keep))), np.zeros(N), *_block({}, n))
         blocks = [_block({0: (y0, y1)} if 0 in hold else {}, n)]
         its, status, mindet, maxgrad = np.zeros(N, int), np.zeros(N, int), np.zeros(N), np.zeros(N)
@@ -184,9 +185,10 @@ class Adjoint:
         rec.wall_time = time.perf_counter() - start
         return rec
 
-    def _initial_state(self, u0, v0):
-        """``(V0, y0, y1)``: the constrained volume ``int det F(u0)`` and the level-0 state as JAX arrays."""
-        V0 = self.stepper.deformed_volume(u0)
+    def _initial_state(self, u0, v0, t):
+        """``(V0, y0, y1)``: the constrained quantity of u0 (`TimeStepper.constraint_reference`, its target
+        checked on the levels t) and the level-0 state as JAX arrays."""
+        V0 = self.stepper.constraint_reference(u0, t)
         return V0, on_device(u0), on_device(v0)
 
     def _steps(self, rec: Record, state, a: int, b: int, hold=()):

@@ -30,6 +30,7 @@ import numpy as np
 from mpi4py import MPI
 
 from ..control.adjoint import Adjoint
+from ..dynamics.constraint import TissueVolume
 from ..dynamics.stepper import Scheme, StepStatus, TimeStepper
 from ..errors import InputError
 from ..mechanics import operators
@@ -60,6 +61,7 @@ class DistributedStepper(TimeStepper):
         if scheme.multiplier != "step":
             raise InputError("DistributedStepper: multiplier must be 'step' (the adjoint's scheme)")
         self.model, self.scheme = model, scheme
+        self.constraint = TissueVolume(model)  # the distributed step holds the tissue volume
         self.layout = self.solver = Layout(model, comm, solver)
         self.chord = scheme.chord_with(self.layout, auto=True)
         self._kept = KeptJacobian()  # chord Newton's Jacobian, kept across iterations and steps
@@ -106,6 +108,9 @@ class DistributedStepper(TimeStepper):
 
     def level_volumes(self, Y0) -> np.ndarray:
         return np.array([self.deformed_volume(y) for y in Y0])
+
+    def constraint_value(self, y0) -> float:
+        return self.deformed_volume(y0)
 
     def advance(self, carry, inputs):
         """One step, as `TimeStepper.advance`: carry ``(y0, y1, p, failed)``, inputs ``(xi0, xi1, f0, f1,

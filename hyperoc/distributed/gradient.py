@@ -68,7 +68,7 @@ def reduced_functional(args):
     model = cfg.model()
     if cfg.step_terms(model) or cfg["dynamics"]["constraint"] != "tissue_volume":
         raise InputError("the distributed gradient does not yet take [dynamics] robin, pressure, activation, "
-                         "[material] viscosity or constraint = 'none'")
+                         "[material] viscosity or a constraint other than 'tissue_volume'")
     comm, options = None, {"scheme": cfg.scheme(), "solver": cfg["dynamics"]["solver"],
                            "checkpoint_snapshots": args.snapshots, "horizon": cfg["optimize"]["horizon"]}
     if not args.serial:

@@ -57,10 +57,10 @@ def run_resumable(stepper: TimeStepper, grid: TimeGrid, xi=None, *, folder, ever
     y0 = np.zeros(m.n) if u0 is None else np.asarray(u0, dtype=np.float64)
     y1 = np.zeros(m.n) if v0 is None else np.asarray(v0, dtype=np.float64)
     xis, fs = stepper._controls(xi, N), stepper.external_loads(external, grid)
-    stepper._check_initial_velocity(y0, y1)
+    stepper._check_initial_velocity(y0, y1, grid.t[0])
     folder = Path(folder)
     _claim(folder, _fingerprint(stepper, grid, xis, fs, y0, y1, every) | {"identity": _as_json(identity)})
-    V0 = stepper.deformed_volume(y0)
+    V0 = stepper.constraint_reference(y0, grid.t)
     state, outputs = (y0, y1, 0.0), []
     starts = range(0, N, every)
     from tqdm.auto import tqdm

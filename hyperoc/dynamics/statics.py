@@ -2,12 +2,15 @@
 
 Constrained (default): find ``(u, p)`` with
 
-    R(u) + p G(u) = B xi + f + sum_j f_j(u),      vol(u) = V,
+    R(u) + p G(u) = B xi + f + sum_j f_j(u),      c(u) = V,
 
-the same residual and Newton as a time step with ``M = 0`` and no damping; ``V`` defaults to
-the reference volume. ``f_j(u)`` are loads that depend on the state: follower pressures
-(`hyperoc.mechanics.follower.FollowerPressure`), which act on the deformed boundary, and active fibre tension
-(`hyperoc.mechanics.active.FibreTension`); their stiffness ``-df_j/du`` enters the Newton tangent.
+the same residual and Newton as a time step with ``M = 0`` and no damping, with a constraint of the
+family of the time step (`hyperoc.dynamics.constraint`): the tissue volume (default, ``c = vol``,
+``G = dvol/du``) or the cavity volume (``c = V_cav``, ``G = -dV_cav/du``: p is the cavity pressure, its
+stiffness ``-p d2V_cav/du2`` in the tangent); ``V`` defaults to the initial value of c. ``f_j(u)`` are
+loads that depend on the state: follower pressures (`hyperoc.mechanics.follower.FollowerPressure`), which
+act on the deformed boundary, and active fibre tension (`hyperoc.mechanics.active.FibreTension`); their
+stiffness ``-df_j/du`` enters the Newton tangent.
 
 Unconstrained (``constrained=False``, e.g. the Land et al. 2015 benchmarks, where only the material's
 volumetric penalty controls the volume): find u with ``R(u) = B xi + f + sum_j f_j(u)``. The bordered
@@ -48,6 +51,7 @@ from ..errors import InputError, SolverError
 from ..mechanics.model import StateModel
 from ..solvers.linsolve import make_solver
 from ..solvers.newton import NewtonIteration, NewtonStatus, newton
+from .constraint import TissueVolume
 from .stepper import Scheme, StepStatus
 
 __all__ = ["StaticSolution", "solve_static"]
@@ -77,9 +81,10 @@ class StaticSolution:
 
 
 def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, constrained: bool,
-                    line_search: bool, monitored: bool = False):
+                    line_search: bool, monitored: bool = False, constraint=None):
     """The jitted Newton solve of one load step and its monitor slot, cached on the model per (linear
-    solver instance, scheme, follower loads, constraint on/off, line search on/off, monitored or not).
+    solver instance, scheme, follower loads, constraint on/off, line search on/off, monitored or not,
+    constraint object: None for the tissue volume).
 
     ``solve(x0, fk, Vk, s, fit_multiplier=False)`` takes the unknown ``x`` ((u, p), or (w, t)
     unconstrained), the fixed load ``fk`` (n,), the volume ``Vk`` and the load factor ``s`` of the
@@ -89,9 +94,10 @@ def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, co
     the caller sets the slot, so one compilation serves every monitor.
     """
     cache = model.__dict__.setdefault("_static_solves", {})
-    key = (id(lin), scheme, tuple(map(id, followers)), constrained, line_search, monitored)  # lin lives in the cache
-    if key in cache:
+    key = (id(lin), scheme, tuple(map(id, followers)), constrained, line_search, monitored, id(constraint))
+    if key in cache:  # lin lives in the cache, a constraint in its solve's closure: their ids stay their own
         return cache[key]
+    con = TissueVolume(model) if constraint is None else constraint
     slot = [None]
     e = jnp.full(model.n, model.n ** -0.5)
     chord = scheme.chord_with(lin, auto=False)
@@ -106,19 +112,17 @@ def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, co
     def residual(x, fk, Vk, s):
         u = displacement(x)
         if constrained:
-            r = force_balance(u, fk, s) + x[-1] * model.volume_gradient(u)
-            return jnp.concatenate([r, (model.volume(u) - Vk)[None]])
+            r = force_balance(u, fk, s) + x[-1] * con.force_direction(u)
+            return jnp.concatenate([r, (con.value(u) - Vk)[None]])
         return jnp.concatenate([force_balance(u, fk, s), (e @ x[:-1])[None]])
 
     def jacobian_parts(x, fk, s):
         u = displacement(x)
-        p = x[-1] if constrained else 0.0
-        blocks = model.tangent_blocks(u, 1.0, p)
+        blocks = model.tangent_blocks(u, 1.0, con.tangent_weight(x) if constrained else 0.0)
         for fol in followers:
             blocks = fol.add_stiffness(blocks, u, s)
         if constrained:
-            G = model.volume_gradient(u)
-            return blocks, G, G
+            return con.add_tangent(blocks, x, 1.0), con.force_direction(u), con.value_gradient(u)
         Ke = jax.jvp(lambda v: force_balance(v, fk, s), (u,), (e,))[1]
         return blocks, Ke, e
 
@@ -130,7 +134,7 @@ def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, co
         """x with the multiplier that best balances the forces at its displacement u,
         ``p = argmin |r(u) + p G(u)|_2 = -G.r / G.G`` (the multiplier of the nearest equilibrium)."""
         u = displacement(x)
-        r, G = force_balance(u, fk, s), model.volume_gradient(u)
+        r, G = force_balance(u, fk, s), con.force_direction(u)
         return x.at[-1].set(-(G @ r) / (G @ G))
 
     @jax.jit
@@ -160,7 +164,7 @@ def initial_unknown(model: StateModel, u: np.ndarray, constrained: bool) -> jnp.
 def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None = None, steps: int = 1,
                  scheme: Scheme = Scheme(), solver="auto", u0=None, follower=(), constrained: bool = True,
                  line_search: bool = True, cutbacks: int = 0, predictor: str = "previous",
-                 guess=None, monitor=None) -> StaticSolution:
+                 guess=None, monitor=None, constraint=None) -> StaticSolution:
     """Equilibrium under the load vector ``load`` (n,), control ``xi`` and follower pressures, ramped in ``steps``.
 
     Parameters
@@ -168,8 +172,11 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
     follower : a state-dependent load or a sequence of them: `hyperoc.mechanics.follower.FollowerPressure`
         (pressure on the deformed boundary), `hyperoc.mechanics.active.FibreTension` (active stress along the
         fibres); each is ramped as ``s * pressure`` (``s * tension``) at load step ``s = k / steps``.
-    constrained : True (default): global volume constraint ``vol(u) = volume`` with multiplier p;
+    constrained : True (default): global constraint ``c(u) = volume`` with multiplier p;
         False: no constraint, no multiplier (``volume`` must then be None).
+    constraint : the constrained quantity c when ``constrained``: None, the tissue volume ``int det F``;
+        or a `hyperoc.dynamics.constraint.CavityVolumeConstraint`, the cavity volume, p the cavity pressure
+        (its volume change law is not read: ``volume`` is the target). ``volume`` defaults to c(u0).
     line_search : backtracking Newton (`hyperoc.solvers.newton.newton`, default) or full Newton steps (see the
         module docstring: needed for nearly incompressible penalties).
     cutbacks : how many times in total a failed load increment may be halved and retried from the
@@ -209,8 +216,8 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
     followers = (follower,) if not isinstance(follower, (tuple, list)) else tuple(follower)
     if predictor not in ("previous", "secant"):
         raise InputError(f"solve_static: predictor must be 'previous' or 'secant', got {predictor!r}")
-    if not constrained and volume is not None:
-        raise InputError("solve_static: a target volume needs the volume constraint (constrained=True)")
+    if not constrained and (volume is not None or constraint is not None):
+        raise InputError("solve_static: a target volume or a constraint needs constrained=True")
     lin = _static_solver(model, solver)
     if followers and getattr(lin, "method", None) == "minres":
         raise InputError("solve_static: follower pressures make the tangent non-symmetric; MINRES does not apply")
@@ -218,13 +225,14 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
     if xi is not None:  # B only then: jax_operators also builds M and K, which a static solve never needs
         f = f + model.jax_operators[2] @ jnp.asarray(xi)
     u = np.zeros(model.n) if u0 is None else np.asarray(u0, dtype=np.float64)
-    V_start = float(model.jitted["volume"](jnp.asarray(u)))
+    V_start = float(model.jitted["volume"](jnp.asarray(u)) if constraint is None else constraint.value(jnp.asarray(u)))
     V = V_start if volume is None else float(volume)
 
     slots = []
 
     def compiled(search: bool):
-        solve, slot = _compiled_solve(model, lin, scheme, followers, constrained, search, monitor is not None)
+        solve, slot = _compiled_solve(model, lin, scheme, followers, constrained, search, monitor is not None,
+                                      constraint)
         slot[0] = monitor
         slots.append(slot)
         return solve

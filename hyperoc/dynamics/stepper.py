@@ -5,16 +5,18 @@ First-order system ``y0 = u``, ``y1 = u_t``; step ``n -> n+1`` of size ``dt``:
     y0' = y0 + dt (theta y1' + (1 - theta) y1)
     M (y1' - y1) + dt [theta A(y0', y1', t') + (1 - theta) A(y0, y1, t)] + dt p' [theta G(y0') + (1 - theta) G(y0)]
                  = dt [theta L(xi') + (1 - theta) L(xi)]
-    vol(y0') = V0
+    c(y0') = target(V0, t')
 
 with ``A(y0, y1, t) = kappa K y1 + R(y0) + sum_j A_j(y0, y1, t)`` (damping kappa = ``StateModel.damping``;
 ``A_j`` the stepper's ``terms``, `hyperoc.dynamics.terms`: Robin boundaries, time-dependent follower
 pressure, prescribed active tension, viscosity), ``L(xi) = B xi + g``, t and t' = t + dt the step's
 levels. The unknown of a step is ``x = (y0', p')``; ``y1'`` follows from the first line. ``p'`` is the
 step's multiplier, a second-order approximation of p at the mid-step; pressures at time levels are
-interpolated from the two adjacent steps (second order on non-uniform grids too). The volume
-constraint is one of a family (`hyperoc.dynamics.constraint`): with ``constraint="none"`` there is no
-multiplier and the last row is a gauge (the reported pressure is then 0).
+interpolated from the two adjacent steps (second order on non-uniform grids too). The constraint is one
+of a family (`hyperoc.dynamics.constraint`): the paper's tissue volume (``c = vol``, ``G = dvol/du``,
+target V0, the initial volume), the cavity volume (``c = V_cav``, ``G = -dV_cav/du``, target
+``V0 + dV(t)``: p is then the cavity pressure acting on its wall), or none (no multiplier, the last row a
+gauge, the reported pressure 0).
 
 ``multiplier="theta"`` weights the multiplier as ``theta p' G' + (1 - theta) p G`` (the paper's
 and GetFEM's choice), with ``p`` at t = 0 from the consistent initial acceleration. It is kept for
@@ -164,7 +166,8 @@ class StepRecord:
     t : t_{n+1}, the time level reached.
     newton_iterations : Newton iterations of the step.
     min_det_F : the smallest det F over the quadrature points at t_{n+1}.
-    volume_drift : ``|vol(u_{n+1}) - V0| / |V0|`` (the constraint holds to Newton's tolerance).
+    volume_drift : ``|c(u_{n+1}) - target| / |target|`` of the constrained volume (tissue or cavity;
+        without a constraint the tissue volume's drift from V0): the constraint holds to Newton's tolerance.
     pressure : the step's multiplier p' (the mid-step pressure).
     status : `StepStatus.cause`: "ok", or the cause of the failure ("newton", "nonfinite", "detF"); a
         failed step is the last one a monitor sees before the solve raises.
@@ -268,8 +271,9 @@ class TimeStepper:
         (``SparseSolver.methods``: "lu", "lu_reuse", "pardiso", "pardiso_reuse", "pardiso_single",
         "pardiso_single_reuse", "minres"), or a solver object.
     terms : the terms ``A_j`` of A (`hyperoc.dynamics.terms`), e.g. ``(RobinBoundary(...), Viscosity(...))``.
-    constraint : "tissue_volume" (default, the paper's), "none", or a constraint object
-        (`hyperoc.dynamics.constraint`).
+    constraint : "tissue_volume" (default, the paper's), "cavity_volume" (the endocardium's cavity held at
+        its initial volume), "none", or a constraint object (`hyperoc.dynamics.constraint`, e.g.
+        ``CavityVolumeConstraint(model, "endocardium", change=law)``).
     """
 
     def __init__(self, model: StateModel, scheme: Scheme = Scheme(), solver="auto", *, terms=(),
@@ -277,8 +281,9 @@ class TimeStepper:
         self.model, self.scheme = model, scheme
         self.terms = tuple(terms)
         self.constraint = make_constraint(model, constraint)
-        if not self.constraint.has_multiplier and scheme.multiplier != "step":
-            raise InputError("multiplier='theta' weights a multiplier: it needs a constraint that has one")
+        if self.constraint.kind != "tissue_volume" and scheme.multiplier != "step":
+            raise InputError("multiplier='theta' (the paper's weighting) is implemented for the tissue volume "
+                             "constraint only")
         if not self.symmetric and solver == "minres":
             raise InputError("the step tangent is not symmetric (follower pressure, viscosity): MINRES does not apply")
         self.solver = make_solver(model, solver) if isinstance(solver, str) else solver
@@ -339,15 +344,15 @@ class TimeStepper:
         A = m.internal_force(y0n) + self.terms_force(y0n, y1n, t0 + dt)
         Fu = (self._inertia_damping(y1n, 1.0, dt * th * m.damping) + dt * th * A
               + dt * con.momentum(x, y0, p_prev, th, self.scheme.multiplier) + known)
-        return jnp.concatenate([Fu, jnp.reshape(con.row(x, V0), (1,))])
+        return jnp.concatenate([Fu, jnp.reshape(con.row(x, V0, t0 + dt), (1,))])
 
     def jacobian_parts(self, x, y0, dt, y1=None, t0=0.0):
         """(element blocks of dFu/dy0', border column, border row) at x (`hyperoc.dynamics.constraint`);
         ``y1`` (the level's velocity) is needed when a term depends on the velocity."""
         m, th, con = self.model, self.scheme.theta, self.constraint
         y0n, _ = con.split(x)
-        blocks = (self._mass_blocks / (th * dt) + m.damping * self._lap_blocks
-                  + dt * th * m.tangent_blocks(y0n, 1.0, con.tangent_weight(x)))
+        blocks = con.add_tangent(self._mass_blocks / (th * dt) + m.damping * self._lap_blocks
+                                 + dt * th * m.tangent_blocks(y0n, 1.0, con.tangent_weight(x)), x, dt * th)
         if self.terms:
             y1n = self.velocity(y0n, y0, y1, dt)
             for term in self.terms:
@@ -504,8 +509,8 @@ class TimeStepper:
         y1 = np.zeros(m.n) if v0 is None else np.asarray(v0, dtype=np.float64)
         xis = self._controls(xi, N)
         fs = self.external_loads(external, grid)
-        self._check_initial_velocity(y0, y1)
-        V0 = self.deformed_volume(y0)
+        self._check_initial_velocity(y0, y1, grid.t[0])
+        V0 = self.constraint_reference(y0, grid.t)
         p0 = self.initial_pressure(y0, y1, xis[0], fs[0], grid.t[0]) if self.scheme.multiplier == "theta" else 0.0
         start = _time.perf_counter()
         if self.solver.traced and monitor is None and progress:
@@ -545,8 +550,22 @@ class TimeStepper:
         return np.asarray(self._volumes(on_device(Y0)))
 
     def deformed_volume(self, y0) -> float:
-        """vol(y0) = int det(I + grad y0) dx of a state (n,) (the constraint's value)."""
+        """vol(y0) = int det(I + grad y0) dx of a state (n,)."""
         return float(self.model.jitted["volume"](on_device(y0)))
+
+    @cached_property
+    def _constraint_value(self):
+        return jax.jit(self.constraint.value)
+
+    def constraint_value(self, y0) -> float:
+        """The constrained quantity ``c(y0)`` of a state (n,): the tissue volume, or the cavity volume."""
+        return float(self._constraint_value(on_device(y0)))
+
+    def constraint_reference(self, y0, t) -> float:
+        """V0, the constrained quantity of the initial state y0 (n,), that every step's target starts from;
+        `InputError` if the constraint's target is not finite on the levels ``t`` (a time law's singularity)."""
+        self.constraint.check_targets(t)
+        return self.constraint_value(y0)
 
     def _controls(self, xi, N) -> np.ndarray:
         nc = self.model.control.size if self.model.control is not None else 0
@@ -557,16 +576,19 @@ class TimeStepper:
             raise InputError(f"control array must have shape (N+1, n_ctrl) = {(N + 1, nc)}, got {xi.shape}")
         return xi
 
-    def _check_initial_velocity(self, y0, y1) -> None:
-        """The constraint's time derivative ``G(u0) . v0 = 0`` must hold: an incompatible v0 would
-        leave an undamped alternating velocity at the constrained boundary."""
-        if not np.any(y1) or self.constraint.kind != "tissue_volume":
+    def _check_initial_velocity(self, y0, y1, t0: float = 0.0) -> None:
+        """The constraint's time derivative ``dc/du(u0) . v0 = d target/dt (t0)`` must hold (0 for the tissue
+        volume and an isovolumic cavity): an incompatible v0 would leave an undamped alternating velocity
+        at the constrained boundary."""
+        con = self.constraint
+        if not np.any(y1) or not con.has_multiplier:
             return
-        G = np.asarray(self.model.jitted["volume_gradient"](jnp.asarray(y0)))
-        scale = np.linalg.norm(G) * max(np.linalg.norm(y1), 1e-300)
-        if abs(G @ y1) > 1e-10 * scale:
-            raise InputError(f"initial velocity violates the volume constraint: G(u0).v0 = {G @ y1:.3g} "
-                             "(it must be 0; project v0 onto G(u0)^perp)")
+        G = np.asarray(con.value_gradient(jnp.asarray(y0)))
+        rate = float(con.target_rate(t0))
+        scale = np.linalg.norm(G) * max(np.linalg.norm(y1), 1e-300) + abs(rate)
+        if abs(G @ y1 - rate) > 1e-10 * scale:
+            raise InputError(f"initial velocity violates the volume constraint: G(u0).v0 = {G @ y1:.3g}, the "
+                             f"target's rate {rate:.3g} (they must agree; project v0 onto G(u0)^perp)")
 
     def external_loads(self, external, grid) -> np.ndarray:
         n, N = self.model.n, grid.num_steps
@@ -609,8 +631,9 @@ class TimeStepper:
     def _record(self, n, grid, out, V0) -> StepRecord:
         """The `StepRecord` of step n from the step's outputs (y0', y1', p', its, status, min det F, max grad)."""
         y0n, _, pn, its, status, mindet, _ = out
-        volume = self.deformed_volume(y0n)
-        return StepRecord(n, float(grid.t[n + 1]), int(its), float(mindet), abs(volume - V0) / abs(V0), float(pn),
+        target = float(self.constraint.target(V0, grid.t[n + 1]))
+        drift = abs(self.constraint_value(y0n) - target) / abs(target)
+        return StepRecord(n, float(grid.t[n + 1]), int(its), float(mindet), drift, float(pn),
                           StepStatus(int(status)).cause)
 
     def raise_on_failure(self, status, grid, its, mindet):

@@ -1,1 +1,1 @@
-"""The finite element layer: meshes and geometries, quadrature, Lagrange spaces, sparse assembly, volumes."""
+"""The finite element layer: meshes and geometries, quadrature, Lagrange spaces, sparse assembly."""
