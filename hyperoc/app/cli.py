@@ -42,7 +42,7 @@ example:
   hyperoc optimize examples/paper-1d.toml --out opt        (and, if interrupted: hyperoc optimize --resume opt)
   hyperoc optimize --resume opt --set optimize.max_iter=200     (continue a run that stopped at its budget)
   hyperoc simulate examples/paper-1d.toml --out replay --set 'control.file="opt/results.npz"'   (replay its control)
-  hyperoc simulate CONFIG --out run --set output.checkpoint_every=50   (and, if interrupted: hyperoc simulate --resume run)
+  hyperoc simulate CONFIG --out run --set output.checkpoint_every=50   (if interrupted: hyperoc simulate --resume run)
   hyperoc benchmark cardiac-elastodynamics --step 1 --out beat   (and, if interrupted: the same with --resume)
 """
 

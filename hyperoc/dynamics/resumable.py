@@ -46,9 +46,10 @@ def run_resumable(stepper: TimeStepper, grid: TimeGrid, xi=None, *, folder, ever
     saved.
 
     ``identity``: JSON data naming the problem beyond what the fingerprint digests (e.g. a configuration's
-    sections), compared on resume. ``on_segment(index, count, segment, solved)``: called after each segment (``solved`` False for one read
-    back), e.g. to log progress to a file. The result's ``wall_time`` is the sum over all segments, those
-    solved by an earlier process included (`SEGMENT_COST`); `segment_costs` reads them back."""
+    sections), compared on resume. ``on_segment(index, count, segment, solved)``: called after each segment
+    (``solved`` False for one read back), e.g. to log progress to a file. The result's ``wall_time`` is the
+    sum over all segments, those solved by an earlier process included (`SEGMENT_COST`); `segment_costs`
+    reads them back."""
     if every < 1:
         raise InputError(f"checkpoint segments need every >= 1 step, got {every}")
     if stepper.scheme.multiplier != "step":
