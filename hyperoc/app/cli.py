@@ -242,12 +242,11 @@ def _simulate(args) -> None:
     if args.resume and args.overrides:
         raise InputError("--resume continues the recorded solve: --set would change it")
     cfg, model = _checked_config(config, args.overrides, out, "simulate", args.force)
-    from .workflows import SEGMENTS_DIR, simulate
+    from .workflows import simulate
 
     if args.resume and not cfg["output"].get("checkpoint_every"):
         raise InputError(f"--resume: {config} has no [output] checkpoint_every, so {out} holds no checkpoints")
-    if (out / SEGMENTS_DIR).exists() and not args.resume:
-        raise InputError(f"--out {out} holds a checkpointed run: use --resume {out} to continue it, or another folder")
+    _refuse_checkpointed(out, args.resume, f"--resume {out}")
     _record_config(cfg, out)
     summary = simulate(cfg, out, progress=_progress(args) and not args.log_steps,
                        monitor=_print_step if args.log_steps else None,
@@ -290,8 +289,7 @@ def _benchmark(args) -> None:
     from .preflight import check_output_dir
 
     out = check_output_dir(args.out)
-    if (out / "segments").exists() and not args.resume:
-        raise InputError(f"--out {out} holds a checkpointed run: add --resume to continue it, or choose another folder")
+    _refuse_checkpointed(out, args.resume, "--resume")
     if args.end_time is not None and not 0.0 < args.end_time <= 1.0:
         raise InputError(f"--end-time must lie in (0, 1] s, got {args.end_time}")
     from ..cardiac.benchmark import benchmark_config
@@ -299,16 +297,25 @@ def _benchmark(args) -> None:
     cfg = benchmark_config(args.step, degree=args.degree, mesh=args.mesh, T=args.end_time)
     from .workflows import check_run
 
-    check_run(cfg, "simulate")
+    model = check_run(cfg, "simulate")
     _start_compiler()
     from ..cardiac.benchmark import run_benchmark
     from ..cardiac.benchmark_report import write_benchmark_outputs
 
     progress = _progress(args)
     record = run_benchmark(args.step, out, degree=args.degree, mesh=args.mesh, T=args.end_time, progress=progress,
-                           on_segment=None if progress else _print_segment)
+                           on_segment=None if progress else _print_segment, model=model)
     write_benchmark_outputs(out, record)
     _print_comparison(record, out)
+
+
+def _refuse_checkpointed(out: Path, resume, how: str) -> None:
+    """`InputError` for a new run (``resume`` false) into a folder holding a checkpointed one: it would mix
+    the two solves' segments; ``how``: the option that continues it."""
+    from ..dynamics.resumable import SEGMENTS_DIR
+
+    if (out / SEGMENTS_DIR).exists() and not resume:
+        raise InputError(f"--out {out} holds a checkpointed run: use {how} to continue it, or another folder")
 
 
 def _print_segment(index: int, count: int, segment: dict, solved: bool) -> None:

@@ -28,7 +28,6 @@ __all__ = ["check_run", "simulate", "build_reduced", "optimize_single", "optimiz
 ITERATIONS_FILE = "iterations.json"  # in a run's evaluation cache folder: the last iteration completed
 CACHE_DIR = "cache"  # a run's evaluation cache, OUT/cache (what --resume replays)
 BEST_FILE = "best.npz"  # an iterate with a higher J than the final one (`OptimizationResult.best`)
-SEGMENTS_DIR = "segments"  # a checkpointed forward solve, OUT/segments (what simulate --resume continues)
 
 
 def check_run(cfg: Config, command: str, mesh=None):
@@ -78,7 +77,7 @@ def simulate(cfg: Config, out, *, progress: bool = False, monitor=None, on_segme
     resumes from them (`hyperoc.dynamics.resumable.run_resumable`, ``on_segment`` called after each);
     ``model``: the config's model if already built (`check_run`); ``title``: the run's name in the
     figures (default `run_title`)."""
-    from ..dynamics.resumable import run_resumable
+    from ..dynamics.resumable import SEGMENTS_DIR, run_resumable
 
     model = model or cfg.model()
     grid = cfg.grid()

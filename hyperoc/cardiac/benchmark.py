@@ -27,7 +27,8 @@ from ..errors import InputError
 from .benchmark_curves import STEPS, curve_band, reference_curves
 from .benchmark_geometry import P0, P1
 
-__all__ = ["STEPS", "SAMPLE_DT", "benchmark_config", "run_benchmark", "benchmark_curves", "compare_with_codes"]
+__all__ = ["STEPS", "SAMPLE_DT", "benchmark_config", "run_benchmark", "benchmark_curves", "compare_with_codes",
+           "sample_times", "resampled"]
 
 #: The loads each step keeps, of ``[dynamics] pressure`` and ``[dynamics] activation``.
 STEP_LOADS = {"0A": ("activation",), "0B": ("pressure",), "1": ("pressure", "activation")}
@@ -64,16 +65,17 @@ def _step(step) -> str:
 
 
 def run_benchmark(step: str, out, *, degree: int = 1, mesh: str = "reference", T: float | None = None,
-                  progress: bool = False, on_segment=None) -> dict:
+                  progress: bool = False, on_segment=None, model=None) -> dict:
     """Solve benchmark step ``step`` (`benchmark_config`) with checkpoints in ``out/segments`` and return the
     record `benchmark_curves` makes of it, with the comparison `compare_with_codes` under ``"comparison"``
-    and the run's cost. A run started again on the same ``out`` resumes from its last segment."""
-    from ..dynamics.resumable import run_resumable, segment_costs
+    and the run's cost. A run started again on the same ``out`` resumes from its last segment. ``model``: the
+    configuration's model if already built (`hyperoc.app.workflows.check_run`)."""
+    from ..dynamics.resumable import SEGMENTS_DIR, run_resumable, segment_costs
 
     cfg = benchmark_config(step, degree=degree, mesh=mesh, T=T)
-    model = cfg.model()
+    model = model or cfg.model()
     stepper, grid = cfg.stepper(model), cfg.grid()
-    segments = Path(out) / "segments"
+    segments = Path(out) / SEGMENTS_DIR
     sol = run_resumable(stepper, grid, None, folder=segments, every=CHECKPOINT_EVERY, progress=progress,
                         on_segment=on_segment, identity=cfg.sections)
     record = benchmark_curves(sol, stepper)
@@ -94,6 +96,7 @@ def benchmark_curves(sol, stepper) -> dict:
     at every level: ``t`` (N+1,) s; ``p0``, ``p1`` (N+1, 3) displacements of the probe points, m; ``volume``
     (N+1,) the cavity volume, m^3; ``pressure`` and ``tension`` (N+1,) the endocardial pressure and the active
     tension, Pa (zero for a load the step leaves out)."""
+    from ..dynamics.terms import DynamicPressure, PrescribedTension
     from ..fem.probes import probe_matrix
     from ..mechanics.cavity import CavityVolume
 
@@ -103,14 +106,14 @@ def benchmark_curves(sol, stepper) -> dict:
     at_points = np.einsum("pn,lnc->lpc", probes.toarray(), U)
     volume = CavityVolume(model, "endocardium", apex="rim").volumes(sol.y0)
     return {"t": sol.t, "p0": at_points[:, 0], "p1": at_points[:, 1], "volume": volume,
-            "pressure": _law_values(stepper, "DynamicPressure", sol.t),
-            "tension": _law_values(stepper, "PrescribedTension", sol.t)}
+            "pressure": _law_values(stepper, DynamicPressure, sol.t),
+            "tension": _law_values(stepper, PrescribedTension, sol.t)}
 
 
-def _law_values(stepper, kind: str, t: np.ndarray) -> np.ndarray:
+def _law_values(stepper, kind: type, t: np.ndarray) -> np.ndarray:
     """The time law of ``stepper``'s term of class ``kind`` at ``t`` (zero without such a term)."""
     for term in stepper.terms:
-        if type(term).__name__ == kind:
+        if isinstance(term, kind):
             return np.array([float(term.law(s)) for s in t])
     return np.zeros_like(t)
 
@@ -126,7 +129,7 @@ def compare_with_codes(record: dict) -> dict:
     record covers the whole beat)."""
     curves = reference_curves(record["step"])
     t = record["t"]
-    times = np.arange(0.0, t[-1] + 1e-9, SAMPLE_DT)
+    times = sample_times(t[-1])
     ours = _sampled(record, times)
     result = {}
     for quantity, values in ours.items():
@@ -144,12 +147,27 @@ def compare_with_codes(record: dict) -> dict:
     return result
 
 
+def sample_times(t_end: float) -> np.ndarray:
+    """The codes' sampling times (s): every `SAMPLE_DT` from 0 to ``t_end``."""
+    return np.round(np.arange(0.0, t_end + 1e-9, SAMPLE_DT), 12)
+
+
+def resampled(record: dict, times: np.ndarray, names) -> dict:
+    """The record's curves ``names`` interpolated linearly onto ``times`` (m,): (m,) or, for vectors, (m, 3)."""
+    t = np.asarray(record["t"])
+
+    def on(values):
+        values = np.asarray(values)
+        if values.ndim == 1:
+            return np.interp(times, t, values)
+        return np.stack([np.interp(times, t, column) for column in values.T], axis=1)
+
+    return {name: on(record[name]) for name in names}
+
+
 def _sampled(record: dict, times: np.ndarray) -> dict:
-    """The record's quantities interpolated onto ``times``: ``p0``, ``p1`` (m, 3), ``|p0|``, ``|p1|``, ``volume``
-    (m,)."""
-    t = record["t"]
-    on = lambda v: np.interp(times, t, v)
-    out = {name: np.stack([on(c) for c in np.asarray(record[name]).T], axis=1) for name in ("p0", "p1")}
+    """The compared quantities at ``times``: ``p0``, ``p1`` (m, 3), ``|p0|``, ``|p1|``, ``volume`` (m,)."""
+    out = resampled(record, times, ("p0", "p1"))
     out.update({f"|{name}|": np.linalg.norm(out[name], axis=1) for name in ("p0", "p1")})
-    out["volume"] = on(np.asarray(record["volume"]))
+    out.update(resampled(record, times, ("volume",)))
     return out

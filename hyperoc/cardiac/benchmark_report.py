@@ -16,7 +16,7 @@ import numpy as np
 
 from ..app.plotting import _new_figure, _save, axis_label
 from ..io import read_json, write_json, write_npz
-from .benchmark import SAMPLE_DT
+from .benchmark import resampled, sample_times
 from .benchmark_curves import curve_band, reference_curves
 
 __all__ = ["CURVES", "write_benchmark_outputs", "read_benchmark_record", "sampled_record", "plot_displacements",
@@ -45,17 +45,12 @@ def write_benchmark_outputs(out, record: dict) -> dict:
 
 
 def sampled_record(record: dict) -> dict:
-    """``record`` with its curves at the codes' sampling times (every `SAMPLE_DT` s from 0): lists in s, m,
-    m^3 and Pa, for JSON."""
-    t = np.asarray(record["t"])
-    times = np.round(np.arange(0.0, t[-1] + 1e-9, SAMPLE_DT), 12)
-    on = lambda v: np.interp(times, t, v)
+    """``record`` with its curves at the codes' sampling times (`hyperoc.cardiac.benchmark.sample_times`):
+    lists in s, m, m^3 and Pa, for JSON."""
+    times = sample_times(record["t"][-1])
     entry = {k: v for k, v in record.items() if k not in CURVES}
     entry["t"] = times.tolist()
-    for name in ("p0", "p1"):
-        entry[name] = np.stack([on(c) for c in np.asarray(record[name]).T], axis=1).tolist()
-    for name in ("volume", "pressure", "tension"):
-        entry[name] = on(np.asarray(record[name])).tolist()
+    entry.update({name: values.tolist() for name, values in resampled(record, times, CURVES[1:]).items()})
     return entry
 
 

@@ -21,17 +21,22 @@ import os
 import resource
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import InputError
-from .stepper import StateSolution, TimeStepper
-from .timegrid import TimeGrid
 
-__all__ = ["run_resumable", "segment_costs", "SEGMENT_OUTPUTS", "SEGMENT_COST"]
+if TYPE_CHECKING:  # annotations only: the CLI reads SEGMENTS_DIR before any JAX is imported
+    from .stepper import StateSolution, TimeStepper
+    from .timegrid import TimeGrid
+
+__all__ = ["run_resumable", "segment_costs", "SEGMENTS_DIR", "SEGMENT_OUTPUTS", "SEGMENT_COST"]
 
 #: the per-step outputs of `TimeStepper.march_levels` a segment file holds, in its order
 SEGMENT_OUTPUTS = ("y0", "y1", "p", "newton_iterations", "status", "min_det_F", "max_grad")
+#: the folder of a run's output folder that holds its segments (what ``--resume`` continues)
+SEGMENTS_DIR = "segments"
 #: what a segment file records of its solve: seconds, and the solving process's peak resident memory (MiB)
 SEGMENT_COST = ("wall_time", "peak_memory_mib")
 
@@ -95,7 +100,7 @@ def segment_costs(folder) -> dict:
     """``{"wall_time": s, "peak_memory_mib": MiB, "segments": k}`` of the segments saved in ``folder``: the
     total solve time and the largest peak memory of the processes that solved them."""
     paths = sorted(Path(folder).glob("segment_*.npz"))
-    costs = [_read_segment(path) for path in paths]
+    costs = [_read_cost(path) for path in paths]
     return {"wall_time": float(sum(c["wall_time"] for c in costs)),
             "peak_memory_mib": float(max((c["peak_memory_mib"] for c in costs), default=0.0)),
             "segments": len(costs)}
@@ -131,9 +136,17 @@ def _write_segment(path: Path, segment: dict) -> None:
 
 def _read_segment(path: Path) -> dict:
     with np.load(path) as data:
-        segment = {name: data[name] for name in SEGMENT_OUTPUTS}
-        segment.update({name: float(data[name]) for name in SEGMENT_COST})
-        return segment
+        return {name: data[name] for name in SEGMENT_OUTPUTS} | _costs(data)
+
+
+def _read_cost(path: Path) -> dict:
+    """The `SEGMENT_COST` entries of a segment file, without loading its states."""
+    with np.load(path) as data:
+        return _costs(data)
+
+
+def _costs(data) -> dict:
+    return {name: float(data[name]) for name in SEGMENT_COST}
 
 
 def _fingerprint(stepper: TimeStepper, grid: TimeGrid, xis, fs, y0, y1, every: int) -> dict:
