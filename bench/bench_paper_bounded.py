@@ -3,12 +3,14 @@ its KKT points under refinement, and which method reaches them.
 
 Every run is projected Newton-CG (`hyperoc.app.paper.FORMULATIONS`) to a relative projected gradient of 1e-6,
 on the paper's setup with ``--formulation`` (``bounded``: omega = [0.75, 1] as in the paper's experiment;
-``interior``: omega = [0.75, 0.95], compactly inside as its theory assumes) and ``--observation`` (how
+``interior``: omega = [0.75, 0.95], compactly inside as its theory assumes; ``smooth``: the job's headline,
+alpha = beta = 10 without a bound, e.g. from ``--tau0 11`` near its global maximum) and ``--observation`` (how
 p(tau) is read from the step pressures: ``centred`` or ``causal``). Grids keep the wave speed's Courant
 number ``c dt / h <= 1`` (c = sqrt((lambda + 2 mu) / rho) = 0.387), where the mass and time-stepping phase
 errors do not add up.
 
     python bench/bench_paper_bounded.py --study ratio   # (h, dt) = (0.02, 0.04), (0.01, 0.02), (0.005, 0.01)
+                                                        # (--levels 4: and (0.0025, 0.005))
     python bench/bench_paper_bounded.py --study dt      # h = 0.01, dt = 0.02 .. 0.0025, from tau0 = 6.3 and 7.5
     python bench/bench_paper_bounded.py --study grid    # the 3 x 3 grid h x dt at c dt / h <= 1, cold starts
     python bench/bench_paper_bounded.py --study methods # Newton-CG against L-BFGS-B, cold, two grids
@@ -107,19 +109,22 @@ def wall_mode(h: float, dt: float = 0.02, tau: float = 7.5) -> list:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--study", choices=("ratio", "dt", "grid", "methods", "mode"), required=True)
-    ap.add_argument("--formulation", choices=("bounded", "interior"), default="bounded")
+    ap.add_argument("--formulation", choices=("bounded", "interior", "smooth"), default="bounded")
     ap.add_argument("--observation", choices=("centred", "causal"), default="centred")
-    ap.add_argument("--levels", type=int, default=None, help="keep the first LEVELS grids of a sequence")
+    ap.add_argument("--levels", type=int, default=None,
+                    help="keep the first LEVELS grids of a sequence (ratio: 3 of 4 by default)")
     ap.add_argument("--tau0", default=None, help="comma-separated starts (default 7.5; dt study: 6.3,7.5)")
     args = ap.parse_args()
     name = f"bench_paper_bounded_{args.study}_{args.formulation}_{args.observation}" + (
         f"_tau0_{args.tau0.replace(',', '_')}" if args.tau0 else "")
-    setup = f"{args.formulation}, observation {args.observation}, paper's alpha = {PAPER_REPORT['alpha']:g}"
+    cost = formulation_config(args.formulation)["objective"]
+    setup = f"{args.formulation}, observation {args.observation}, alpha = {cost['alpha']:g}, beta = {cost['beta']:g}"
     conv_columns = ["sequence", "coarse", "middle", "fine", "difference 1", "difference 2", "observed order",
                     "Richardson estimate"]
     if args.study in ("ratio", "dt"):
-        grids = ([(0.02, 0.04), (0.01, 0.02), (0.005, 0.01)] if args.study == "ratio"
-                 else [(0.01, dt) for dt in (0.02, 0.01, 0.005, 0.0025)])[:args.levels]
+        ratio = [(0.02, 0.04), (0.01, 0.02), (0.005, 0.01), (0.0025, 0.005)]
+        grids = (ratio[:args.levels or 3] if args.study == "ratio"
+                 else [(0.01, dt) for dt in (0.02, 0.01, 0.005, 0.0025)][:args.levels])
         starts = [float(t) for t in (args.tau0 or ("7.5" if args.study == "ratio" else "6.3,7.5")).split(",")]
         runs = {tau0: sequence(args, grids, tau0) for tau0 in starts}
         label = "h and dt halved (c dt / h = 0.77)" if args.study == "ratio" else "dt halved at h = 0.01"

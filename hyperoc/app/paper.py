@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import os
 import time
+from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
@@ -72,14 +73,18 @@ FORMULATIONS = {
                  {**BOUNDED, "control.region": {"kind": "box", "lower": OMEGA_INTERIOR[:1],
                                                 "upper": OMEGA_INTERIOR[1:]}}),
     "smooth": ("paper's problem at small amplitude (alpha = beta = 10, tau* depends on beta/alpha only), "
-               "Newton-CG", WELL_POSED),
+               "Newton-CG from the value profile's maxima", WELL_POSED),
+    "smooth_local": ("the same from the paper's start (0, 7.5): a local maximizer", WELL_POSED),
     "as_stated": ("as stated, Algorithm 1", {}),
 }
 HEADLINE = "smooth"
 HEADLINE_REASON = ("headline: the formulation closest to the paper with a verified KKT point and a mesh-converged "
-                   "tau*; the bounded problem (bounded/) has KKT points, but its J* grows under dt refinement and its "
-                   "value profile rises towards T (docs/wellposedness.md)")
-PROFILE_TAUS = tuple(float(t) for t in np.arange(1.0, 14.5, 1.0))  # (0, T) at the spacing of the pressure peaks
+                   "tau*, at the largest maximum of its value profile; the bounded problem (bounded/) has KKT "
+                   "points, but its J* grows under dt refinement and its value profile rises towards T "
+                   "(docs/wellposedness.md)")
+# (0, T) at a quarter of the spacing of the pressure peaks: J*(tau) has maxima about 1 apart, each ~0.5 wide.
+PROFILE_TAUS = tuple(float(t) for t in np.arange(1.0, 14.25, 0.5))
+REFINED_MAXIMA = 2  # the profile's maxima refined with tau free on the headline's grid, the best kept
 # The profile's grid: the paper's c dt / h (0.77) at h = 0.02; the headline's own grid is 4x the cost.
 PROFILE_GRID = {"mesh.n": 50, "dynamics.dt": 0.04}
 
@@ -99,14 +104,15 @@ def formulation_config(key: str, changes: dict | None = None) -> Config:
     return paper_config({**FORMULATIONS[key][1], **(changes or {})})
 
 
-def _run(cfg: Config, key: str, out: Path, *, progress: bool) -> tuple[dict, object, object]:
-    """One optimization from ``(0, tau0)`` written to ``out`` (figures titled with the run's name). Returns
-    the run's row, J and the result."""
+def _run(cfg: Config, key: str, out: Path, *, progress: bool, starts: list | None = None) -> tuple:
+    """One optimization written to ``out`` (figures titled with the run's name): from ``(0, tau0)``, or the
+    best of the free-tau runs from each of ``starts`` (`_optimized`). Returns the run's row, J and the
+    result."""
     from .._jax import compilation_clock
-    from .workflows import CACHE_DIR, optimize_single, write_optimization_outputs
+    from .workflows import CACHE_DIR, write_optimization_outputs
 
     started, (compiling, compilations) = time.perf_counter(), compilation_clock()
-    J, res = optimize_single(cfg, float(cfg["optimize"]["tau0"]), cache_dir=out / CACHE_DIR, progress=progress)
+    J, res, scale, ends = _optimized(cfg, starts, out / CACHE_DIR, progress)
     optimized, (compiled, compilations_after) = time.perf_counter(), compilation_clock()
     marks = [(t, "paper's pressure maxima") for t in PAPER_REPORT["pressure_maxima_near_t"]]
     label = FORMULATIONS[key][0]
@@ -137,7 +143,8 @@ def _run(cfg: Config, key: str, out: Path, *, progress: bool) -> tuple[dict, obj
         "iterations": summary["iterations"],
         "converged": summary["converged"],
         "message": res.message,
-        "relative_gradient": g[-1] / g[0] if g and g[0] > 0 else None,
+        "relative_gradient": g[-1] / scale if g and scale > 0 else None,
+        "starts": ends,
         "min_det_F": float(sol.min_det_F.min()),
         "max_abs_xi": float(np.max(np.abs(res.point.xi))),
         "pressure_at_tau": float(sol.pressure[J.transform.tau_index]),
@@ -148,6 +155,32 @@ def _run(cfg: Config, key: str, out: Path, *, progress: bool) -> tuple[dict, obj
         "wall_time_s": time.perf_counter() - started,
         "timings": timings,
     }, J, res
+
+
+def _optimized(cfg: Config, starts: list | None, cache_dir: Path, progress: bool) -> tuple:
+    """``(J, result, scale, ends)``: the optimization from ``(0, tau0)``, or from each `SampledControl` of
+    ``starts`` with tau free, keeping the best end point. ``scale``: the projected gradient of the zero control
+    at the start's tau, to which the stopping test is relative (`cold_stationarity`); ``ends``: each start's
+    tau0, end point, J, iterations and relative projected gradient."""
+    from ..control.optimize import _tau_range
+    from ..control.reduced import ControlPoint
+    from .workflows import build_reduced, optimize_single
+
+    o = cfg["optimize"]
+    if not starts:
+        J, res = optimize_single(cfg, float(o["tau0"]), cache_dir=cache_dir, progress=progress)
+        return J, res, res.history["grad_norm"][0], []
+    J, ends = build_reduced(cfg, starts[0].tau), []
+    for start in starts:
+        scale = cold_stationarity(J, start.tau, _tau_range(J, o.get("tau_margin"), False, start.tau),
+                                  cfg.xi_bounds())
+        _, res = optimize_single(cfg, start.tau, J=J, progress=progress, gradient_scale=scale,
+                                 start=ControlPoint(start.on(J, start.tau), start.tau))
+        ends.append((res, scale, start.tau))
+    res, scale, _ = max(ends, key=lambda end: end[0].objective)
+    return J, res, scale, [{"tau0": tau0, "tau": r.point.tau, "objective": r.objective, "converged": r.converged,
+                            "relative_gradient": r.history["grad_norm"][-1] / c, "iterations": r.iterations}
+                           for r, c, tau0 in ends]
 
 
 def _control_off_time(t: np.ndarray, xi: np.ndarray, rel: float = 1e-3) -> float | None:
@@ -182,14 +215,19 @@ def ray_study(J, point, scales=(0.25, 0.5, 0.75, 1.0, 1.1, 1.25, 1.5, 2.0)) -> l
     return rows
 
 
-def _formulation_job(key: str, overrides: dict, out: Path, progress: bool) -> dict:
-    """Formulation ``key`` from ``(0, tau0)``, written to the top level of ``out`` (the headline) or to
-    ``out/key``; the problem as stated is followed by the ray study at its end point. ``interior`` runs on
-    ``PROFILE_GRID``: on the paper's grid Newton-CG does not reach the KKT tolerance in 300 iterations
-    (docs/wellposedness.md)."""
+def _formulation_job(key: str, overrides: dict, out: Path, progress: bool, profile: list | None = None) -> dict:
+    """Formulation ``key`` written to the top level of ``out`` (the headline) or to ``out/key``: the headline
+    by free-tau runs from the ``REFINED_MAXIMA`` largest maxima of the value ``profile`` (its halves, as
+    `_profile_job` returns them), every other run from ``(0, tau0)``; the problem as stated is followed by
+    the ray study at its end point. ``interior`` runs on ``PROFILE_GRID``: on the paper's grid Newton-CG does
+    not reach the KKT tolerance in 300 iterations (docs/wellposedness.md)."""
     grid = PROFILE_GRID if key == "interior" else {}
+    starts = None
+    if key == HEADLINE:
+        rows, controls = _merged_profile(profile)
+        starts = [controls[k] for k in profile_maxima([r["J"] for r in rows], REFINED_MAXIMA)]
     row, J, res = _run(formulation_config(key, {**grid, **overrides}), key, out if key == HEADLINE else out / key,
-                       progress=progress)
+                       progress=progress, starts=starts)
     if key != "as_stated":
         return {key: row}
     ray = ray_study(J, res.point)
@@ -197,42 +235,80 @@ def _formulation_job(key: str, overrides: dict, out: Path, progress: bool) -> di
     return {key: row, "ray": ray}
 
 
+def _merged_profile(halves: list) -> tuple[list, list]:
+    """The rows and controls of the profile's halves in increasing tau."""
+    pairs = sorted(((row, c) for rows, controls in halves for row, c in zip(rows, controls)),
+                   key=lambda pair: pair[0]["tau"])
+    return [row for row, _ in pairs], [c for _, c in pairs]
+
+
+@dataclass(frozen=True)
+class SampledControl:
+    """A 1D control as samples, to carry it to another grid or another tau: values ``xi`` (levels, nodes) at
+    the time levels ``t`` (levels,) and the control nodes' coordinates ``x`` (nodes,), for the time
+    ``tau``."""
+
+    tau: float
+    t: np.ndarray
+    x: np.ndarray
+    xi: np.ndarray
+
+    @classmethod
+    def of(cls, J, m) -> SampledControl:
+        """The samples of ``m`` (a `hyperoc.control.reduced.ControlPoint` of J) up to its tau: a maximizer is
+        zero after tau, where the objective does not read the control (values left there by a warm start
+        are dropped)."""
+        t = J.transform.grid(m.tau).t
+        kept = t <= m.tau
+        return cls(float(m.tau), t[kept], J.model.control.coordinates(J.model.space)[:, 0], np.asarray(m.xi)[kept])
+
+    def on(self, J, tau: float) -> np.ndarray:
+        """The control on the time levels of J at ``tau`` and J's control nodes, shifted in time by
+        ``tau - self.tau`` (it keeps its timing before tau): linear interpolation in t and x, zero before 0
+        and after T. Shape (levels of J, control nodes of J)."""
+        t_to = J.transform.grid(tau).t - (tau - self.tau)
+        x_to = J.model.control.coordinates(J.model.space)[:, 0]
+        order = np.argsort(self.x)
+        in_space = np.array([np.interp(x_to, self.x[order], row[order]) for row in self.xi])
+        return np.array([np.interp(t_to, self.t, col, left=0.0, right=0.0) for col in in_space.T]).T
+
+
 def transferred_control(J_from, m, J_to, tau: float) -> np.ndarray:
     """The control of ``m`` (a `hyperoc.control.reduced.ControlPoint` of ``J_from``) on the time levels of
-    ``J_to`` at ``tau`` and its control nodes, shifted in time by ``tau - m.tau`` (it keeps its timing before
-    tau): linear interpolation in t and x, zero before 0 and after T. Shape (levels of J_to, nodes of J_to's
-    omega); 1D bodies (one control component)."""
-    t_from = J_from.transform.grid(m.tau).t
-    t_to = J_to.transform.grid(tau).t - (tau - m.tau)
-    x_from, x_to = (J.model.control.coordinates(J.model.space)[:, 0] for J in (J_from, J_to))
-    order = np.argsort(x_from)
-    in_space = np.array([np.interp(x_to, x_from[order], row[order]) for row in m.xi])
-    return np.array([np.interp(t_to, t_from, col, left=0.0, right=0.0) for col in in_space.T]).T
+    ``J_to`` at ``tau`` and its control nodes (`SampledControl.on`)."""
+    return SampledControl.of(J_from, m).on(J_to, tau)
 
 
-def value_profile(cfg: Config, taus, *, warm_start=None) -> list:
+def cold_stationarity(J, tau: float, tau_range, xi_bounds) -> float:
+    """The projected gradient norm of the zero control at ``tau`` (`stationarity`): the scale of every
+    stopping test of this job, so that a warm start meets the same test as a cold one."""
+    from ..control.optimize import stationarity
+
+    zero = J.zero(tau)
+    return stationarity(J, zero, J.value_and_gradient(zero)[1], tau_range, xi_bounds)
+
+
+def value_profile(cfg: Config, taus, *, warm_start: SampledControl | None = None) -> tuple[list, list]:
     """``J*(tau) = max_xi J(xi, tau)`` at each of ``taus`` (in that order) for ``cfg`` with tau fixed, by
     projected Newton-CG with ``cfg``'s bounds, each solve warm-started from the previous one's control
-    (shifted to the new tau, `transferred_control`; the first from ``warm_start``, a ``(J, point)`` pair, or
-    zero) and stopped at a projected gradient ``gtol`` times that of the zero control at the same tau.
+    (shifted to the new tau, `SampledControl.on`; the first from ``warm_start`` or zero) and stopped at a
+    projected gradient ``gtol`` times that of the zero control at the same tau (`cold_stationarity`).
 
     The points share one time transform, built at the largest tau, so that they share compiled solves: the
-    steps on [0, tau] are ``tau / N1``, at most the configured dt. Returns one row per tau: J*, whether the
+    steps on [0, tau] are ``tau / N1``, at most the configured dt. Returns one row per tau (J*, whether the
     stopping test was met, the relative projected gradient, iterations, dt on [0, tau], min det F up to tau
-    and max |xi|."""
-    from ..control.optimize import newton_cg, stationarity
+    and max |xi|) and the maximizers as `SampledControl`, in the same order."""
+    from ..control.optimize import newton_cg
     from ..control.reduced import ControlPoint
     from .workflows import build_reduced
 
     J = build_reduced(cfg, max(taus))
     o, bounds = cfg["optimize"], cfg.xi_bounds()
     previous = warm_start
-    rows = []
+    rows, controls = [], []
     for tau in taus:
-        zero = J.zero(tau)
-        _, g_zero = J.value_and_gradient(zero)
-        cold = stationarity(J, zero, g_zero, (tau, tau), bounds)
-        xi0 = zero.xi if previous is None else transferred_control(*previous, J, tau)
+        cold = cold_stationarity(J, tau, (tau, tau), bounds)
+        xi0 = J.zero(tau).xi if previous is None else previous.on(J, tau)
         res = newton_cg(J, ControlPoint(np.clip(xi0, *bounds) if bounds != (None, None) else xi0, tau),
                         xi_bounds=bounds, gtol=0.0, gtol_abs=float(o["gtol"]) * cold, max_iter=int(o["max_iter"]),
                         max_cg=int(o["max_cg"]), fix_tau=True)
@@ -242,13 +318,24 @@ def value_profile(cfg: Config, taus, *, warm_start=None) -> list:
                      "relative_gradient": res.history["grad_norm"][-1] / cold, "iterations": res.iterations,
                      "dt": float(np.diff(sol.t[:k + 1]).max()), "min_det_F": float(sol.min_det_F[:k + 1].min()),
                      "max_abs_xi": float(np.abs(res.point.xi[:k + 1]).max())})
-        previous = (J, res.point)
-    return rows
+        previous = SampledControl.of(J, res.point)
+        controls.append(previous)
+    return rows, controls
+
+
+def profile_maxima(values, count: int) -> list[int]:
+    """Indices of the ``count`` largest local maxima of ``values`` (a sequence on an ordered grid, an end
+    counting when it exceeds its neighbour), largest first."""
+    v = np.asarray(values, dtype=np.float64)
+    padded = np.concatenate(([-np.inf], v, [-np.inf]))
+    peaks = np.flatnonzero((v > padded[:-2]) & (v >= padded[2:]))
+    return [int(k) for k in peaks[np.argsort(v[peaks])[::-1][:count]]]
 
 
 def _profile_job(taus: list, overrides: dict, out: Path, progress: bool) -> dict:
     """`value_profile` of the headline's formulation on ``PROFILE_GRID`` (``overrides`` on top) at ``taus``."""
-    return {f"profile_{taus[0]:g}": value_profile(formulation_config(HEADLINE, {**PROFILE_GRID, **overrides}), taus)}
+    return {f"profile_{taus[0]:g}": value_profile(formulation_config(HEADLINE, {**PROFILE_GRID, **overrides}),
+                                                  taus)}
 
 
 def refined_maximum(taus, values) -> tuple[float, float]:
@@ -267,10 +354,11 @@ def _profile_summary(halves: list, headline: dict, out: Path) -> dict:
     with the paper's tau and the headline's tau* in ``profile.png``."""
     from .plotting import plot_value_profile
 
-    rows = sorted((row for half in halves for row in half), key=lambda r: r["tau"])
+    rows, _ = _merged_profile(halves)
     table = {key: [r[key] for r in rows] for key in rows[0]}
     tau_max, value_max = refined_maximum(np.array(table["tau"]), np.array(table["J"]))
-    profile = {**table, "tau_refined": tau_max, "J_refined": value_max, "formulation": HEADLINE}
+    profile = {**table, "tau_refined": tau_max, "J_refined": value_max, "formulation": HEADLINE,
+               "maxima": headline["starts"]}
     write_json(out / "profile.json", profile)
     plot_value_profile(out / "profile.png", table["tau"], table["J"], table["converged"],
                        marks=[(PAPER_REPORT["tau"], f"paper's tau = {PAPER_REPORT['tau']}"),
@@ -280,18 +368,17 @@ def _profile_summary(halves: list, headline: dict, out: Path) -> dict:
 
 
 def _jobs(out: Path, quick: bool, overrides: dict) -> dict:
-    """The studies as independent jobs ``key -> (function, kwargs)``, longest first (a free worker takes the
-    next): the headline and, unless ``quick``, the two halves of the profile (outwards from T/2, each starting
-    cold) and the other formulations."""
-    jobs = {HEADLINE: (_formulation_job, dict(key=HEADLINE, overrides=overrides, out=out))}
-    if quick:
-        return jobs
+    """The studies as jobs ``key -> (function, kwargs, needs)``, ``needs`` the jobs whose results the function
+    takes (as ``profile``), in the order a free worker takes them once what they need is done: the two
+    halves of the profile (outwards from T/2, each starting cold), the headline from the profile's maxima
+    and, unless ``quick``, the other formulations, longest first."""
     middle = len(PROFILE_TAUS) // 2
-    for taus in (PROFILE_TAUS[middle:], PROFILE_TAUS[:middle][::-1]):
-        jobs[f"profile_{taus[0]:g}"] = (_profile_job, dict(taus=list(taus), overrides=overrides, out=out))
-    for key in FORMULATIONS:
-        if key != HEADLINE:
-            jobs[key] = (_formulation_job, dict(key=key, overrides=overrides, out=out))
+    halves = {f"profile_{taus[0]:g}": (_profile_job, dict(taus=list(taus), overrides=overrides, out=out), ())
+              for taus in (PROFILE_TAUS[middle:], PROFILE_TAUS[:middle][::-1])}
+    jobs = {**halves, HEADLINE: (_formulation_job, dict(key=HEADLINE, overrides=overrides, out=out), tuple(halves))}
+    if not quick:
+        jobs.update({key: (_formulation_job, dict(key=key, overrides=overrides, out=out), ())
+                     for key in FORMULATIONS if key != HEADLINE})
     return jobs
 
 
@@ -313,18 +400,23 @@ def _restore_cpus(cpus: set | None) -> None:
 
 
 def _run_jobs(jobs: dict, workers: int, progress: bool) -> dict:
-    """Results of every job, by key. With ``workers > 1`` every job runs in one of ``min(workers, jobs)``
-    fresh (spawned: JAX is not fork-safe) processes, each bound to a CPU of its own (`_pin_worker`);
-    progress bars are shown for the first job only.
+    """Results of every job of `_jobs`, by key. With ``workers > 1`` every job runs in one of
+    ``min(workers, jobs)`` fresh (spawned: JAX is not fork-safe) processes, each bound to a CPU of its own
+    (`_pin_worker`); a job is submitted when a worker is free and what it needs is done, so that the
+    headline goes before the longer runs once the profile is there; progress bars are shown for the headline
+    only.
 
     Why no job runs in this process: a process that loads NumPy's and SciPy's OpenBLAS with two CPUs
     keeps a BLAS thread, which spins beside the job once the process is bound to one CPU (the
     headline's Newton-CG took 2.4x as long). The workers start bound to one CPU, this process's, so
     their BLAS has no thread of its own, and bind themselves to theirs before the job imports JAX."""
     if workers == 1 or len(jobs) == 1:
-        return {key: fn(progress=progress, **kwargs) for key, (fn, kwargs) in jobs.items()}
+        results = {}
+        for key, (fn, kwargs, needs) in jobs.items():  # listed after what they need
+            results[key] = fn(progress=progress and key == HEADLINE, **kwargs, **_needed(needs, results))
+        return results
     import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
     ctx = multiprocessing.get_context("spawn")
     allowed = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
@@ -332,15 +424,27 @@ def _run_jobs(jobs: dict, workers: int, progress: bool) -> dict:
     # The 1D problems need no host solves, and a second XLA pool thread on a worker's CPU only spins:
     # 1.2x slower (measured), so the workers keep the one-thread pool (`hyperoc.solvers.threads.start_backend`).
     os.environ[ONE_THREAD_POOL] = "1"
+    size, pending, running, results = min(workers, len(jobs)), dict(jobs), {}, {}
     try:
-        with ProcessPoolExecutor(min(workers, len(jobs)), mp_context=ctx, initializer=_pin_worker,
+        with ProcessPoolExecutor(size, mp_context=ctx, initializer=_pin_worker,
                                  initargs=(ctx.Value("i", 0), allowed)) as pool:
-            futures = {key: pool.submit(fn, progress=progress and i == 0, **kwargs)
-                       for i, (key, (fn, kwargs)) in enumerate(jobs.items())}
-            return {key: fut.result() for key, fut in futures.items()}
+            while pending or running:
+                ready = [key for key, (_, _, needs) in pending.items() if set(needs) <= set(results)]
+                for key in ready[:size - len(running)]:
+                    fn, kwargs, needs = pending.pop(key)
+                    running[pool.submit(fn, progress=progress and key == HEADLINE, **kwargs,
+                                        **_needed(needs, results))] = key
+                done, _ = wait(running, return_when=FIRST_COMPLETED)
+                results.update({running.pop(future): future.result() for future in done})
+            return results
     finally:
         os.environ.pop(ONE_THREAD_POOL, None)
         _restore_cpus(cpus)
+
+
+def _needed(needs: tuple, results: dict) -> dict:
+    """The keyword a job takes the results of the jobs it needs by: ``profile``, their values in order."""
+    return {"profile": [v for key in needs for v in results[key].values()]} if needs else {}
 
 
 def _pin_worker(counter, allowed: list) -> None:
@@ -380,7 +484,7 @@ def reproduce_paper_1d(out: Path, *, quick: bool = False, progress: bool = True,
                                                            "control_off_from_t", "pressure_local_maxima_t",
                                                            "pressure_local_maxima_p", "min_det_F", "max_abs_xi",
                                                            "timings")},
-               "runs": runs, "profile": _profile_summary(halves, headline, out) if halves else None,
+               "runs": runs, "profile": _profile_summary(halves, headline, out),
                "paper": PAPER_REPORT, "ray": results.get("ray", []),
                "config": formulation_config(HEADLINE, overrides).sections,
                "workers": workers, "wall_time_s": time.perf_counter() - started}

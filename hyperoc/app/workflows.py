@@ -106,10 +106,13 @@ def build_reduced(cfg: Config, tau0: float, model=None) -> ReducedFunctional:
 
 
 def optimize_single(cfg: Config, tau0: float, *, cache_dir=None, progress: bool = False,
-                    J: ReducedFunctional | None = None,
-                    iterations_done: int = 0) -> tuple[ReducedFunctional, OptimizationResult]:
-    """One optimization from ``(xi, tau) = (0, tau0)`` with the method of ``[optimize]`` (whose
-    method-specific options the schema keeps only for that method).
+                    J: ReducedFunctional | None = None, iterations_done: int = 0,
+                    start: ControlPoint | None = None,
+                    gradient_scale: float | None = None) -> tuple[ReducedFunctional, OptimizationResult]:
+    """One optimization from ``(xi, tau) = (0, tau0)``, or from ``start`` (a warm start at its own tau),
+    with the method of ``[optimize]`` (whose method-specific options the schema keeps only for that method).
+    ``gradient_scale``: the stopping test ``||G|| <= gtol * gradient_scale`` instead of ``gtol ||G0||``, so
+    that a warm start meets a cold start's test (Barzilai-Borwein and Newton-CG).
 
     ``J``: the config's reduced functional (default: `build_reduced`); passing one reuses its
     compiled state and adjoint solves. ``cache_dir``: the folder of the evaluation cache, where
@@ -134,17 +137,22 @@ def optimize_single(cfg: Config, tau0: float, *, cache_dir=None, progress: bool 
 
     kwargs = dict(gtol=float(o["gtol"]), max_iter=int(o["max_iter"]), cache_dir=cache_dir, callback=callback,
                   tau_margin=o.get("tau_margin"), xi_bounds=cfg.xi_bounds())
+    m0 = J.zero(tau0) if start is None else start
+    if gradient_scale is not None:
+        if o["method"] not in ("bb", "newton"):
+            raise ValueError(f"optimize_single: {o['method']} has no absolute stopping test (gradient_scale)")
+        kwargs.update(gtol=0.0, gtol_abs=float(o["gtol"]) * gradient_scale)
     if o["method"] == "bb":
-        res = barzilai_borwein(J, J.zero(tau0), steps=o["steps"], bb_step=o["bb_step"], nonmonotone=o["nonmonotone"],
+        res = barzilai_borwein(J, m0, steps=o["steps"], bb_step=o["bb_step"], nonmonotone=o["nonmonotone"],
                                **kwargs)
     elif o["method"] == "newton":
-        res = newton_cg(J, J.zero(tau0), max_cg=o["max_cg"], **kwargs)
+        res = newton_cg(J, m0, max_cg=o["max_cg"], **kwargs)
     else:
-        res = lbfgsb(J, J.zero(tau0), tau_scale=o["tau_scale"], **kwargs)
+        res = lbfgsb(J, m0, tau_scale=o["tau_scale"], **kwargs)
     if bar is not None:
         bar.close()
     if res.history["objective"] and res.history["objective"][0] > best["objective"]:
-        best.update(point=J.zero(tau0), objective=res.history["objective"][0], iteration=0)
+        best.update(point=m0, objective=res.history["objective"][0], iteration=0)
     res.best = best if best["objective"] > res.objective else None
     return J, res
 
