@@ -328,6 +328,23 @@ def test_plot_labels_carry_units(monkeypatch):
     assert history._suptitle.get_text() == "run: optimizer history"
 
 
+def test_long_titles_are_wrapped_inside_the_figure(monkeypatch):
+    """A run's name can be longer than a figure is wide: every title is broken into lines that stay inside."""
+    figures = _figures(monkeypatch)
+    t, x = np.linspace(0, 1, 11), np.linspace(0, 1, 30)
+    title = "paper-1d, " + "a formulation with a long descriptive name " * 3
+    plot_pressure("p.png", t, np.sin(t), title=title)
+    plot_snapshots("s.png", x, t, np.outer(t, x), [0.5, 1.0], ylabel="u", title=title)
+    plot_control_spacetime("c.png", t, x, np.outer(t, x), title=title)
+    for fig in figures:
+        text = fig._suptitle or fig.axes[0].title
+        renderer = fig.canvas.get_renderer()
+        fig.draw(renderer)
+        box, page = text.get_window_extent(renderer), fig.bbox
+        assert text.get_text().count("\n") >= 1 and page.x0 <= box.x0 and box.x1 <= page.x1, text.get_text()
+        assert " ".join(text.get_text().split()) == " ".join(title.split())
+
+
 def test_units_derived():
     assert (MM_MS.velocity, MM_MS.volume) == ("mm/ms", "mm^3")
     assert (Units().velocity, Units().volume) == ("-", "-")

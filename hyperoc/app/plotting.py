@@ -11,6 +11,7 @@ dimensionless quantity (the default: the model's equations carry no units of the
 from __future__ import annotations
 
 import math
+import textwrap
 from dataclasses import dataclass
 from io import BytesIO
 from pathlib import Path
@@ -73,6 +74,12 @@ def _new_figure(width: float, height: float, layout: str | None = "constrained")
     fig = Figure(figsize=(width, height), layout=layout)
     FigureCanvasAgg(fig)
     return fig
+
+
+def _fitted(title: str, fig: Figure) -> str:
+    """``title`` broken into lines that fit the figure's width (a character of the default 12 pt title font
+    is about 6.8 pt wide)."""
+    return textwrap.fill(title, width=max(20, int(fig.get_figwidth() * 72 / 6.8)))
 
 
 def _save(fig: Figure, path) -> Path:
@@ -154,7 +161,7 @@ def plot_pressure(path, t, p, *, tau=None, eps=None, volume=None, cavity=None, t
         axes[-1].set_ylabel(axis_label("cavity volume", units.volume))
     axes[-1].set_xlabel(axis_label("time t", units.time))
     if title:
-        fig.suptitle(title)
+        fig.suptitle(_fitted(title, fig))
     return _save(fig, path)
 
 
@@ -210,7 +217,7 @@ def plot_control_spacetime(path, t, x, xi, *, xlabel="x", tau=None, title=None, 
     ax.set_xlabel(axis_label(xlabel, units.length))
     ax.set_ylabel(axis_label("time t", units.time))
     if title:
-        ax.set_title(title)
+        ax.set_title(_fitted(title, fig))
     return _save(fig, path)
 
 
@@ -263,8 +270,10 @@ def plot_snapshots(path, x, t, values, times, *, ylabel, title=None, ncols: int 
     # Margins in inches, so that labels and titles fit a single row as well as four.
     width, height = 2.6 * ncols, 2.2 * nrows
     fig = _new_figure(width, height, layout=None)
+    title = _fitted(title, fig) if title else ""
+    lines = title.count("\n") + 1 if title else 0
     fig.subplots_adjust(left=0.8 / width, right=1 - 0.15 / width, bottom=0.5 / height,
-                        top=1 - (0.3 + 0.3 * bool(title)) / height, wspace=0.15, hspace=0.35)
+                        top=1 - (0.3 + 0.25 * lines) / height, wspace=0.15, hspace=0.35)
     axes = fig.subplots(nrows, ncols, sharex=True, sharey=True, squeeze=False).ravel()
     time_unit = "" if units.time == "-" else f" {units.time}"
     ylabel = ylabel if field_unit is None else axis_label(ylabel, field_unit)
@@ -319,7 +328,7 @@ def plot_history(path, histories: dict, *, logy_keys=("grad_norm",), title=None)
     axes[-1].set_xlabel("iteration")
     axes[-1].xaxis.set_major_locator(MaxNLocator(integer=True))
     if title:
-        fig.suptitle(title)
+        fig.suptitle(_fitted(title, fig))
     return _save(fig, path)
 
 
@@ -336,9 +345,9 @@ def plot_value_profile(path, tau, value, converged, *, marks=(), title=None) -> 
         ax.plot(tau[~ok], value[~ok], "o", mfc="none", color="C0", ms=4, label="not converged")
     for k, (t, label) in enumerate(marks):
         ax.axvline(t, ls=":", color=f"C{k + 1}", label=label)
-    ax.set_xlabel("tau")
-    ax.set_ylabel("J*(tau) = max over xi of J(xi, tau)")
+    ax.set_xlabel(axis_label("tau"))
+    ax.set_ylabel(axis_label("J*(tau) = max over xi of J(xi, tau)"))
     ax.legend(fontsize="small")
     if title:
-        ax.set_title(title)
+        ax.set_title(_fitted(title, fig))
     return _save(fig, path)
