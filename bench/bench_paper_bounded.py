@@ -15,14 +15,19 @@ errors do not add up.
     python bench/bench_paper_bounded.py --study grid    # the 3 x 3 grid h x dt at c dt / h <= 1, cold starts
     python bench/bench_paper_bounded.py --study methods # Newton-CG against L-BFGS-B, cold, two grids
     python bench/bench_paper_bounded.py --study mode    # the discrete control that loads only the wall node
+    python bench/bench_paper_bounded.py --study weights --formulation smooth --tau0 11
+                                                        # alpha = beta = 10, 100, 1000 on the paper's grid
 
 ``ratio`` and ``dt`` refine along a sequence, each run warm-started from the previous one's control
 (`hyperoc.app.paper.transferred_control`) and stopped at 1e-6 times the projected gradient of the zero
 control on its own grid (the same test as a cold start's); they report successive differences of tau* and
 J*, the observed order and the Richardson estimate. ``grid`` starts every run cold and reports iterations
-against their median. ``mode``: the P1 control ``xi_{N-k} = r^k`` on omega = [0.75, 1], r = -(2 - sqrt 3) (the
-root of r^2 + 4 r + 1 = 0, so the consistent load h/6 (xi_{j-1} + 4 xi_j + xi_{j+1}) vanishes at every interior
-node), held on [6.5, 7.5]: its nodal loads and p(7.5), det F under it. Results:
+against their median. ``weights`` scales both weights of the formulation's cost (the smooth one's
+alpha = beta) by 1, 10 and 100, cold from ``--tau0`` on the paper's grid: where the state is linear in the
+control, J* scales by their inverse and tau* stays. ``mode``: the P1 control ``xi_{N-k} = r^k`` on
+omega = [0.75, 1], r = -(2 - sqrt 3) (the root of r^2 + 4 r + 1 = 0, so the consistent load
+h/6 (xi_{j-1} + 4 xi_j + xi_{j+1}) vanishes at every interior node), held on [6.5, 7.5]: its nodal loads and
+p(7.5), det F under it. Results:
 ``bench_paper_bounded_<study>.json`` (``--levels`` keeps the first levels of a sequence).
 """
 
@@ -48,11 +53,11 @@ TAU, J_STAR, ITERATIONS = 8, 9, 10  # columns of a row
 
 
 def solve(formulation: str, observation: str, h: float, dt: float, tau0: float, *, method: str = "newton",
-          warm=None, max_iter: int = 300) -> tuple[list, tuple]:
-    """One run from ``(0, tau0)`` or from ``warm = (J, point)`` transferred to this grid; its row and
-    ``(J, point)``."""
+          warm=None, max_iter: int = 300, changes: dict | None = None) -> tuple[list, tuple]:
+    """One run from ``(0, tau0)`` or from ``warm = (J, point)`` transferred to this grid (``changes``: more
+    configuration entries); its row and ``(J, point)``."""
     cfg = formulation_config(formulation, {"mesh.n": int(round(1 / h)), "dynamics.dt": dt,
-                                           "objective.observation": observation})
+                                           "objective.observation": observation, **(changes or {})})
     tau = tau0 if warm is None else warm[1].tau
     J = build_reduced(cfg, tau)
     bounds, tau_range = cfg.xi_bounds(), _tau_range(J, None, False, tau)  # the optimizers' own range
@@ -108,7 +113,7 @@ def wall_mode(h: float, dt: float = 0.02, tau: float = 7.5) -> list:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--study", choices=("ratio", "dt", "grid", "methods", "mode"), required=True)
+    ap.add_argument("--study", choices=("ratio", "dt", "grid", "methods", "mode", "weights"), required=True)
     ap.add_argument("--formulation", choices=("bounded", "interior", "smooth"), default="bounded")
     ap.add_argument("--observation", choices=("centred", "causal"), default="centred")
     ap.add_argument("--levels", type=int, default=None,
@@ -134,6 +139,15 @@ def main() -> None:
                   COLUMNS, [r for rows in runs.values() for r in rows]),
             table("Convergence of the KKT point under refinement (the last three levels)", conv_columns, conv,
                   f"the paper reports tau ~ {PAPER_REPORT['tau']}")])
+    elif args.study == "weights":
+        cost = formulation_config(args.formulation)["objective"]
+        rows = [solve(args.formulation, args.observation, 0.01, 0.02, float(args.tau0 or 7.5),
+                      changes={"objective.alpha": s * cost["alpha"], "objective.beta": s * cost["beta"]})[0]
+                + [s * cost["alpha"], s * cost["beta"]] for s in (1.0, 10.0, 100.0)]
+        write_results(name, command_line(), [table(
+            f"{args.formulation}: both weights of the cost scaled, Newton-CG cold from tau0 = {args.tau0 or 7.5} "
+            "on the paper's grid", COLUMNS + ["alpha", "beta"], rows,
+            "small amplitude (a state linear in the control): J* times the weights constant, tau* unchanged")])
     elif args.study == "mode":
         rows = [wall_mode(h) for h in (0.02, 0.01, 0.005)]
         for r in rows:
