@@ -4,7 +4,7 @@ Land et al. (2015) problem 2: the idealized LV, Taylor-Hood P2-P1, incompressibl
 isochoric strain, curved P2 cells, base clamped, h = 6 mm with ``--refinements`` uniform refinements
 (0: 1,706 unknowns, 1: 11,569, 2: 84,078), endocardial pressure 10 kPa as a follower load in 20
 load steps, full Newton steps (`hyperoc.cardiac.land`). Each row is one process tree running
-``python -m hyperoc.distributed.run``: the serial path (`hyperoc.dynamics.statics.solve_static`, its
+``python -m hyperoc.app.distributed_statics``: the serial path (`hyperoc.dynamics.statics.solve_static`, its
 default sparse LU) and the distributed path on 1 and on 2 ranks (``mpiexec -n``). Reported: the
 wall time of the set-up (mesh, model, partition, PETSc objects) and of the solve (JIT compilation
 included) and, on the distributed path, its split into the JAX kernels, the assembly (ghost
@@ -38,9 +38,9 @@ COLUMNS = ["level", "unknowns", "path", "ranks", "set-up (s)", "solve (s)", "spe
 
 
 def run(refinements: int, ranks: int | None, folder: Path) -> dict:
-    """One ``hyperoc.distributed.run`` solve: serial (ranks None) or on ``ranks`` MPI ranks."""
+    """One ``hyperoc.app.distributed_statics`` solve: serial (ranks None) or on ``ranks`` MPI ranks."""
     out = folder / f"L{refinements}-{ranks or 'serial'}.json"
-    cmd = [sys.executable, "-m", "hyperoc.distributed.run", "--problem", "ventricle", "--refinements",
+    cmd = [sys.executable, "-m", "hyperoc.app.distributed_statics", "--problem", "ventricle", "--refinements",
            str(refinements), "--out", str(out)]
     return run_json(cmd, out, ranks)
 

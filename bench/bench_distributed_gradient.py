@@ -4,7 +4,7 @@ The ventricle example (examples/ventricle-3d.toml: P1, Guccione with rule-based 
 on the apical cap, objective the pressure rise at tau, T = 20 ms, dt = 0.5 ms) on a finer mesh
 (``--h``, default 1.25 mm: 6,717 unknowns, all 40 steps (``optimize.horizon = "full"``: the cost of the
 whole horizon; the default would solve the 23 up to tau + eps) at tau = 10 ms), at the control point of
-``python -m hyperoc.distributed.gradient`` (xi uniform in [-2, 2] kPa, seed 1). Each row is one process
+``python -m hyperoc.app.distributed_gradient`` (xi uniform in [-2, 2] kPa, seed 1). Each row is one process
 tree running that command: the serial path (the config's solver, `ReducedFunctional`) and the distributed
 one (Newton and the adjoint's solves on PETSc) on 1 and 2 ranks, with each of ``--solvers`` (MUMPS's LU, and
 ``gamg``: GMRES with algebraic multigrid to a relative residual of 1e-13). Reported: the wall time of the
@@ -39,9 +39,9 @@ COLUMNS = ["unknowns", "steps", "path", "solver", "ranks", "value + gradient, fi
 
 
 def run(h: float, ranks: int | None, solver: str, taylor: bool, folder: Path) -> dict:
-    """One ``hyperoc.distributed.gradient`` run: serial (ranks None) or on ``ranks`` MPI ranks with ``solver``."""
+    """One ``hyperoc.app.distributed_gradient`` run: serial (ranks None) or on ``ranks`` MPI ranks with ``solver``."""
     out = folder / f"{ranks or 'serial'}-{solver}.json"
-    cmd = [sys.executable, "-m", "hyperoc.distributed.gradient", str(CONFIG), "--set", f"mesh.h={h}",
+    cmd = [sys.executable, "-m", "hyperoc.app.distributed_gradient", str(CONFIG), "--set", f"mesh.h={h}",
            "--set", "optimize.horizon=full", "--solver", solver, "--out", str(out)] + ["--taylor"] * taylor
     return run_json(cmd, out, ranks)
 

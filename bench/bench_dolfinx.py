@@ -1,7 +1,7 @@
 """Land et al. (2015) problem 2 solved by DOLFINx (UFL forms, FFCx kernels, PETSc) against hyperoc's
 JAX kernels (serial, and distributed on MPI + PETSc), the same discrete problem in one run.
 
-The problem is `hyperoc.distributed.run`'s ``ventricle``: the idealized LV of
+The problem is `hyperoc.app.distributed_statics`'s ``ventricle``: the idealized LV of
 `hyperoc.cardiac.land.ventricle_problem` (h = 6 mm, ``--refinements`` uniform refinements; 0: 1,706
 unknowns, 1: 11,569), Taylor-Hood P2-P1, incompressible (``L = int W(Ebar) + p (J - 1) dX``,
 `hyperoc.mechanics.mixed.TaylorHoodModel`), isotropic Guccione on the isochoric strain ``Ebar`` (C = 10
@@ -16,7 +16,7 @@ FFCx custom rule), the facet integrals a rule of degree 4 (the follower integran
 a polynomial of degree 4 on the curved facets: exact for both); the Newton loop (own, in this file)
 factors the tangent with MUMPS (PC lu) at every iteration.
 
-Each row is one process tree: hyperoc's serial path (``python -m hyperoc.distributed.run --serial``,
+Each row is one process tree: hyperoc's serial path (``python -m hyperoc.app.distributed_statics --serial``,
 `hyperoc.dynamics.statics.solve_static` with its sparse LU), hyperoc's distributed path on 1 and 2 ranks,
 and the DOLFINx solve on 1 and 2 ranks (``mpiexec -n k python bench/bench_dolfinx.py --worker dolfinx``).
 Run it with the ``mpi`` environment's python (docs/distributed.md), which also holds DOLFINx
@@ -58,7 +58,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-#: `hyperoc.distributed.run`'s ventricle: mesh size (mm), load steps, halvings allowed, Newton options
+#: `hyperoc.app.distributed_statics`'s ventricle: mesh size (mm), load steps, halvings allowed, Newton options
 MESH_SIZE, STEPS, CUTBACKS, RTOL, ATOL, MAX_ITER = 6.0, 20, 40, 1e-11, 1e-15, 30
 #: hyperoc's local order of a P2 tetrahedron's nodes (vertices, then the edges (0,1), (0,2), (0,3), (1,2),
 #: (1,3), (2,3)) taken to basix's (vertices, then the edges (2,3), (1,3), (1,2), (0,3), (0,2), (0,1))
@@ -456,7 +456,7 @@ def run(level: int, path: str, ranks: int | None, folder: Path, args) -> dict:
         cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", path, "--refinements", str(level),
                "--repeat", str(args.repeat), "--out", str(out)] + (["--warm-cache"] if args.warm_cache else [])
     else:
-        cmd = [sys.executable, "-m", "hyperoc.distributed.run", "--problem", "ventricle", "--refinements",
+        cmd = [sys.executable, "-m", "hyperoc.app.distributed_statics", "--problem", "ventricle", "--refinements",
                str(level), "--out", str(out)] + (["--serial"] if ranks is None else [])
     if ranks is not None:
         cmd = [_mpiexec(), "-n", str(ranks), *cmd]

@@ -9,14 +9,17 @@ The curated API (see the README for a tour)::
     controls    BodyForce, ActiveStress, Region
     model       StateModel; mixed: TaylorHoodModel (P2-P1, quasi-static, incompressible allowed)
     dynamics    Scheme, TimeStepper, solve_state (monitor= sees each step's StepRecord), StateSolution,
-                StepStatus; statics: solve_static with state-dependent loads FollowerPressure (pressure
-                on the deformed boundary), FibreTension (active stress), and NewtonLog, a monitor that
-                prints or keeps every Newton iteration; NewtonStatus, how a Newton solve ended
+                StepStatus; statics: solve_static (-> StaticSolution) with state-dependent loads
+                FollowerPressure (pressure on the deformed boundary), FibreTension (active stress), and
+                NewtonLog, a monitor that prints or keeps every Newton iteration; NewtonStatus, how a
+                Newton solve ended
     time        uniform_grid, TimeGrid, TimeTransform
     objectives  Objective, ControlCost, ControlRateCost (beta/2 ||xi_t||^2), InjectivityPenalty,
                 PressureAt, PressureRise, PressureMean
     gradients   ReducedFunctional, ControlPoint, ControlSpace (inner product, Riesz map), taylor_test
-    optimizers  barzilai_borwein (the paper's Algorithm 1), lbfgsb, newton_cg -> OptimizationResult
+                (-> TaylorResult)
+    optimizers  barzilai_borwein (the paper's Algorithm 1), lbfgsb, newton_cg -> OptimizationResult,
+                whose Termination says why the run stopped
     config      load_config
 
 Importing hyperoc is cheap: the names above are imported on first use (PEP 562), so that the
@@ -84,6 +87,7 @@ _LAZY = {
     "InjectivityPenalty": "control.objectives",
     "PressureMean": "control.objectives",
     "OptimizationResult": "control.optimize",
+    "Termination": "control.optimize",
     "ControlSpace": "control.control_space",
     "StepRecord": "dynamics.stepper",
     "StepStatus": "dynamics.stepper",
@@ -96,10 +100,12 @@ _LAZY = {
     "ControlPoint": "control.reduced",
     "ReducedFunctional": "control.reduced",
     "solve_static": "dynamics.statics",
+    "StaticSolution": "dynamics.statics",
     "TimeGrid": "dynamics.timegrid",
     "TimeTransform": "dynamics.timegrid",
     "uniform_grid": "dynamics.timegrid",
     "taylor_test": "control.verification",
+    "TaylorResult": "control.verification",
 }
 
 
@@ -125,5 +131,6 @@ __all__ = [
     "TaylorHoodModel", "ControlCost", "ControlRateCost", "InjectivityPenalty", "Objective", "PressureAt",
     "PressureRise", "PressureMean", "barzilai_borwein", "lbfgsb", "newton_cg", "OptimizationResult", "ControlPoint",
     "ControlSpace", "StepRecord", "StepStatus", "ReducedFunctional", "solve_static", "NewtonLog", "NewtonStatus",
-    "FollowerPressure", "FibreTension", "TimeGrid", "TimeTransform", "uniform_grid", "taylor_test",
+    "FollowerPressure", "FibreTension", "TimeGrid", "TimeTransform", "uniform_grid", "taylor_test", "TaylorResult",
+    "StaticSolution", "Termination",
 ]

@@ -1,6 +1,7 @@
 """The bench results files and the tables rendered from them (`bench/results.py`, `bench/make_tables.py`)."""
 
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -35,8 +36,54 @@ def test_tables_reject_rows_of_the_wrong_width():
         results.write_results("../escape", "cmd", [])
 
 
-def test_every_test_function_has_a_row():
+RESULTS_FILES = sorted((BENCH / "results").glob("*.json"))
+
+
+@pytest.fixture(scope="module")
+def pages():
+    return make_tables.pages()
+
+
+@pytest.mark.parametrize("path", RESULTS_FILES, ids=lambda p: p.stem)
+def test_every_results_file_is_the_documented_format_and_its_page_is_current(path, pages):
+    """Each committed results file is what `write_results` writes (named for its file, rows as wide as
+    their columns, a command that runs a bench script), and its page in docs/results is current: its
+    rendering, or, for a file named as its script, the script's page, which begins with it."""
+    data = json.loads(path.read_text())
+    assert data["bench"] == path.stem
+    assert "python bench/" in data["command"]
+    assert data["tables"]
+    for t in data["tables"]:
+        assert set(t) == {"title", "columns", "rows", "notes"} and t["title"]
+        assert all(len(row) == len(t["columns"]) for row in t["rows"]), t["title"]
+    page = make_tables.OUT / f"{path.stem}.md"
+    assert pages[page].startswith(make_tables.render_results(data).rstrip("\n"))
+    assert page.read_text() == pages[page], f"python bench/make_tables.py renews {page.name}"
+
+
+def _test_functions(path: Path) -> set[str]:
+    """The test functions of a test file as pytest collects them: module-level ``def test*`` and the
+    ``def test*`` of ``class Test*``, read from the source text."""
+    names, cls = set(), None
+    for line in path.read_text().splitlines():
+        if match := re.match(r"class (Test\w*)", line):
+            cls = match.group(1)
+        elif re.match(r"\S", line):
+            cls = None
+        if match := re.match(r"(?:async )?def (test\w*)", line):
+            names.add(match.group(1))
+        elif cls and (match := re.match(r"    (?:async )?def (test\w*)", line)):
+            names.add(f"{cls}.{match.group(1)}")
+    return names
+
+
+def test_every_test_function_has_a_row_in_the_verification_page():
+    """The test inventory (docs/results/verification.md) lists every test function of tests/, and no
+    other, as rendered from the current tests."""
+    want = {(f"`{p.name}`", f"`{name}`") for p in sorted((BENCH.parent / "tests").glob("test_*.py"))
+            for name in _test_functions(p)}
     rows = make_tables.test_rows()
-    names = {(r[0], r[1]) for r in rows}
-    assert ("`test_bench_results.py`", "`test_every_test_function_has_a_row`") in names
+    assert {(r[0], r[1]) for r in rows} == want and len(rows) == len(want)
     assert all(r[2] for r in rows)
+    page = BENCH.parent / "docs" / "results" / "verification.md"
+    assert page.read_text() == make_tables.render_verification(), "python bench/make_tables.py renews it"

@@ -15,9 +15,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from hyperoc.app.distributed_statics import problem
 from hyperoc.cardiac.land import beam_problem
 from hyperoc.distributed.partition import Partition, local_dofs
-from hyperoc.distributed.run import problem
 from hyperoc.dynamics.statics import solve_static
 from hyperoc.dynamics.stepper import Scheme
 from hyperoc.errors import InputError
@@ -145,9 +145,9 @@ P_TOL = 1e-8
                                   ["--problem", "contraction", "--refinements", "0"]],
                          ids=["beam-volume", "ventricle", "contraction"])
 def test_two_ranks_equal_the_serial_solve(mpiexec, tmp_path, args):
-    """`mpiexec -n 2 python -m hyperoc.distributed.run` (MUMPS) against `solve_static` in this process:
+    """`mpiexec -n 2 python -m hyperoc.app.distributed_statics` (MUMPS) against `solve_static` in this process:
     displacement, multiplier, the benchmark's apex / tip positions, and the Newton iterations per load step."""
-    dist = _on_two_ranks(mpiexec, tmp_path, "hyperoc.distributed.run", args)
+    dist = _on_two_ranks(mpiexec, tmp_path, "hyperoc.app.distributed_statics", args)
     opts = SimpleNamespace(problem=args[1], n=1, refinements=0)  # as run.problem reads them
     model, load, _ = problem(opts)
     sol = solve_static(model, follower=load, constrained="--constrained" in args, steps=20, line_search=False,
@@ -181,7 +181,7 @@ GRADIENT_RTOL = 1e-10
 def serial_gradient(tmp_path_factory):
     """The serial path's J and gradient at the point of `SMALL_VENTRICLE`, and 3 iterations of its
     optimization (L-BFGS-B), in this process."""
-    from hyperoc.distributed.gradient import main
+    from hyperoc.app.distributed_gradient import main
 
     out = tmp_path_factory.mktemp("serial") / "serial.json"
     assert main([*SMALL_VENTRICLE, "--serial", "--optimize", "--out", str(out)]) == 0
@@ -198,7 +198,7 @@ def _assert_same_gradient(dist: dict, serial: dict) -> None:
 def test_two_rank_gradient_equals_the_serial_one_and_passes_the_taylor_test(mpiexec, tmp_path, serial_gradient):
     """The 3D dynamic optimal-control gradient (ventricle, active stress, pressure rise) on 2 ranks:
     J and dJ equal the serial path's, and the Taylor remainder falls at rate 2 (the issue's 2.00 +- 0.05)."""
-    dist = _on_two_ranks(mpiexec, tmp_path, "hyperoc.distributed.gradient", [*SMALL_VENTRICLE, "--taylor"])
+    dist = _on_two_ranks(mpiexec, tmp_path, "hyperoc.app.distributed_gradient", [*SMALL_VENTRICLE, "--taylor"])
     _assert_same_gradient(dist, serial_gradient)
     assert abs(dist["taylor"]["rate"] - 2.0) <= 0.05
 
@@ -206,7 +206,7 @@ def test_two_rank_gradient_equals_the_serial_one_and_passes_the_taylor_test(mpie
 def test_two_rank_checkpointed_gradient_and_optimization_equal_the_serial_ones(mpiexec, tmp_path, serial_gradient):
     """Binomial checkpointing (2 snapshots for 8 steps: states recomputed in the reverse pass) on 2 ranks
     gives the serial gradient, and the optimizer, unchanged on every rank, the serial iterates."""
-    dist = _on_two_ranks(mpiexec, tmp_path, "hyperoc.distributed.gradient",
+    dist = _on_two_ranks(mpiexec, tmp_path, "hyperoc.app.distributed_gradient",
                          [*SMALL_VENTRICLE, "--snapshots", "2", "--optimize"])
     _assert_same_gradient(dist, serial_gradient)
     ours, ref = dist["optimization"], serial_gradient["optimization"]
@@ -219,7 +219,7 @@ def test_two_rank_checkpointed_gradient_and_optimization_equal_the_serial_ones(m
 
 
 def test_bad_input_to_the_gradient_command_is_one_line_and_status_2(tmp_path, capsys):
-    from hyperoc.distributed.gradient import main
+    from hyperoc.app.distributed_gradient import main
 
     out = tmp_path / "g.json"
     assert main([*SMALL_VENTRICLE, "--set", "optimize.tau0=9.0", "--serial", "--out", str(out)]) == 2
@@ -231,14 +231,14 @@ def test_bad_input_to_the_gradient_command_is_one_line_and_status_2(tmp_path, ca
 def test_two_rank_gradient_with_the_iterative_solver_equals_the_serial_one(mpiexec, tmp_path, serial_gradient):
     """GMRES + algebraic multigrid (relative residual 1e-13) in place of MUMPS: Newton and the adjoint's
     transposed solves stay accurate enough for the gradient's criterion."""
-    dist = _on_two_ranks(mpiexec, tmp_path, "hyperoc.distributed.gradient", [*SMALL_VENTRICLE, "--solver", "gamg"])
+    dist = _on_two_ranks(mpiexec, tmp_path, "hyperoc.app.distributed_gradient", [*SMALL_VENTRICLE, "--solver", "gamg"])
     _assert_same_gradient(dist, serial_gradient)
 
 
 def test_an_unknown_distributed_solver_is_an_input_error(tmp_path):
     pytest.importorskip("dolfinx_solver")
     pytest.importorskip("petsc4py")
-    from hyperoc.distributed.gradient import main
+    from hyperoc.app.distributed_gradient import main
 
     assert main([*SMALL_VENTRICLE, "--solver", "ilu", "--out", str(tmp_path / "g.json")]) == 2
     assert not (tmp_path / "g.json").exists()

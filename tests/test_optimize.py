@@ -137,8 +137,8 @@ def test_callback_reports_the_stopping_measure(run, bar_reference):
               callback=lambda k, m, value, measure: seen.append((k, value, measure,
                                                                  J.norm(J.value_and_gradient(m)[1]))))
     assert [k for k, *_ in seen] == list(range(1, res.iterations + 1))
-    assert [v for _, v, _, _ in seen] == res.history["objective"][1:]
-    assert [e for _, _, e, _ in seen] == res.history["grad_norm"][1:]
+    assert tuple(v for _, v, _, _ in seen) == res.history["objective"][1:]
+    assert tuple(e for _, _, e, _ in seen) == res.history["grad_norm"][1:]
     assert any(abs(e - full) > 0.1 * full for _, _, e, full in seen)
 
 
@@ -211,7 +211,7 @@ def test_newton_cg_converges_superlinearly(bar_reference):
     assert res.converged and res.iterations <= 15
     tail = g[1:][-3:] / g[:-1][-3:]
     assert np.all(np.diff(tail) < 0) and tail[-1] < 1e-3
-    assert res.history["step"][-3:] == [1.0, 1.0, 1.0]
+    assert res.history["step"][-3:] == (1.0, 1.0, 1.0)
 
 
 def test_newton_cg_falls_back_to_the_gradient(monkeypatch):
@@ -219,11 +219,11 @@ def test_newton_cg_falls_back_to_the_gradient(monkeypatch):
     stopping (it stopped on the paper's bounded variant after 10 iterations from a restart). Here the
     direction is made a descent direction (-G), so every iteration must take the gradient step and J
     must still rise at each."""
-    import hyperoc.control.optimize as opt
+    import hyperoc.control.optimize.newton as newton
 
     runs, bounds = {}, (-0.01, 0.01)
     for nonconcave in (False, True):
-        monkeypatch.setattr(opt, "_newton_direction", lambda J, metric, m, G, *args: (G * -1.0, nonconcave))
+        monkeypatch.setattr(newton, "_newton_direction", lambda box, m, G, *args: (G * -1.0, nonconcave))
         J = _J()
         runs[nonconcave] = res = newton_cg(J, J.zero(1.0), max_iter=3, max_backtracks=4, xi_bounds=bounds)
         assert res.iterations == 3 and res.evaluations["gradient_steps"] == 3

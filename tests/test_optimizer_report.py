@@ -8,7 +8,7 @@ import numpy as np
 import hyperoc.app.workflows
 from helpers import small_1d_toml
 from hyperoc.app.cli import main
-from hyperoc.control.optimize import OptimizationResult
+from hyperoc.control.optimize import OptimizationResult, Termination
 
 SMALL_1D = small_1d_toml(n=10, dt=0.1, lower=0.5, value=None, max_iter=3)
 
@@ -24,8 +24,7 @@ def _non_monotone(J, m0, *, callback, max_iter, **options):
     for k in range(1, max_iter + 1):
         callback(k, points[k], VALUES[k], 1.0)
     history = {"objective": VALUES, "grad_norm": [1.0] * 4, "tau": [m0.tau] * 4, "step": [1.0] * 4}
-    return OptimizationResult(points[-1], VALUES[-1], max_iter, False,
-                              f"maximum number of iterations ({max_iter}) reached", history=history)
+    return OptimizationResult(points[-1], VALUES[-1], max_iter, Termination.MAX_ITERATIONS, history=history)
 
 
 def test_best_iterate_reported_saved_and_returned(tmp_path, capsys, monkeypatch):

@@ -22,6 +22,7 @@ from typing import Annotated, Any, ClassVar, Literal, Optional, Union
 import annotated_types as at
 from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
 
+from ..control.tau_scale import is_tau_scale
 from ..errors import InputError, quote
 from .expr import parse_expression
 
@@ -54,8 +55,7 @@ def _is_expression(v) -> bool:
 
 
 def _tau_scale(value):
-    if value == "range" or (isinstance(value, (int, float)) and not isinstance(value, bool)
-                            and math.isfinite(value) and value > 0):
+    if is_tau_scale(value):
         return value
     raise ValueError(f"must be 'range' or a positive number, got {quote(value)}")
 

@@ -6,6 +6,7 @@ too. Every run writes its files atomically into an output folder.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from pathlib import Path
 
@@ -153,8 +154,7 @@ def optimize_single(cfg: Config, tau0: float, *, cache_dir=None, progress: bool 
         bar.close()
     if res.history["objective"] and res.history["objective"][0] > best["objective"]:
         best.update(point=m0, objective=res.history["objective"][0], iteration=0)
-    res.best = best if best["objective"] > res.objective else None
-    return J, res
+    return J, dataclasses.replace(res, best=best if best["objective"] > res.objective else None)
 
 
 def resume_state(cfg: Config, out) -> dict:

@@ -1,10 +1,10 @@
 """Command line: the reduced functional J(xi, tau) of a config's problem and its exact gradient, on MPI
 ranks or in one process, written as JSON.
 
-    mpiexec -n 2 python -m hyperoc.distributed.gradient examples/ventricle-3d.toml --set mesh.h=1.5 --out g.json
-    python -m hyperoc.distributed.gradient examples/ventricle-3d.toml --set mesh.h=1.5 --serial --out g1.json
-    mpiexec -n 2 python -m hyperoc.distributed.gradient examples/ventricle-3d.toml --taylor --out t.json
-    mpiexec -n 2 python -m hyperoc.distributed.gradient examples/ventricle-3d.toml --optimize --out o.json
+    mpiexec -n 2 python -m hyperoc.app.distributed_gradient examples/ventricle-3d.toml --set mesh.h=1.5 --out g.json
+    python -m hyperoc.app.distributed_gradient examples/ventricle-3d.toml --set mesh.h=1.5 --serial --out g1.json
+    mpiexec -n 2 python -m hyperoc.app.distributed_gradient examples/ventricle-3d.toml --taylor --out t.json
+    mpiexec -n 2 python -m hyperoc.app.distributed_gradient examples/ventricle-3d.toml --optimize --out o.json
 
 The point: tau = ``optimize.tau0`` (or ``--tau``), xi uniform in [-a, a] at every node and s-level
 (``--amplitude`` a, ``--seed``), the same on every rank. The distributed path solves with
@@ -33,11 +33,12 @@ import numpy as np
 
 from ..errors import InputError
 from ..io import write_json
-from .run import peak_mb
+from .distributed_statics import peak_mb
 
 
 def parse(argv):
-    parser = argparse.ArgumentParser(prog="python -m hyperoc.distributed.gradient", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m hyperoc.app.distributed_gradient",
+                                     description=__doc__.split("\n")[0])
     parser.add_argument("config", help="a hyperoc TOML config with [control] and [objective]")
     parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="config override")
     parser.add_argument("--tau", type=float, help="default: optimize.tau0")
@@ -59,8 +60,8 @@ def parse(argv):
 def reduced_functional(args):
     """``(J, m, comm, cfg)``: the config's `ReducedFunctional` (distributed unless ``--serial``), the point,
     the communicator (None serial) and the config."""
-    from ..app.config import load_config
     from ..control.reduced import ControlPoint, ReducedFunctional
+    from .config import load_config
 
     cfg = load_config(args.config, args.set)
     tau = float(cfg["optimize"].get("tau0", cfg["dynamics"]["T"] / 2)) if args.tau is None else args.tau
@@ -74,7 +75,7 @@ def reduced_functional(args):
     if not args.serial:
         from mpi4py import MPI
 
-        from .dynamics import DistributedAdjoint, DistributedStepper
+        from ..distributed.dynamics import DistributedAdjoint, DistributedStepper
 
         comm = MPI.COMM_WORLD
         options["adjoint"] = DistributedAdjoint(DistributedStepper(model, cfg.scheme(), comm=comm,
@@ -86,7 +87,7 @@ def reduced_functional(args):
 
 def optimization(cfg, J, tau: float) -> dict:
     """The config's optimization from (0, tau): its iterates' J and tau and how it ended."""
-    from ..app.workflows import optimize_single
+    from .workflows import optimize_single
 
     t0 = time.perf_counter()
     _, res = optimize_single(cfg, tau, J=J)

@@ -1,9 +1,9 @@
 """Command line: one static solve of a Land et al. (2015) problem, distributed or serial, written as JSON.
 
-    mpiexec -n 2 python -m hyperoc.distributed.run --problem ventricle --refinements 0 --out p2.json
-    python -m hyperoc.distributed.run --problem ventricle --refinements 0 --serial --out p2-serial.json
-    mpiexec -n 2 python -m hyperoc.distributed.run --problem beam --n 1 --constrained --out beam.json
-    mpiexec -n 2 python -m hyperoc.distributed.run --problem contraction --refinements 0 --out p3.json
+    mpiexec -n 2 python -m hyperoc.app.distributed_statics --problem ventricle --refinements 0 --out p2.json
+    python -m hyperoc.app.distributed_statics --problem ventricle --refinements 0 --serial --out p2-serial.json
+    mpiexec -n 2 python -m hyperoc.app.distributed_statics --problem beam --n 1 --constrained --out beam.json
+    mpiexec -n 2 python -m hyperoc.app.distributed_statics --problem contraction --refinements 0 --out p3.json
 
 ``ventricle``: problem 2 (`hyperoc.cardiac.land.ventricle_problem`), Taylor-Hood P2-P1, incompressible,
 Guccione on the isochoric strain, base clamped, h = 6 mm with ``refinements`` uniform refinements, no
@@ -14,7 +14,7 @@ volume constraint (volume kept at the reference one). All: full Newton steps wit
 `hyperoc.cardiac.land`. The JSON (written by rank 0) holds the solution u (serial numbering), the
 multiplier p, the z of the benchmark's points, Newton iterations, the wall time of the set-up and of the
 solve (JIT compilation included), and the peak resident memory of each rank (MB), and on the distributed
-path the solve's split (`DistributedSolution.split`).
+path the solve's split (`hyperoc.distributed.statics.DistributedSolution.split`).
 """
 
 from __future__ import annotations
@@ -48,7 +48,8 @@ def peak_mb() -> float:
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(prog="python -m hyperoc.distributed.run", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m hyperoc.app.distributed_statics",
+                                     description=__doc__.split("\n")[0])
     parser.add_argument("--problem", choices=("ventricle", "contraction", "beam"), default="ventricle")
     parser.add_argument("--refinements", type=int, default=0, help="ventricle: uniform refinements of h = 6 mm")
     parser.add_argument("--n", type=int, default=1, help="beam: 10 n x n x n cubes")
@@ -72,7 +73,7 @@ def main(argv=None):
     else:
         from mpi4py import MPI
 
-        from .statics import DistributedStatics
+        from ..distributed.statics import DistributedStatics
 
         comm = MPI.COMM_WORLD
         t0 = time.perf_counter()
