@@ -33,6 +33,7 @@ from hyperoc.mechanics.materials import (
     first_piola,
     material_from_config,
     tangent_modulus,
+    tension_square,
 )
 from test_materials import rotation  # a proper rotation; its rows serve as an orthonormal frame
 
@@ -349,3 +350,24 @@ def test_library_finite_difference_check_takes_a_frame():
     F, frame = sample_points(2)["fibre-tension"]
     err_P, err_A = finite_difference_check(MATERIALS["holzapfel-ogden"], F, frame=frame)
     assert err_P < 1e-7 and err_A < 1e-6, (err_P, err_A)
+
+
+def test_the_c2_tension_switch_is_the_published_square_outside_its_width():
+    """`tension_square(x, w)`: equal to ``max(x, 0)^2`` outside ``(0, w)``; its first and second derivatives
+    continuous at 0 and w (one-sided jax derivatives a distance 1e-9 w apart differ by O(1e-9) of the scale
+    ``w`` of the second derivative's jump it removes, 2); convex, increasing, and at most 0.0346 w^2 below
+    the square (the maximum of ``s^2 - q(s)`` on [0, 1])."""
+    w = 0.02
+    x = np.array([-0.3, -1e-3, 0.0, w, 1.5 * w, 0.4])
+    np.testing.assert_allclose(tension_square(x, w), np.maximum(x, 0.0) ** 2, rtol=1e-15, atol=0)
+    np.testing.assert_array_equal(tension_square(x, 0.0), np.maximum(x, 0.0) ** 2)
+    d1 = jax.vmap(jax.grad(lambda y: tension_square(y, w)))
+    d2 = jax.vmap(jax.grad(jax.grad(lambda y: tension_square(y, w))))
+    for at in (0.0, w):
+        side = jnp.array([at - 1e-9 * w, at + 1e-9 * w])
+        assert abs(float(jnp.diff(d1(side))[0])) < 1e-8 * w and abs(float(jnp.diff(d2(side))[0])) < 1e-7
+    inside = jnp.linspace(0.0, w, 2001)
+    assert np.all(np.asarray(d1(inside)) >= 0) and np.all(np.asarray(d2(inside)) >= 0)
+    gap = np.max(np.asarray(inside**2 - tension_square(inside, w)))
+    assert 0.0345 * w**2 < gap < 0.0346 * w**2
+    assert abs(float(jax.grad(jax.grad(lambda y: tension_square(y, 0.0)))(1e-9)) - 2.0) < 1e-12  # the jump w removes

@@ -84,13 +84,15 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("config", help=CONFIG_HELP)
     g.add_argument("--json", action="store_true", help="print the results as JSON")
     g.add_argument("--seed", type=int, default=0)
-    r = sub.add_parser("reproduce", help="reproduce a paper experiment")
-    r.add_argument("experiment", choices=["paper-1d"])
+    r = sub.add_parser("reproduce", help="reproduce a paper experiment, or its hybrid problem on a beating ventricle")
+    r.add_argument("experiment", choices=["paper-1d", "lv-beat"],
+                   help="paper-1d: the paper's 1D experiment; lv-beat: max dp/dt of an isovolumic contraction of "
+                        "the benchmark ventricle by an apical active tension and a free time")
     r.add_argument("--out", required=True, metavar="DIR", help=OUT_HELP)
     r.add_argument("--quick", action="store_true",
-                   help="the headline only (skip the diagnostic runs of the problem as stated)")
+                   help="paper-1d: the headline only (skip the diagnostic runs of the problem as stated)")
     r.add_argument("--workers", type=int, default=None,
-                   help="processes running the independent studies in parallel (default: min(2, CPUs))")
+                   help="paper-1d: processes running the independent studies in parallel (default: min(2, CPUs))")
     b = sub.add_parser("benchmark", help="run a community benchmark and compare with its published curves",
                        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     b.add_argument("benchmark", choices=["cardiac-elastodynamics"],
@@ -276,13 +278,30 @@ def _print_taylor(name: str, r: dict) -> None:
 def _reproduce(args) -> None:
     from .preflight import check_output_dir
 
+    if args.experiment == "lv-beat" and (args.quick or args.workers is not None):
+        raise InputError("--quick and --workers apply to paper-1d, not to lv-beat")
     out = check_output_dir(args.out)
+    if args.experiment == "lv-beat":
+        _reproduce_lv_beat(out, _progress(args))
+        return
     from .._cache import cache_environment
     from .paper import reproduce_paper_1d
 
     cache_environment()  # for the workers' JAX (this process imports none)
 
     reproduce_paper_1d(out, quick=args.quick, progress=_progress(args), workers=args.workers)
+
+
+def _reproduce_lv_beat(out: Path, progress: bool) -> None:
+    from ..cardiac.beat import reproduce_lv_beat
+
+    _start_compiler()
+    s = reproduce_lv_beat(out, progress=progress)
+    rise = s["pressure_rise_at_tau"]
+    print(f"tau* = {s['tau']:.4g} s  J* = {s['objective']:.6g}  converged = {s['converged']} (relative projected "
+          f"gradient {s['relative_gradient']:.2g}, {s['iterations']} iterations)")
+    print(f"dp/dt at tau*: {rise['optimized']:.4g} Pa/s with the control, {rise['uncontrolled']:.4g} without "
+          f"({100 * s['pressure_rise_gain']:+.1f} %); {s['wall_time_s']:.0f} s -> {out / 'summary.json'}")
 
 
 def _benchmark(args) -> None:

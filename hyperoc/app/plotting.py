@@ -24,7 +24,7 @@ from matplotlib.ticker import MaxNLocator
 from ..io import atomic_write_bytes
 
 __all__ = ["Units", "axis_label", "plot_pressure", "plot_control_spacetime", "plot_snapshots", "plot_history",
-           "plot_value_profile"]
+           "plot_value_profile", "plot_pressure_comparison", "plot_pv_loops"]
 
 _DPI = 150
 _MARK_COLOR = "C3"  # the vertical markers of `plot_pressure`: dotted, apart from p (C0) and tau (black)
@@ -63,6 +63,13 @@ class Units:
     def volume(self) -> str:
         """``length^3``; ``-`` when length is dimensionless."""
         return "-" if self.length == "-" else f"{self.length}^3"
+
+    @property
+    def pressure_rate(self) -> str:
+        """``pressure/time``; ``-`` when both are dimensionless."""
+        if self.time == "-":
+            return self.pressure
+        return f"1/{self.time}" if self.pressure == "-" else f"{self.pressure}/{self.time}"
 
 
 def axis_label(name: str, unit: str = "-") -> str:
@@ -350,4 +357,84 @@ def plot_value_profile(path, tau, value, converged, *, marks=(), title=None) -> 
     ax.legend(fontsize="small")
     if title:
         ax.set_title(_fitted(title, fig))
+    return _save(fig, path)
+
+
+def plot_pressure_comparison(path, pressures: dict, rises: dict, *, tau=None, eps=None, title=None,
+                             units=None) -> Path:
+    """Pressures of several runs (top) and their rates of rise (bottom), tau marked.
+
+    Parameters
+    ----------
+    path : path
+        Output PNG.
+    pressures : dict of str -> ((L,), (L,)) array_like
+        Each run's label mapped to its time levels [units.time] and pressure [units.pressure].
+    rises : dict of str -> ((L',), (L',)) array_like
+        Each run's label mapped to times and its rate of pressure rise ``(p(t + eps) - p(t)) / eps``
+        [units.pressure / units.time].
+    tau, eps : float, optional
+        The free time (a dashed line) and the window ``[tau, tau + eps]`` (shaded) [units.time].
+    title : str, optional
+        Figure title.
+    units : Units, optional
+        Units of the axes.
+
+    Returns
+    -------
+    Path
+    """
+    units = units or Units()
+    fig = _new_figure(6.4, 6.4)
+    top, bottom = fig.subplots(2, 1, sharex=True)
+    for k, (label, (t, p)) in enumerate(pressures.items()):
+        top.plot(_as_1d("t", t), _as_1d("p", p, np.size(t)), color=f"C{k}", label=label)
+    for k, (label, (t, r)) in enumerate(rises.items()):
+        bottom.plot(_as_1d("t", t), _as_1d("rate", r, np.size(t)), color=f"C{k}", label=label)
+    for ax in (top, bottom):
+        if tau is not None:
+            ax.axvline(tau, color="k", linestyle="--", linewidth=1.0, label=r"$\tau^*$")
+            if eps is not None:
+                ax.axvspan(tau, tau + eps, color="0.85", label=r"$[\tau^*, \tau^*+\varepsilon]$")
+    top.set_ylabel(axis_label("pressure p", units.pressure))
+    bottom.set_ylabel(axis_label(r"(p(t + $\varepsilon$) - p(t)) / $\varepsilon$", units.pressure_rate))
+    bottom.set_xlabel(axis_label("time t", units.time))
+    top.legend(loc="best", fontsize="small")
+    if title:
+        fig.suptitle(_fitted(title, fig))
+    return _save(fig, path)
+
+
+def plot_pv_loops(path, loops: dict, *, title=None, units=None) -> Path:
+    """Pressure-volume loops: each run's pressure against its cavity volume, its start marked.
+
+    Parameters
+    ----------
+    path : path
+        Output PNG.
+    loops : dict of str -> ((L,), (L,)) array_like
+        Each run's label mapped to its cavity volume [units.length^3] and pressure [units.pressure] at the
+        same levels.
+    title : str, optional
+        Figure title.
+    units : Units, optional
+        Units of the axes.
+
+    Returns
+    -------
+    Path
+    """
+    units = units or Units()
+    fig = _new_figure(6.4, 4.8)
+    ax = fig.subplots()
+    for k, (label, (v, p)) in enumerate(loops.items()):
+        v = _as_1d("volume", v)
+        ax.plot(v, _as_1d("p", p, v.size), color=f"C{k}", label=label)
+        ax.plot(v[:1], np.asarray(p)[:1], "o", color=f"C{k}", ms=4)
+    ax.ticklabel_format(axis="x", style="sci", scilimits=(-3, 3), useOffset=False)
+    ax.set_xlabel(axis_label("cavity volume", units.volume))
+    ax.set_ylabel(axis_label("pressure p", units.pressure))
+    ax.legend(loc="best", fontsize="small")
+    if title:
+        fig.suptitle(_fitted(title, fig))
     return _save(fig, path)

@@ -142,7 +142,8 @@ def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = No
     boundary ``cavity`` (default ``"endocardium"``, `_cavity_volumes`; a 3D mesh without it gets a warning
     saying so, unless ``cavity`` is None: a body with no cavity). pressure.png shows p (tau marked), the body-volume
     drift and the cavity volume; control.png the control's space-time map (1D; 2D/3D scalar controls:
-    means over slices of the last coordinate, the long axis of a ventricle); 1D adds snapshot figures.
+    means over slices along the mesh's longest extent, the long axis of a ventricle: `_long_axis`); 1D adds
+    snapshot figures.
     The series ``paraview/state`` has the point fields ``displacement``, ``velocity``, ``control`` (the
     control's space-time field, zero outside omega; a scalar for an active stress) and the cell fields
     of `_cell_series` (``frames``: the fibre frames, for output only).
@@ -186,9 +187,9 @@ def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = No
     if model.dim == 1:
         files.update(_write_1d_figures(out, sol, u, v, xi_nodal, snapshot_times, title, units, tau))
     elif xi_nodal is not None and xi_nodal.shape[-1] == 1:
-        z = model.control.coordinates(model.space)[:, -1]
-        centers, means = _slice_means(z, xi_nodal[..., 0])
-        plot_control_spacetime(out / "control.png", sol.t, centers, means, xlabel=f"{'yz'[model.dim - 2]} (slice mean)",
+        axis = _long_axis(model.mesh.points)
+        centers, means = _slice_means(model.control.coordinates(model.space)[:, axis], xi_nodal[..., 0])
+        plot_control_spacetime(out / "control.png", sol.t, centers, means, xlabel=f"{'xyz'[axis]} (slice mean)",
                                tau=tau, title=f"{title}: control xi", units=units)
         files["control_plot"] = "control.png"
     if history:
@@ -228,6 +229,13 @@ def _pressure_extrema(sol: StateSolution) -> dict:
     p, t = sol.pressure[computed], sol.t[computed]
     k = int(np.argmax(p))
     return {"pressure_max": float(p[k]), "t_pressure_max": float(t[k]), "pressure_min": float(np.min(p))}
+
+
+def _long_axis(points: np.ndarray) -> int:
+    """The coordinate (0, 1 or 2) along which the points (n, d) extend furthest, the last of equal ones: a
+    ventricle's long axis (z for `hyperoc.fem.geometry`'s, x for the cardiac benchmark's)."""
+    extent = np.ptp(points, axis=0)
+    return int(extent.size - 1 - np.argmax(extent[::-1]))
 
 
 def _slice_means(z: np.ndarray, values: np.ndarray, n_slices: int = 20) -> tuple[np.ndarray, np.ndarray]:

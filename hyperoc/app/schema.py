@@ -237,6 +237,9 @@ class Material(Section):
     afs: Optional[Number] = Field(None, description="Holzapfel-Ogden: fibre-sheet modulus")
     bulk_modulus: Optional[Number] = Field(
         None, description="Guccione, Holzapfel-Ogden: small-strain bulk modulus of the volumetric penalty (kPa)")
+    switch_width: Optional[NonNegative] = Field(
+        None, description="Holzapfel-Ogden: width w (in I4 - 1) of a C^2 tension-only switch, so that objectives "
+                          "of the state are smooth (default 0: the published <I4 - 1>^2)")
     isochoric: Optional[bool] = Field(
         None, description="Guccione: Q on the isochoric strain (needed with cell-mean); Holzapfel-Ogden: I1bar "
                           "(default) or, false, the full I1 of the cardiac elastodynamics benchmark")

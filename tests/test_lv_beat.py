@@ -1,0 +1,68 @@
+"""``hyperoc reproduce lv-beat`` (`hyperoc.cardiac.beat`): the paper's hybrid problem on the benchmark ventricle in
+isovolumic contraction (the cavity volume held by the LV pressure), max dp/dt at tau by an apical active tension.
+
+- The rate of pressure rise of the job's figures and summary is the objective's finite difference.
+- The exact gradient of the job's problem: Taylor rates 2.00 +- 0.05 in xi, tau and jointly, on its first 20 ms.
+- The job (slow, three iterations): raises dp/dt at tau* over the uncontrolled beat, holds the cavity volume to
+  1e-10 in both runs, keeps the control a contraction within its bound, and writes its figures and folders.
+- ``--quick`` / ``--workers`` belong to paper-1d: one line, exit 2, nothing written.
+"""
+
+import json
+
+import numpy as np
+import pytest
+
+from hyperoc import ControlPoint, taylor_test
+from hyperoc.app.cli import main
+from hyperoc.app.workflows import build_reduced
+from hyperoc.cardiac.beat import beat_config, pressure_rise, reproduce_lv_beat
+from hyperoc.control.verification import random_directions
+
+
+def test_pressure_rise_is_the_forward_difference_over_eps():
+    t = np.linspace(0.0, 0.06, 61)
+    p = 3e5 * t**2
+    eps = 2e-3
+    rise = pressure_rise(t, p, eps)
+    assert rise.size == 59  # the last two levels have no t + eps inside the run
+    np.testing.assert_allclose(rise, 3e5 * (2 * t[:59] + eps), rtol=1e-12)
+
+
+def test_exact_gradient_of_the_beat_problem():
+    """The job's config on [0, 20 ms] at tau = 12 ms, from a contracting control of a few kPa: Taylor rates
+    of the exact gradient. Full Newton: chord Newton leaves p's last correction out of the remainders."""
+    cfg = beat_config({"dynamics.T": 0.02, "dynamics.newton": "full"})
+    J = build_reduced(cfg, 0.012)
+    base = random_directions(J, J.zero(0.012), seed=1)["xi"].xi
+    m = ControlPoint(-2e3 * np.abs(base) / np.max(np.abs(base)), 0.012)
+    for name, dm in random_directions(J, m, seed=2).items():
+        r = taylor_test(J, m, dm)
+        print(name, r.as_dict())
+        assert r.remainder.size >= 3, (name, r.as_dict())
+        assert abs(r.rate - 2.0) <= 0.05, (name, r.as_dict())
+
+
+@pytest.mark.slow
+def test_the_job_converges_and_raises_the_rate_of_pressure_rise(tmp_path):
+    out = tmp_path / "beat"
+    s = reproduce_lv_beat(out, entries={"optimize.max_iter": 3})
+    print(json.dumps({k: v for k, v in s.items() if k != "objective_terms"}, indent=1))
+    assert s["iterations"] == 3
+    assert s["pressure_rise_gain"] > 0 and s["gain_over_uncontrolled_max"] > 0
+    assert max(s["cavity_volume_error"].values()) <= 1e-10
+    assert -3e4 <= s["control_min"] < 0
+    assert 0 < s["tau"] < 0.06
+    for name in ("summary.json", "pressure.png", "pv_loops.png", "optimized/summary.json",
+                 "optimized/paraview/state.pvd", "uncontrolled/summary.json"):
+        assert (out / name).is_file(), name
+    assert json.loads((out / "summary.json").read_text())["tau"] == s["tau"]
+
+
+@pytest.mark.parametrize("option", [["--quick"], ["--workers", "1"]])
+def test_paper_options_are_refused_for_the_beat(tmp_path, capsys, option):
+    out = tmp_path / "out"
+    code = main(["reproduce", "lv-beat", "--out", str(out), *option])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "apply to paper-1d" in err and "\n" not in err, err
+    assert not out.exists()
