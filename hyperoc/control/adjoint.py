@@ -126,12 +126,12 @@ class Adjoint:
         x = st.constraint.unknown(y0n, pn)
         _, vjp_v = jax.vjp(st.velocity, y0n, y0, y1, dt)
         v_y0n, v_y0, v_y1, v_dt = vjp_v(lam1)
-        blocks, col, row = st.jacobian_parts(x, y0, dt, y1, t0)
+        blocks, col, row, corner = st.jacobian_parts(x, y0, dt, y1, t0)
         if not st.symmetric:
             blocks = jnp.swapaxes(blocks, 1, 2)
         _, vjp_s = jax.vjp(st.constraint.split, x)
         rhs = vjp_s((lam0 + v_y0n, jnp.asarray(gp, dtype=x.dtype)))[0]
-        w_u, w_p = st.solver.solve(blocks, row, col, rhs[:-1], rhs[-1])  # transpose: col <-> row
+        w_u, w_p = st.solver.solve(blocks, row, col, rhs[:-1], rhs[-1], corner)  # transpose: col <-> row
         w = jnp.concatenate([w_u, w_p[None]])
         res = lambda y0, y1, xi0, xi1, dt, t0: st.residual(x, y0, y1, 0.0, xi0, xi1, f0, f1, dt, V0, t0)
         _, vjp_r = jax.vjp(res, y0, y1, xi0, xi1, dt, t0)

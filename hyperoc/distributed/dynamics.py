@@ -135,7 +135,8 @@ class DistributedStepper(TimeStepper):
 
         def jacobian(xl, q):
             with L.clock("kernels"):
-                blocks, col, row = (np.asarray(a) for a in k["jacobian"](jnp.append(jnp.asarray(xl), q), yl0, dt))
+                # the corner is 0: the distributed step holds the tissue volume
+                blocks, col, row, _ = (np.asarray(a) for a in k["jacobian"](jnp.append(jnp.asarray(xl), q), yl0, dt))
             return blocks, L.add(col), L.add(row)
 
         x, it, status = newton(residual, jacobian, L, np.append(y0[o] + dt * y1[o], float(p_prev)), rtol=sch.rtol,
@@ -179,7 +180,7 @@ class DistributedAdjoint(Adjoint):
         with L.clock("kernels"):
             v_y0n, v_y0, v_y1, v_dt = (np.asarray(a) for a in k["velocity_vjp"](y0n[o], y0[o], y1[o], dt, lam1[o]))
             x = jnp.append(jnp.asarray(y0n[d]), pn)
-            blocks, col, row = (np.asarray(a) for a in k["jacobian"](x, jnp.asarray(y0[d]), dt))
+            blocks, col, row, _ = (np.asarray(a) for a in k["jacobian"](x, jnp.asarray(y0[d]), dt))  # corner 0
         col, row = L.add(col), L.add(row)
         L.factor(blocks)
         w_u, w_p = _eliminate(L.solve(lam0[o] + v_y0n, row), col, gp, dot=L.dot)  # transpose: col <-> row

@@ -8,6 +8,11 @@ multiplier ``p'`` (`split`), what the multiplier adds to the momentum rows (`mom
 element blocks (`tangent_weight`, `add_tangent`), what its row is (`row`, against `target`) and the
 border of the Jacobian (`border`). ``V0`` is the constrained quantity of the initial state (`value`).
 
+The step carries the constraint's multiplier state from one step to the next (`carried` at the first level,
+`next_state` after each step, `pressure` its multiplier): the multiplier p' itself. A row may read the
+step's previous level (y0, the carried state, dt) and depend on p' (`corner`, the bordered Jacobian's
+``dF_c/dp'``, 0 here).
+
 A constraint with a multiplier holds ``c(y0') = target(V0, t')`` with a force ``-p' G`` on the momentum
 rows, ``G`` the *force direction* (`force_direction`) and ``c`` the constrained quantity; step weighting
 (default): ``dt p' (theta G(y0') + (1 - theta) G(y0))``; "theta": ``dt (theta p' G' + (1 - theta) p G)``.
@@ -66,9 +71,26 @@ class _HeldByMultiplier:
             return x[-1] * (theta * G_new + (1 - theta) * G_old)
         return theta * x[-1] * G_new + (1 - theta) * p_prev * G_old
 
-    def row(self, x, V0, t):
-        """The constraint's residual ``c(y0') - target(V0, t)`` at the step's new level t."""
+    def row(self, x, V0, t, y0=None, p_prev=None, dt=None):
+        """The constraint's residual ``c(y0') - target(V0, t)`` at the step's new level t (the step's previous
+        level ``y0``, multiplier state ``p_prev`` and ``dt`` enter no row of this family)."""
         return self.value(x[:-1]) - self.target(V0, t)
+
+    def corner(self, p_prev, dt):
+        """``dF_c/dp'``, the bordered Jacobian's corner: 0 (the row does not depend on the multiplier)."""
+        return 0.0
+
+    def carried(self, p):
+        """The multiplier state the step carries, starting from the multiplier p: p itself."""
+        return p
+
+    def pressure(self, state):
+        """The multiplier (the reported pressure) of carried states (any leading shape): the states themselves."""
+        return state
+
+    def next_state(self, state, x, y0, dt):
+        """The state carried to the next step from the converged unknown x: its multiplier p'."""
+        return x[-1]
 
     def check_targets(self, t) -> None:
         """`InputError` if the target is not finite at a level of ``t`` (k,): nothing to check for a constant."""
@@ -195,8 +217,20 @@ class NoConstraint:
     def momentum(self, x, y0, p_prev, theta, weighting):
         return jnp.zeros(self.model.n, x.dtype)
 
-    def row(self, x, V0, t):
+    def row(self, x, V0, t, y0=None, p_prev=None, dt=None):
         return self.e @ x[:-1]
+
+    def corner(self, p_prev, dt):
+        return 0.0
+
+    def carried(self, p):
+        return p
+
+    def pressure(self, state):
+        return state
+
+    def next_state(self, state, x, y0, dt):
+        return jnp.zeros((), x.dtype)
 
     def tangent_weight(self, x):
         return 0.0
