@@ -106,6 +106,9 @@ class Adjoint:
     def __init__(self, stepper: TimeStepper):
         if stepper.scheme.multiplier != "step":
             raise InputError("exact gradients are implemented for multiplier='step' (the default)")
+        if stepper.constraint.kind == "circulation":
+            raise InputError("exact gradients through the circulation constraint are not implemented (its carried "
+                             "state (p, Pa, phase) has no adjoint); use constraint 'cavity_volume'")
         self.stepper = stepper
 
     def step(self, carry, inputs):

@@ -1,0 +1,156 @@
+"""The cavity closed by a lumped circulation (`hyperoc.dynamics.constraint.Circulation`) on the coarse benchmark
+ventricle (`hyperoc/data/cardiac-benchmark.toml`, its prescribed pressure left out: the LV pressure is the
+multiplier), a fast activation ramp from a low aortic pressure so that a few steps of 1 ms pass through filling,
+isovolumic contraction and ejection.
+
+- In every phase the step's row holds to Newton's tolerance (1e-10 relative): the volume of the previous level in
+  an isovolumic step, the mitral inflow ``V' - V = dt (p_a - p') / R_m`` in filling, the trapezoidal Windkessel
+  ``C (Pa' - Pa) / dt + (Pa + Pa') / (2 R) = Q``, ``p' = (Pa + Pa') / 2 + R_c Q`` in ejection (Pa' the carried one).
+- The valves switch where their conditions say, one step after the condition (explicit switching), recomputed
+  here from the carried states and the cavity volumes.
+- The 0D balance over the run: ``C (Pa_N - Pa_0) + sum dt (Pa + Pa') / (2 R)`` equals the volume ejected (the
+  volume lost over the ejection steps): the discrete Windkessel conserves what it receives.
+- Bad input: a negative resistance or compliance, an atrial pressure that is not finite, a circulation table
+  without the constraint: one line, exit 2, nothing written; the adjoint and the distributed gradient refuse it.
+"""
+
+import pathlib
+import tomllib
+
+import numpy as np
+import pytest
+
+import hyperoc
+from hyperoc.app.cli import main
+from hyperoc.app.config import parse_config, set_entries
+from hyperoc.control.adjoint import Adjoint
+from hyperoc.dynamics.constraint import Circulation
+from hyperoc.dynamics.laws import ExpressionLaw
+from hyperoc.dynamics.stepper import TimeStepper
+from hyperoc.dynamics.terms import PrescribedTension
+from hyperoc.dynamics.timegrid import uniform_grid
+from hyperoc.errors import InputError
+
+BENCHMARK = pathlib.Path(hyperoc.__file__).parent / "data" / "cardiac-benchmark.toml"
+#: SI: a peripheral resistance and compliance of a human systemic circulation (0.75 mmHg s/mL, 2 mL/mmHg), a
+#: low aortic pressure so that the ramp opens the aortic valve within a few steps
+WINDKESSEL = {"resistance": 1e8, "compliance": 1.5e-8, "characteristic_resistance": 5e6, "atrial_pressure": 1000.0,
+              "mitral_resistance": 5e6, "aortic_pressure": 2000.0, "phase": "filling"}
+FILLING, ISOVOLUMIC, EJECTION = 2.0, 0.0, 1.0
+
+
+def benchmark_data():
+    data = tomllib.loads(BENCHMARK.read_text())
+    del data["dynamics"]["pressure"]
+    return set_entries(data, {"mesh.variant": "coarse", "dynamics.solver": "lu"})
+
+
+@pytest.fixture(scope="module")
+def run():
+    """12 steps of 1 ms under the activation 5e6 t Pa (50 kPa at 10 ms): the solution, the constraint, the cavity
+    volumes at the levels (13,) and the carried states before each step (12, 3), the first the initial one."""
+    cfg = parse_config(benchmark_data())
+    model = cfg.model()
+    con = Circulation(model, **WINDKESSEL)
+    terms = [PrescribedTension(model, ExpressionLaw("5e6*t")) if isinstance(t, PrescribedTension) else t
+             for t in cfg.step_terms(model)]
+    sol = TimeStepper(model, cfg.scheme(), "lu", terms=terms, constraint=con).run(uniform_grid(0.012, 0.001),
+                                                                                  diagnose=False)
+    V = con.cavity.volumes(sol.y0)
+    before = np.concatenate([np.asarray(con.carried(0.0))[None], sol.multiplier_states[:-1]])
+    return sol, con, V, before
+
+
+def test_every_phase_holds_its_row_and_the_run_passes_through_filling_contraction_and_ejection(run):
+    sol, con, V, before = run
+    dt = np.diff(sol.t)
+    phases = before[:, 2]
+    print(f"\nphases {phases}, p {sol.p_steps}, Pa {sol.multiplier_states[:, 1]}, V {V}")
+    assert {FILLING, ISOVOLUMIC, EJECTION} <= set(phases)
+    p, Pa, Pa_new = sol.p_steps, before[:, 1], sol.multiplier_states[:, 1]
+    Q = -np.diff(V) / dt
+    for n, phase in enumerate(phases):
+        if phase == ISOVOLUMIC:
+            assert abs(V[n + 1] - V[n]) <= 1e-10 * V[n]
+        elif phase == FILLING:
+            inflow = dt[n] * (con.p_atrial - p[n]) / con.R_mitral
+            assert abs(V[n + 1] - V[n] - inflow) <= 1e-10 * V[n]
+        else:
+            windkessel = con.C * (Pa_new[n] - Pa[n]) / dt[n] + (Pa[n] + Pa_new[n]) / (2 * con.R)
+            assert abs(windkessel - Q[n]) <= 1e-10 * V[n] / dt[n]
+            assert abs(p[n] - (Pa[n] + Pa_new[n]) / 2 - con.Rc * Q[n]) <= 1e-10 * abs(p[n])
+
+
+def test_the_valves_switch_where_their_conditions_say(run):
+    sol, con, V, before = run
+    Q = -np.diff(V) / np.diff(sol.t)
+    p, Pa_new = sol.p_steps, sol.multiplier_states[:, 1]
+    for n, phase in enumerate(before[:, 2]):
+        if phase == EJECTION:
+            expected = EJECTION if Q[n] > 0 else ISOVOLUMIC
+        elif phase == FILLING:
+            expected = FILLING if p[n] < con.p_atrial else ISOVOLUMIC
+        else:
+            expected = EJECTION if p[n] > Pa_new[n] else FILLING if p[n] < con.p_atrial else ISOVOLUMIC
+        assert sol.multiplier_states[n, 2] == expected, (n, phase, p[n], Pa_new[n], Q[n])
+
+
+def test_the_windkessel_stores_and_drains_what_the_ventricle_ejects(run):
+    sol, con, V, before = run
+    dt = np.diff(sol.t)
+    Pa, Pa_new = before[:, 1], sol.multiplier_states[:, 1]
+    drained = np.sum(dt * (Pa + Pa_new) / (2 * con.R))
+    ejected = -np.sum(np.diff(V)[before[:, 2] == EJECTION])
+    assert ejected > 0
+    stored = con.C * (Pa_new[-1] - Pa[0])
+    assert abs(stored + drained - ejected) <= 1e-10 * V[0], (stored, drained, ejected)
+
+
+@pytest.mark.parametrize("name, value, message", [
+    ("resistance", -1e8, "resistance"), ("compliance", 0.0, "compliance"),
+    ("atrial_pressure", float("nan"), "atrial_pressure"), ("mitral_resistance", -1.0, "mitral_resistance"),
+    ("characteristic_resistance", -1.0, "characteristic_resistance"), ("phase", "systole", "phase"),
+])
+def test_bad_parameters_are_an_input_error_of_one_line(run, name, value, message):
+    sol, con, _, _ = run
+    with pytest.raises(InputError, match=message) as err:
+        Circulation(con.model, **{**WINDKESSEL, name: value})
+    assert "\n" not in str(err.value)
+
+
+def circulation_settings() -> list:
+    """``--set`` entries of the coarse benchmark with the circulation of `WINDKESSEL`."""
+    quoted = lambda v: f'"{v}"' if isinstance(v, str) else repr(v)
+    return ['mesh.variant="coarse"', 'dynamics.constraint="circulation"',
+            *(f"dynamics.circulation.{k}={quoted(v)}" for k, v in WINDKESSEL.items())]
+
+
+@pytest.mark.parametrize("entries, message", [
+    (["dynamics.circulation.resistance=-1e8"], "resistance"),
+    (["dynamics.circulation.compliance=-1e-8"], "compliance"),
+    (["dynamics.circulation.atrial_pressure=nan"], "atrial_pressure"),
+    (['dynamics.constraint="cavity_volume"'], "circulation"),
+])
+def test_bad_circulation_input_is_one_line_exit_2(tmp_path, capsys, entries, message):
+    out = tmp_path / "out"
+    settings = [*circulation_settings(), "dynamics.T=0.002", *entries]
+    code = main(["simulate", str(BENCHMARK), "--out", str(out), "--no-progress",
+                 *(a for s in settings for a in ("--set", s))])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and message in err and "\n" not in err, err
+    assert not out.exists()
+
+
+def test_the_adjoint_and_the_distributed_gradient_refuse_the_circulation(run, tmp_path, capsys):
+    sol, con, _, _ = run
+    stepper = TimeStepper(con.model, solver="lu", constraint=con)
+    with pytest.raises(InputError, match="circulation"):
+        Adjoint(stepper)
+    from hyperoc.app.distributed_gradient import main as gradient
+
+    out = tmp_path / "g.json"
+    settings = circulation_settings()
+    assert gradient([str(BENCHMARK), "--serial", "--out", str(out), *(a for s in settings for a in ("--set", s))]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "tissue_volume" in err and "\n" not in err, err
+    assert not out.exists()
