@@ -11,9 +11,12 @@ isovolumic contraction and ejection.
 - The 0D balance over the run: ``C (Pa_N - Pa_0) + sum dt (Pa + Pa') / (2 R)`` equals the volume ejected (the
   volume lost over the ejection steps): the discrete Windkessel conserves what it receives.
 - Bad input: a negative resistance or compliance, an atrial pressure that is not finite, a circulation table
-  without the constraint: one line, exit 2, nothing written; the adjoint and the distributed gradient refuse it.
+  without the constraint: one line, exit 2, nothing written; the adjoint, ``optimize``, ``check-gradient`` and
+  the distributed gradient refuse it (no adjoint carries the 0D state).
+- Two beats of the benchmark ventricle (slow): the PV loop closes, the second beat repeats the first.
 """
 
+import itertools
 import pathlib
 import tomllib
 
@@ -141,6 +144,17 @@ def test_bad_circulation_input_is_one_line_exit_2(tmp_path, capsys, entries, mes
     assert not out.exists()
 
 
+@pytest.mark.parametrize("command", ["optimize", "check-gradient"])
+def test_the_gradient_commands_refuse_the_circulation_before_writing(tmp_path, capsys, command):
+    out = tmp_path / "out"
+    settings = [*circulation_settings(), "dynamics.T=0.002"]
+    where = ["--out", str(out)] if command == "optimize" else []
+    code = main([command, str(BENCHMARK), *where, *(a for s in settings for a in ("--set", s))])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "circulation" in err and "\n" not in err, err
+    assert not out.exists()
+
+
 def test_the_adjoint_and_the_distributed_gradient_refuse_the_circulation(run, tmp_path, capsys):
     sol, con, _, _ = run
     stepper = TimeStepper(con.model, solver="lu", constraint=con)
@@ -154,3 +168,35 @@ def test_the_adjoint_and_the_distributed_gradient_refuse_the_circulation(run, tm
     err = capsys.readouterr().err.strip()
     assert "tissue_volume" in err and "\n" not in err, err
     assert not out.exists()
+
+
+@pytest.mark.slow
+def test_two_beats_of_the_benchmark_ventricle_close_their_pressure_volume_loop(tmp_path):
+    """`examples/cardiac-circulation.toml` (coarse benchmark mesh, Bestel activation of period T = 0.8 s, 320 steps
+    of 5 ms; about 3 min): ``simulate`` writes the PV loop, each beat passes through filling, isovolumic
+    contraction, ejection and isovolumic relaxation, the pressures are physiological (end-diastolic 1-2 kPa, peak
+    12-16 kPa), and the second beat repeats the first: ``|V(2T) - V(T)|`` is below a tenth of the first beat's
+    ``|V(T) - V(0)|`` (the run starts unloaded; the aortic pressure starts near its end-of-beat value), measured
+    2e-6 of the stroke volume."""
+    out = tmp_path / "out"
+    assert main(["simulate", str(pathlib.Path(__file__).parents[1] / "examples" / "cardiac-circulation.toml"),
+                 "--out", str(out), "--no-progress"]) == 0
+    assert (out / "pv_loop.png").stat().st_size > 0
+    with np.load(out / "results.npz") as r:
+        t, V, p, phase = r["t"], r["constrained_cavity_volume"], r["p"], r["phase"]
+    T, n = 0.8, len(t) // 2
+    assert abs(t[n] - T) < 1e-12 and abs(t[-1] - 2 * T) < 1e-12
+    second = slice(n, None)
+    stroke = np.ptp(V[second])
+    periodicity, first = abs(V[-1] - V[n]) / stroke, abs(V[n] - V[0]) / stroke
+    print(f"\nstroke volume {stroke * 1e6:.2f} mL, periodicity |V(2T) - V(T)| / SV {periodicity:.2e} (first beat "
+          f"{first:.2e}), EDP {p[n]:.0f} Pa, peak {p[second].max():.0f} Pa")
+    assert periodicity < first / 10
+    assert 1000 <= p[n] <= 2000 and 12e3 <= p[second].max() <= 16e3
+    for beat in (phase[:n], phase[n:]):
+        # one ejection, between an isovolumic contraction and an isovolumic relaxation, then filling (the valve
+        # may flutter between filling and isovolumic at diastasis, where the inflow vanishes)
+        groups = [int(k) for k, _ in itertools.groupby(beat)]
+        assert groups.count(1) == 1, groups
+        k = groups.index(1)
+        assert 0 < k and groups[k - 1] == 0 and groups[k + 1:k + 3] == [0, 2], groups

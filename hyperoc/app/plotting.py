@@ -23,8 +23,8 @@ from matplotlib.ticker import MaxNLocator
 
 from ..io import atomic_write_bytes
 
-__all__ = ["Units", "axis_label", "plot_pressure", "plot_control_spacetime", "plot_snapshots", "plot_history",
-           "plot_value_profile"]
+__all__ = ["Units", "axis_label", "plot_pressure", "plot_pv_loop", "plot_control_spacetime", "plot_snapshots",
+           "plot_history", "plot_value_profile"]
 
 _DPI = 150
 _MARK_COLOR = "C3"  # the vertical markers of `plot_pressure`: dotted, apart from p (C0) and tau (black)
@@ -160,6 +160,43 @@ def plot_pressure(path, t, p, *, tau=None, eps=None, volume=None, cavity=None, t
         axes[-1].plot(t, _as_1d("cavity", cavity, len(t)), color="C2")
         axes[-1].set_ylabel(axis_label("cavity volume", units.volume))
     axes[-1].set_xlabel(axis_label("time t", units.time))
+    if title:
+        fig.suptitle(_fitted(title, fig))
+    return _save(fig, path)
+
+
+def plot_pv_loop(path, volume, p, *, title=None, units=None) -> Path:
+    """The pressure-volume loop of a cavity: p against the cavity volume, the first level marked.
+
+    Parameters
+    ----------
+    path : path
+        Output PNG.
+    volume : (nt,) array_like
+        Cavity volume at each time level [units.length^3].
+    p : (nt,) array_like
+        Cavity pressure at each time level [units.pressure].
+    title : str, optional
+        Figure title (e.g. the run's name).
+    units : Units, optional
+        Units of the axes (default: all dimensionless).
+
+    Returns
+    -------
+    Path
+    """
+    units = units or Units()
+    volume = _as_1d("volume", volume)
+    p = _as_1d("p", p, len(volume))
+    fig = _new_figure(5.2, 4.4)
+    ax = fig.subplots()
+    ax.plot(volume, p, color="C0")
+    ax.plot(volume[:1], p[:1], "o", color="k", label="t = 0")
+    ax.xaxis.set_major_locator(MaxNLocator(5))
+    ax.ticklabel_format(axis="x", style="sci", scilimits=(-2, 3))  # m^3 as 1e-4 m^3: readable ticks
+    ax.set_xlabel(axis_label("cavity volume", units.volume))
+    ax.set_ylabel(axis_label("pressure p", units.pressure))
+    ax.legend(loc="best")
     if title:
         fig.suptitle(_fitted(title, fig))
     return _save(fig, path)

@@ -205,6 +205,8 @@ class StateSolution:
     warnings : regimes detected after the solve (loss of convexity, under-resolved fronts).
     multiplier_states : (N, k) the multiplier states carried after each step when the constraint carries more
         than its multiplier (`hyperoc.dynamics.constraint`), else None.
+    constrained_volume : (N+1,) the volume a cavity constraint holds (its fixed apex), at the levels; None for
+        the other constraints.
     """
 
     model: StateModel
@@ -221,6 +223,7 @@ class StateSolution:
     wall_time: float = 0.0
     warnings: list = field(default_factory=list)
     multiplier_states: np.ndarray | None = None
+    constrained_volume: np.ndarray | None = None
 
     @property
     def dt(self) -> np.ndarray:
@@ -540,14 +543,17 @@ class TimeStepper:
         """The `StateSolution` of a solve on ``grid``: the level states Y0, Y1 (N+1, n), the multipliers P
         (as in `StateSolution.p_steps`), the steps' ``monitors = (newton_iterations, min_det_F, max_grad)``
         (N,) each, the controls xi (N+1, n_ctrl); P may be carried states (N, k) whose first column is the
-        multiplier, kept as `StateSolution.multiplier_states`; the level volumes and pressures are computed here, the
+        multiplier, kept as `StateSolution.multiplier_states`; the level volumes (and a cavity constraint's) and
+        pressures are computed here, the
         regimes (`detect_regimes`) with ``diagnose``."""
         m = self.model
         vol = self.level_volumes(Y0)
         states = np.asarray(P) if np.ndim(P) == 2 else None
         P = np.asarray(self.constraint.pressure(P))
+        cavity = getattr(self.constraint, "cavity", None)
         sol = StateSolution(m, grid.t, Y0, Y1, P, level_pressure(P, grid.dt, self.scheme.multiplier), vol,
-                            *monitors, xi if m.control is not None else None, wall_time, multiplier_states=states)
+                            *monitors, xi if m.control is not None else None, wall_time, multiplier_states=states,
+                            constrained_volume=None if cavity is None else cavity.volumes(Y0))
         if diagnose:
             sol.warnings = detect_regimes(sol)
         return sol
