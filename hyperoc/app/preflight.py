@@ -33,8 +33,8 @@ LOCAL_NODES = {(1, 1): 2, (1, 2): 3, (2, 1): 3, (2, 2): 6, (3, 1): 4, (3, 2): 10
 def check_inputs(cfg, command: str, force: bool = False):
     """The checks of a run that need no solver: the files ``cfg`` names, the problem's size
     (`check_resources`), the material's parameters, the mesh and control region, the time grid and, for
-    ``simulate``, the prescribed control on the actual space-time grid, else the starts of tau and a constraint
-    the gradient takes. Returns the mesh, for the model to reuse."""
+    ``simulate``, the prescribed control on the actual space-time grid, else the starts of tau. Returns the
+    mesh, for the model to reuse."""
     from .config import read_control_file
 
     mesh_file, control_file = cfg.mesh_path(), cfg.control_path()
@@ -53,9 +53,6 @@ def check_inputs(cfg, command: str, force: bool = False):
         cfg.control_values(control, space, grid.t)
     else:
         cfg.tau_starts()
-        if cfg["dynamics"]["constraint"] == "circulation":  # `hyperoc.control.adjoint.Adjoint` refuses it
-            raise InputError("config: gradients through [dynamics] constraint = 'circulation' are not implemented "
-                             "(simulate runs it); use 'cavity_volume'")
     return mesh
 
 
