@@ -14,6 +14,7 @@ isovolumic contraction and ejection.
   in xi, tau and jointly (1.00 without the adjoint of the carried state), the same with binomial checkpointing.
 - Bad input: a negative resistance or compliance, an atrial pressure that is not finite, a circulation table
   without the constraint: one line, exit 2, nothing written; the distributed gradient refuses the circulation.
+- Resumable runs save and restore the carried state: a resumed run equals one that ran through, bitwise.
 - Two beats of the benchmark ventricle (slow): the PV loop closes, the second beat repeats the first.
 """
 
@@ -32,6 +33,7 @@ from hyperoc.control.adjoint import Adjoint
 from hyperoc.control.verification import random_directions
 from hyperoc.dynamics.constraint import Circulation
 from hyperoc.dynamics.laws import ExpressionLaw
+from hyperoc.dynamics.resumable import run_resumable
 from hyperoc.dynamics.stepper import TimeStepper
 from hyperoc.dynamics.terms import PrescribedTension
 from hyperoc.dynamics.timegrid import uniform_grid
@@ -54,21 +56,22 @@ def benchmark_data():
 @pytest.fixture(scope="module")
 def run():
     """12 steps of 1 ms under the activation 5e6 t Pa (50 kPa at 10 ms): the solution, the constraint, the cavity
-    volumes at the levels (13,) and the carried states before each step (12, 3), the first the initial one."""
+    volumes at the levels (13,), the carried states before each step (12, 3), the first the initial one, and the
+    stepper."""
     cfg = parse_config(benchmark_data())
     model = cfg.model()
     con = Circulation(model, **WINDKESSEL)
     terms = [PrescribedTension(model, ExpressionLaw("5e6*t")) if isinstance(t, PrescribedTension) else t
              for t in cfg.step_terms(model)]
-    sol = TimeStepper(model, cfg.scheme(), "lu", terms=terms, constraint=con).run(uniform_grid(0.012, 0.001),
-                                                                                  diagnose=False)
+    stepper = TimeStepper(model, cfg.scheme(), "lu", terms=terms, constraint=con)
+    sol = stepper.run(uniform_grid(0.012, 0.001), diagnose=False)
     V = con.cavity.volumes(sol.y0)
     before = np.concatenate([np.asarray(con.carried(0.0))[None], sol.multiplier_states[:-1]])
-    return sol, con, V, before
+    return sol, con, V, before, stepper
 
 
 def test_every_phase_holds_its_row_and_the_run_passes_through_filling_contraction_and_ejection(run):
-    sol, con, V, before = run
+    sol, con, V, before, _ = run
     dt = np.diff(sol.t)
     phases = before[:, 2]
     print(f"\nphases {phases}, p {sol.p_steps}, Pa {sol.multiplier_states[:, 1]}, V {V}")
@@ -88,7 +91,7 @@ def test_every_phase_holds_its_row_and_the_run_passes_through_filling_contractio
 
 
 def test_the_valves_switch_where_their_conditions_say(run):
-    sol, con, V, before = run
+    sol, con, V, before, _ = run
     Q = -np.diff(V) / np.diff(sol.t)
     p, Pa_new = sol.p_steps, sol.multiplier_states[:, 1]
     for n, phase in enumerate(before[:, 2]):
@@ -102,7 +105,7 @@ def test_the_valves_switch_where_their_conditions_say(run):
 
 
 def test_the_windkessel_stores_and_drains_what_the_ventricle_ejects(run):
-    sol, con, V, before = run
+    sol, con, V, before, _ = run
     dt = np.diff(sol.t)
     Pa, Pa_new = before[:, 1], sol.multiplier_states[:, 1]
     drained = np.sum(dt * (Pa + Pa_new) / (2 * con.R))
@@ -112,13 +115,28 @@ def test_the_windkessel_stores_and_drains_what_the_ventricle_ejects(run):
     assert abs(stored + drained - ejected) <= 1e-10 * V[0], (stored, drained, ejected)
 
 
+def test_a_resumed_run_restores_the_carried_circulation_state(run, tmp_path):
+    """`hyperoc.dynamics.resumable.run_resumable` in segments of 4 steps: its segments save the carried
+    ``(p, Pa, phase)``; a run whose last segment is solved again from the saved ones ends bitwise equal to the
+    run that solved them all, and to the plain run's phases."""
+    sol, con, _, _, stepper = run
+    grid = uniform_grid(0.012, 0.001)
+    through = run_resumable(stepper, grid, folder=tmp_path / "segments", every=4)
+    assert through.multiplier_states.shape == (12, 3)
+    (tmp_path / "segments" / "segment_00002.npz").unlink()
+    resumed = run_resumable(stepper, grid, folder=tmp_path / "segments", every=4)
+    np.testing.assert_array_equal(resumed.y0, through.y0)
+    np.testing.assert_array_equal(resumed.multiplier_states, through.multiplier_states)
+    np.testing.assert_array_equal(through.multiplier_states[:, 2], sol.multiplier_states[:, 2])
+
+
 @pytest.mark.parametrize("name, value, message", [
     ("resistance", -1e8, "resistance"), ("compliance", 0.0, "compliance"),
     ("atrial_pressure", float("nan"), "atrial_pressure"), ("mitral_resistance", -1.0, "mitral_resistance"),
     ("characteristic_resistance", -1.0, "characteristic_resistance"), ("phase", "systole", "phase"),
 ])
 def test_bad_parameters_are_an_input_error_of_one_line(run, name, value, message):
-    sol, con, _, _ = run
+    sol, con, *_ = run
     with pytest.raises(InputError, match=message) as err:
         Circulation(con.model, **{**WINDKESSEL, name: value})
     assert "\n" not in str(err.value)
