@@ -247,7 +247,8 @@ class Circulation(CavityVolumeConstraint):
         self.phase0 = self.PHASES.index(phase)
 
     def carried(self, p):
-        """The carried state ``(p, Pa, phase)`` (3,) at the first level: the multiplier p, Pa(0), the phase."""
+        """The carried state ``(p, Pa, phase)`` (3,) at the first level: the multiplier p, Pa(0), the phase (its
+        index in `PHASES` as a number: 0 isovolumic, 1 ejection, 2 filling)."""
         return jnp.array([p, self.Pa0, self.phase0], dtype=jnp.float64)
 
     def pressure(self, state):
