@@ -168,6 +168,7 @@ class StepRecord:
     min_det_F : the smallest det F over the quadrature points at t_{n+1}.
     volume_drift : ``|c(u_{n+1}) - target| / |target|`` of the constrained volume (tissue or cavity;
         without a constraint the tissue volume's drift from V0): the constraint holds to Newton's tolerance.
+        The circulation has no fixed target: this is then its cavity volume's relative change from V0.
     pressure : the step's multiplier p' (the mid-step pressure).
     status : `StepStatus.cause`: "ok", or the cause of the failure ("newton", "nonfinite", "detF"); a
         failed step is the last one a monitor sees before the solve raises.
