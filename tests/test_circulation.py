@@ -28,11 +28,11 @@ import pytest
 import hyperoc
 from hyperoc import ControlPoint, Objective, PressureAt, ReducedFunctional, TimeTransform, taylor_test
 from hyperoc.app.cli import main
-from hyperoc.app.config import parse_config, set_entries
+from hyperoc.app.config import parse_config, set_entries, time_law
 from hyperoc.control.adjoint import Adjoint
 from hyperoc.control.verification import random_directions
 from hyperoc.dynamics.constraint import Circulation
-from hyperoc.dynamics.laws import ExpressionLaw
+from hyperoc.dynamics.laws import ExpressionLaw, Periodic, bestel_activation
 from hyperoc.dynamics.resumable import run_resumable
 from hyperoc.dynamics.stepper import TimeStepper
 from hyperoc.dynamics.terms import PrescribedTension
@@ -130,6 +130,17 @@ def test_a_resumed_run_restores_the_carried_circulation_state(run, tmp_path):
     np.testing.assert_array_equal(through.multiplier_states[:, 2], sol.multiplier_states[:, 2])
 
 
+def test_a_periodic_bestel_law_repeats_its_beat():
+    """``{bestel = "activation", period = T}`` is the law of one beat integrated on [0, T], repeated: equal values
+    a period apart (to round-off of t mod T), the beat itself the Bestel law of t_end = T; a period <= 0 is refused."""
+    law = time_law({"bestel": "activation", "period": 0.8})
+    t = np.linspace(0.0, 0.79, 80)
+    np.testing.assert_allclose(law.values(t + 0.8), law.values(t), rtol=1e-9, atol=1e-9 * np.abs(law.values(t)).max())
+    np.testing.assert_array_equal(law.values(t), bestel_activation(0.8).values(t))
+    with pytest.raises(InputError, match="period"):
+        Periodic(bestel_activation(0.8), -1.0)
+
+
 @pytest.mark.parametrize("name, value, message", [
     ("resistance", -1e8, "resistance"), ("compliance", 0.0, "compliance"),
     ("atrial_pressure", float("nan"), "atrial_pressure"), ("mitral_resistance", -1.0, "mitral_resistance"),
@@ -153,6 +164,7 @@ def circulation_settings() -> list:
     (["dynamics.circulation.resistance=-1e8"], "resistance"),
     (["dynamics.circulation.compliance=-1e-8"], "compliance"),
     (["dynamics.circulation.atrial_pressure=nan"], "atrial_pressure"),
+    (['dynamics.activation.law={bestel="activation", period=-0.8}'], "period"),
     (['dynamics.constraint="cavity_volume"'], "circulation"),
 ])
 def test_bad_circulation_input_is_one_line_exit_2(tmp_path, capsys, entries, message):
