@@ -12,7 +12,8 @@ from hyperoc.app.cli import main
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 # Gmsh meshes, 2D/3D kernels to compile
-SLOW = {"annulus-2d.toml", "shell-3d.toml", "ventricle-3d.toml", "cardiac-benchmark-coarse.toml"}
+SLOW = {"annulus-2d.toml", "shell-3d.toml", "ventricle-3d.toml", "cardiac-benchmark-coarse.toml",
+        "cardiac-circulation.toml"}
 
 
 def _short_run(path: Path) -> list:
@@ -37,10 +38,13 @@ def test_example_simulates(tmp_path, capsys, name, degree):
     assert code == 0, capsys.readouterr().err
     summary = json.loads((out / "summary.json").read_text())
     assert math.isfinite(summary["pressure_max"])
-    if tomllib.loads((EXAMPLES / name).read_text())["dynamics"].get("constraint", "tissue_volume") == "tissue_volume":
+    constraint = tomllib.loads((EXAMPLES / name).read_text())["dynamics"].get("constraint", "tissue_volume")
+    if constraint == "tissue_volume":
         assert summary["volume_drift"] < 1e-8
-    else:  # no multiplier: the pressure reported is 0
+    elif constraint == "none":  # no multiplier: the pressure reported is 0
         assert summary["pressure_max"] == summary["pressure_min"] == 0.0
+    else:  # a cavity: its pressure-volume loop
+        assert (out / summary["files"]["pv_loop_plot"]).exists()
 
 
 @pytest.mark.parametrize("name", sorted(p.name for p in EXAMPLES.glob("*.toml")))

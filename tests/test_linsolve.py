@@ -53,13 +53,13 @@ def bordered_rhs(model, seed=1):
     return rng.standard_normal(model.n), rng.standard_normal(model.n), rng.standard_normal(model.n), 0.3
 
 
-def bordered_matrix(model, blocks, col, row):
+def bordered_matrix(model, blocks, col, row, corner=0.0):
     K = model.pattern.matrix(blocks).toarray()
-    return np.block([[K, col[:, None]], [row[None, :], np.zeros((1, 1))]])
+    return np.block([[K, col[:, None]], [row[None, :], np.full((1, 1), corner)]])
 
 
-def dense_bordered_solve(model, blocks, col, row, r_u, r_c):
-    return np.linalg.solve(bordered_matrix(model, blocks, col, row), np.concatenate([r_u, [r_c]]))
+def dense_bordered_solve(model, blocks, col, row, r_u, r_c, corner=0.0):
+    return np.linalg.solve(bordered_matrix(model, blocks, col, row, corner), np.concatenate([r_u, [r_c]]))
 
 
 def solve_within_forward_error_bound(model, solver, blocks):
@@ -88,6 +88,27 @@ def test_sparse_methods_match_a_dense_bordered_solve(model, method, ordering):
         x = solver.host_solve(blocks, col, row, r_u, r_c)
         np.testing.assert_allclose(x, expected, rtol=1e-10, atol=1e-10 * np.abs(expected).max())
     assert solver.stats["calls"] == 2 and solver.stats["failed"] == 0
+
+
+@pytest.mark.parametrize("method", ["dense", "lu", "minres"])
+def test_a_corner_enters_every_bordered_solve_and_the_kept_one(model, method):
+    """With a corner d (a row that depends on the multiplier), the traced solve, the refreshed one and the
+    chord iteration's kept solve (its corner kept with the Jacobian) all agree with a dense solve of
+    ``[[K, col], [row, d]]`` to 1e-10 relative (K SPD, cond ~ 10; d of the size of ``row . K^-1 col``)."""
+    blocks = spd_blocks(model)
+    col, row, r_u, r_c = bordered_rhs(model)
+    corner = -0.7 * abs(row @ np.linalg.solve(model.pattern.matrix(blocks).toarray(), col))
+    expected = dense_bordered_solve(model, blocks, col, row, r_u, r_c, corner)
+    without = dense_bordered_solve(model, blocks, col, row, r_u, r_c)
+    assert np.abs(expected - without).max() > 1e-3 * np.abs(expected).max()  # the corner matters here
+    solver = DenseSolver(model) if method == "dense" else SparseSolver(model, method)
+    args = tuple(jnp.asarray(a) for a in (blocks, col, row, r_u)) + (r_c, corner)
+    solves = [jax.jit(solver.solve)(*args)]
+    if getattr(solver, "chord", False):
+        solves += [jax.jit(solver.refresh_solve)(*args), jax.jit(solver.kept_solve)(args[3], r_c)]
+    for du, dp in solves:
+        x = np.concatenate([np.asarray(du), [float(dp)]])
+        np.testing.assert_allclose(x, expected, rtol=1e-10, atol=1e-10 * np.abs(expected).max())
 
 
 def test_singular_matrix_gives_nan_from_the_traced_solve(model):

@@ -260,11 +260,16 @@ class Config:
 
     def constraint(self, model, t=None):
         """The constraint of ``[dynamics] constraint`` on ``model`` (`hyperoc.dynamics.constraint`), the cavity's
-        of ``[dynamics.cavity]``; `InputError` for a wall the mesh lacks, one that encloses no volume, or (given
+        of ``[dynamics.cavity]``, the circulation of ``[dynamics.circulation]``; `InputError` for a wall the mesh
+        lacks, one that encloses no volume, a circulation parameter out of range, or (given
         the levels ``t``) a volume change not finite on them."""
-        from ..dynamics.constraint import CavityVolumeConstraint, make_constraint
+        from ..dynamics.constraint import CavityVolumeConstraint, Circulation, make_constraint
 
         d = self["dynamics"]
+        if d["constraint"] == "circulation":
+            with _in_section("dynamics.circulation"):
+                c = dict(d["circulation"])
+                return Circulation(model, c.pop("boundary", "endocardium"), **c)
         if d["constraint"] != "cavity_volume":
             return make_constraint(model, d["constraint"])
         cavity = d.get("cavity") or {}
@@ -384,6 +389,8 @@ def time_law(value):
         return laws.Constant(float(value))
     if "bestel" in value:
         make = laws.bestel_pressure if value["bestel"] == "pressure" else laws.bestel_activation
+        if "period" in value:
+            return laws.Periodic(make(float(value["period"]), value.get("parameters")), float(value["period"]))
         return make(float(value.get("t_end", 1.0)), value.get("parameters"))
     return laws.Table(value["times"], value["values"])
 

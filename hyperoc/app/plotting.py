@@ -413,8 +413,8 @@ def plot_pv_loops(path, loops: dict, *, title=None, units=None) -> Path:
     path : path
         Output PNG.
     loops : dict of str -> ((L,), (L,)) array_like
-        Each run's label mapped to its cavity volume [units.length^3] and pressure [units.pressure] at the
-        same levels.
+        Each run's label (a legend entry) mapped to its cavity volume [units.length^3] and pressure
+        [units.pressure] at the same levels; the first level is marked.
     title : str, optional
         Figure title.
     units : Units, optional
@@ -431,7 +431,8 @@ def plot_pv_loops(path, loops: dict, *, title=None, units=None) -> Path:
         v = _as_1d("volume", v)
         ax.plot(v, _as_1d("p", p, v.size), color=f"C{k}", label=label)
         ax.plot(v[:1], np.asarray(p)[:1], "o", color=f"C{k}", ms=4)
-    ax.ticklabel_format(axis="x", style="sci", scilimits=(-3, 3), useOffset=False)
+    ax.xaxis.set_major_locator(MaxNLocator(5))
+    ax.ticklabel_format(axis="x", style="sci", scilimits=(-2, 3), useOffset=False)  # m^3 as 1e-4 m^3
     ax.set_xlabel(axis_label("cavity volume", units.volume))
     ax.set_ylabel(axis_label("pressure p", units.pressure))
     ax.legend(loc="best", fontsize="small")

@@ -18,7 +18,7 @@ from ..errors import InputError
 from ..io import write_json, write_npz, write_time_series
 from ..mechanics.cavity import CavityVolume
 from ..mechanics.materials import det
-from .plotting import Units, plot_control_spacetime, plot_history, plot_pressure, plot_snapshots
+from .plotting import Units, plot_control_spacetime, plot_history, plot_pressure, plot_pv_loops, plot_snapshots
 
 __all__ = ["write_state_outputs", "cell_det_F", "PAPER_STATE_TIMES", "PAPER_CONTROL_TIMES"]
 
@@ -138,12 +138,14 @@ def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = No
     results.npz holds ``t, p, p_steps, volume, nodes, displacement, velocity`` (all levels), the
     per-step monitors ``newton_iterations, min_det_F``, the control ``xi`` (levels, n_nodes, components)
     with its time levels ``t`` and node coordinates ``xi_nodes`` when there is a control (a control file
-    as written: ``[control] file`` replays it on its levels), and in 3D the `cavity_volume` enclosed by the
+    as written: ``[control] file`` replays it on its levels), in 3D the `cavity_volume` enclosed by the
     boundary ``cavity`` (default ``"endocardium"``, `_cavity_volumes`; a 3D mesh without it gets a warning
-    saying so, unless ``cavity`` is None: a body with no cavity). pressure.png shows p (tau marked), the body-volume
-    drift and the cavity volume; control.png the control's space-time map (1D; 2D/3D scalar controls:
-    means over slices along the mesh's longest extent, the long axis of a ventricle: `_long_axis`); 1D adds
-    snapshot figures.
+    saying so, unless ``cavity`` is None: a body with no cavity), with a cavity constraint the volume it holds
+    ``constrained_cavity_volume`` (its fixed apex), and with the circulation constraint its ``aortic_pressure``
+    and ``phase`` after each step (N,). pressure.png shows p (tau marked), the body-volume drift and the cavity
+    volume; pv_loop.png the pressure against the cavity volume (the constrained one if any, else the reported);
+    control.png the control's space-time map (1D; 2D/3D scalar controls: means over slices along the mesh's
+    longest extent, the long axis of a ventricle: `_long_axis`); 1D adds snapshot figures.
     The series ``paraview/state`` has the point fields ``displacement``, ``velocity``, ``control`` (the
     control's space-time field, zero outside omega; a scalar for an active stress) and the cell fields
     of `_cell_series` (``frames``: the fibre frames, for output only).
@@ -171,7 +173,17 @@ def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = No
         arrays["cavity_volume"] = cavity_values
         cavity_summary = {"cavity_volume_0": float(cavity_values[0]),
                           "cavity_volume_change_max": float(np.max(np.abs(cavity_values / cavity_values[0] - 1.0)))}
+    if sol.multiplier_states is not None:  # the circulation's carried (p, Pa, phase) after each step
+        arrays.update(aortic_pressure=sol.multiplier_states[:, 1], phase=sol.multiplier_states[:, 2])
+    if sol.constrained_volume is not None:
+        arrays["constrained_cavity_volume"] = sol.constrained_volume
     write_npz(out / "results.npz", **arrays)
+    # the loop of the volume a cavity constraint holds (its isovolumic phases vertical), else of the reported one
+    loop_volume = cavity_values if sol.constrained_volume is None else sol.constrained_volume
+    if loop_volume is not None:
+        plot_pv_loops(out / "pv_loop.png", {"p(V)": (loop_volume, sol.pressure)},
+                      title=f"{title}: pressure-volume loop", units=units)
+        files["pv_loop_plot"] = "pv_loop.png"
     plot_pressure(out / "pressure.png", sol.t, sol.pressure, tau=tau, eps=eps, volume=sol.volume, cavity=cavity_values,
                   title=f"{title}: pressure", units=units, marks=pressure_marks)
     cells, cell_type = _vtk_cells(sol)

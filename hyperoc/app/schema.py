@@ -69,7 +69,8 @@ def _ordered_pair(value):
 def _time_law(value):
     """A time law (`hyperoc.dynamics.laws`): a finite number (constant), an expression string of t, a table
     ``{times = [...], values = [...]}`` (times strictly increasing) or a Bestel ODE ``{bestel = "pressure" |
-    "activation", t_end = 1.0, parameters = {...}}`` (unknown parameters are reported when the law is built)."""
+    "activation", t_end = 1.0, parameters = {...}, period = ...}`` (unknown parameters are reported when the law
+    is built; with a period the law of one beat, integrated on ``[0, period]``, repeats)."""
     if _is_expression(value):
         if isinstance(value, str):
             parse_expression(value, {"t"})
@@ -78,13 +79,14 @@ def _time_law(value):
         raise ValueError(f"must be a number, an expression of t, a table {{times, values}} or a Bestel law "
                          f"{{bestel = 'pressure' | 'activation'}}, got {quote(value)}")
     if "bestel" in value:
-        extra = sorted(set(value) - {"bestel", "t_end", "parameters"})
+        extra = sorted(set(value) - {"bestel", "t_end", "parameters", "period"})
         if extra or value["bestel"] not in ("pressure", "activation"):
-            raise ValueError(f"a Bestel law takes bestel = 'pressure' | 'activation', t_end and parameters, got "
-                             f"{quote(value)}")
+            raise ValueError(f"a Bestel law takes bestel = 'pressure' | 'activation', t_end, parameters and period, "
+                             f"got {quote(value)}")
         t_end, parameters = value.get("t_end", 1.0), value.get("parameters", {})
-        if not (_is_expression(t_end) and not isinstance(t_end, str) and t_end > 0):
-            raise ValueError(f"Bestel t_end must be a positive number, got {quote(t_end)}")
+        for name, number in (("t_end", t_end), ("period", value.get("period", 1.0))):
+            if not (_is_expression(number) and not isinstance(number, str) and number > 0):
+                raise ValueError(f"Bestel {name} must be a positive number, got {quote(number)}")
         if not isinstance(parameters, dict) or not all(_is_expression(v) and not isinstance(v, str)
                                                        for v in parameters.values()):
             raise ValueError(f"Bestel parameters must be a table of finite numbers, got {quote(parameters)}")
@@ -290,6 +292,24 @@ class Cavity(Section):
         json_schema_extra={"type": "number, expression of t, table or Bestel law"})
 
 
+class CirculationSection(Section):
+    """``[dynamics.circulation]``: the lumped circulation closing the cavity of ``constraint = "circulation"``
+    (`hyperoc.dynamics.constraint.Circulation`): a Windkessel behind the aortic valve, a constant atrial pressure
+    behind the mitral valve; the valves switch by their pressure and flow conditions. Units: the config's
+    (SI: Pa, m^3, s)."""
+
+    boundary: str = Field("endocardium", description="the cavity's wall (as in [dynamics.cavity])")
+    resistance: Positive = Field(description="Windkessel peripheral resistance R (pressure time / volume, Pa s/m^3)")
+    compliance: Positive = Field(description="Windkessel compliance C (volume / pressure, m^3/Pa)")
+    characteristic_resistance: NonNegative = Field(
+        0.0, description="R_c, the 3-element Windkessel's characteristic resistance (0: 2-element)")
+    atrial_pressure: Number = Field(description="p_a, the constant atrial pressure behind the mitral valve")
+    mitral_resistance: Positive = Field(description="R_m, the mitral valve's resistance to filling")
+    aortic_pressure: Number = Field(description="Pa(0), the Windkessel's pressure at the first level")
+    phase: Literal["isovolumic", "ejection", "filling"] = Field(
+        "filling", description="the phase at the first level")
+
+
 class Fibres(Section):
     """Fibre frames for fibre-dependent laws and active stress: the helix-angle rule
     (`hyperoc.mechanics.fibres.rule_based_fibres`), fields from a file (`hyperoc.mechanics.fibres.read_fibres`)
@@ -346,12 +366,15 @@ class Dynamics(Section):
     newton: Literal["auto", "full", "chord"] = Field(
         "auto", description="auto: chord Newton (a kept factorization) with the sparse solvers, full Newton otherwise")
     traction: Optional[Numbers] = Field(None, description="constant traction on gamma_n, one number per dimension")
-    constraint: Literal["tissue_volume", "cavity_volume", "none"] = Field(
+    constraint: Literal["tissue_volume", "cavity_volume", "circulation", "none"] = Field(
         "tissue_volume", description="the tissue volume held by a multiplier (the paper's); the volume of the cavity "
                                      "of [dynamics.cavity] held by the cavity pressure (the reported pressure, "
-                                     "positive pushing the wall out of the cavity); or none (only the material's "
-                                     "bulk term; the reported pressure is then 0)")
+                                     "positive pushing the wall out of the cavity); the cavity closed by the lumped "
+                                     "circulation of [dynamics.circulation] (the phases of a beat); or none (only "
+                                     "the material's bulk term; the reported pressure is then 0)")
     cavity: Optional[Cavity] = Field(None, description="constraint = 'cavity_volume': the cavity, [dynamics.cavity]")
+    circulation: Optional[CirculationSection] = Field(
+        None, description="constraint = 'circulation': the Windkessel and the valves, [dynamics.circulation]")
     robin: Optional[list[Robin]] = Field(None, description="spring-dashpot boundaries, [[dynamics.robin]] tables")
     pressure: Optional[BoundaryPressure] = Field(None, description="follower pressure p(t) on a boundary")
     activation: Optional[Activation] = Field(None, description="prescribed active tension T_a(t) along the fibres")
@@ -362,6 +385,8 @@ class Dynamics(Section):
             raise ValueError(f"dt = {self.dt:g} must be <= T = {self.T:g}")
         if self.cavity is not None and self.constraint != "cavity_volume":
             raise ValueError(f"[dynamics.cavity] applies to constraint = 'cavity_volume', got {self.constraint!r}")
+        if (self.circulation is not None) != (self.constraint == "circulation"):
+            raise ValueError("constraint = 'circulation' goes with a [dynamics.circulation] table, and only it")
         return self
 
 
@@ -649,6 +674,7 @@ def reference_markdown() -> str:
     parts += _section_table("dynamics.robin", Robin)
     parts += _section_table("dynamics.pressure", BoundaryPressure)
     parts += _section_table("dynamics.cavity", Cavity)
+    parts += _section_table("dynamics.circulation", CirculationSection)
     parts += _section_table("dynamics.activation", Activation)
     parts += ["A time `law` is a number (constant), an expression of `t` (e.g. `\"1e3*sin(pi*t)\"`), a table "
               "`{ times = [...], values = [...] }` (piecewise linear, times strictly increasing, constant outside) or "

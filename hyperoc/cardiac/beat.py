@@ -80,7 +80,7 @@ def reproduce_lv_beat(out, *, progress: bool = False, entries: dict | None = Non
                         title="lv-beat, uncontrolled", units=units, cavity=cfg.cavity_wall())
     rise_unc = J.objective_terms(sol_unc)["PressureRise"]
     rise_opt = optimized["optimization"]["objective_terms"]["PressureRise"]
-    cavity = J.adjoint.stepper.constraint.cavity  # the volume the constraint holds
+    cavity = J.adjoint.stepper.constraint.cavity  # the volume the constraint holds (its fixed apex)
     volumes = {name: cavity.volumes(sol.y0) for name, sol in (("uncontrolled", sol_unc), ("optimized", sol_opt))}
     _write_figures(out, {"uncontrolled": sol_unc, "optimized": sol_opt}, volumes, tau, eps, units)
     rates = pressure_rise(sol_unc.t, sol_unc.pressure, eps)

@@ -8,15 +8,20 @@ Going backwards with ``lambda = (dJ/dy0_{n+1}, dJ/dy1_{n+1})`` (totals, future i
     F_x^T w = g_x                                      (transposed bordered step matrix)
     dJ/d(y0_n, y1_n, xi_n, xi_{n+1}, dt_n) += (dv/d.)^T lambda1 - (dF/d.)^T w
 
+A constraint that carries a state beyond p (the circulation's ``s = (p, Pa, phase)``,
+`hyperoc.dynamics.constraint`) adds its total ``lambda_s = dJ/ds_{n+1}`` to the carry: it enters g_x through
+``s_{n+1} = next_state(s_n, x, y0_n, dt_n)`` and flows to s_n through next_state and the residual's row
+(`Adjoint.step`); the phase sequence is held fixed.
+
 All partial derivatives are vector-Jacobian products of the same JAX residual that Newton solves,
 so the gradient is exact for the discrete J up to the Newton and linear-solver tolerances. This is
 the discrete counterpart of the paper's optimality conditions; ``dJ/dtau = sum_n dJ/ddt_n ddt_n/dtau``.
 
 Checkpointing: `Adjoint.record` runs the forward pass and keeps what a schedule
 (`hyperoc.control.revolve.Schedule`: `StoreAll`, `EveryK`, `Binomial`) asks for, the level states
-the caller reads and the N step multipliers (one scalar each); `Adjoint.backward` runs the
-schedule's reverse actions on that `Record`. Both advance and reverse by the schedule's loops: a
-compiled schedule uses the stepper's own loop (`TimeStepper.march_levels`) and the compiled reverse
+the caller reads and the N + 1 carried multiplier states (one scalar each, or the circulation's three);
+`Adjoint.backward` runs the schedule's reverse actions on that `Record`. Both advance and reverse by the
+schedule's loops: a compiled schedule uses the stepper's own loop (`TimeStepper.march_levels`) and the compiled reverse
 loop (one `jax.lax.scan` over a range when the solver is traced), the binomial one the jitted step
 and the jitted `step` (one compilation each, whatever the lengths). A recomputation starts from a
 kept state with the Newton warm start ``p_{a-1/2}`` of the forward run and the loop of the forward
@@ -52,7 +57,9 @@ class Record:
     the `Schedule`; keep : the levels asked for, ascending (J's partials are given there); p_steps :
     (N,) step multipliers (all kept); levels : (K,) the kept levels, ascending (the schedule's and
     keep); y0, y1 : (K, n) the states there; newton_iterations, min_det_F, max_grad : (N,) the steps'
-    monitors (as in `hyperoc.dynamics.stepper.StateSolution`); wall_time : seconds of the forward solve.
+    monitors (as in `hyperoc.dynamics.stepper.StateSolution`); wall_time : seconds of the forward solve;
+    carried : (N+1,) or (N+1, k) the constraint's carried multiplier states at the levels (the initial one, then
+    after each step: the multipliers themselves, or the circulation's ``(p, Pa, phase)``).
     """
 
     grid: TimeGrid
@@ -69,6 +76,7 @@ class Record:
     min_det_F: np.ndarray | None = None
     max_grad: np.ndarray | None = None
     wall_time: float = 0.0
+    carried: np.ndarray | None = None
 
     @property
     def stored_states(self) -> int:
@@ -109,34 +117,46 @@ class Adjoint:
         self.stepper = stepper
 
     def step(self, carry, inputs):
-        """One backward step, the adjoint of step n: carry = ``(lambda0, lambda1)`` at level n+1, totals, (n,)
-        each; inputs = ``(y0_{n+1}, p_{n+1/2}, y0_n, y1_n, xi_n, xi_{n+1}, f_n, f_{n+1}, dt_n, V0, t_n,
-        dJ/dp_{n+1/2})``. Returns the totals at level n without J's partials there, and the step's
-        ``(dJ/dxi_n, dJ/dxi_{n+1} (n_ctrl,), dJ/ddt_n, dJ/dt_n)`` (the last through the time laws of the
-        step's terms: t_n moves with every earlier step, `_Reversal.totals`).
+        """One backward step, the adjoint of step n: carry = ``(lambda0, lambda1, lambda_s)`` at level n+1,
+        totals, (n,) each and lambda_s of the shape of the constraint's carried state s; inputs = ``(y0_{n+1},
+        s_{n+1}, s_n, y0_n, y1_n, xi_n, xi_{n+1}, f_n, f_{n+1}, dt_n, V0, t_n, dJ/dp_{n+1/2})`` (s_{n+1} the
+        state after the step, whose multiplier is p_{n+1/2}; s_n the one before). Returns the totals at level n
+        without J's partials there, and the step's ``(dJ/dxi_n, dJ/dxi_{n+1} (n_ctrl,), dJ/ddt_n, dJ/dt_n)``
+        (the last through the time laws of the step's terms: t_n moves with every earlier step,
+        `_Reversal.totals`).
+
+        The carried state ``s_{n+1} = next_state(s_n, x, y0_n, dt_n)`` (`hyperoc.dynamics.constraint`) takes
+        lambda_s, J's partial in p included, back to x, y0_n, dt_n and s_n; the step residual's dependence on
+        s_n (the circulation's row reads Pa_n) adds ``-(dF/ds_n)^T w``. For the constraints whose state is the
+        multiplier p' itself (and the "step" weighting, where p_n enters no residual) lambda_s is J's partial
+        in p_{n+1/2} alone and nothing flows to s_n. The circulation's phase is held fixed: the derivative is
+        that of the run's phase sequence (exact where a perturbation does not change it).
 
         The Jacobian's transpose: the bordered solve with ``col`` and ``row`` swapped and, when a term is
         not symmetric (follower pressure on an open surface, viscosity), the element blocks transposed
         (the assembled transpose is the sum of the transposed blocks on the same pattern). The right-hand
         side is ``(dsplit/dx)^T (lambda0 + dv/dy0'^T lambda1, dJ/dp)``, the unknown x mapped to the step's
         ``(y0', p')`` by the constraint (`hyperoc.dynamics.constraint`)."""
-        st = self.stepper
-        lam0, lam1 = carry
-        y0n, pn, y0, y1, xi0, xi1, f0, f1, dt, V0, t0, gp = inputs
-        x = st.constraint.unknown(y0n, pn)
+        st, con = self.stepper, self.stepper.constraint
+        lam0, lam1, lam_s = carry
+        y0n, s_new, s_prev, y0, y1, xi0, xi1, f0, f1, dt, V0, t0, gp = inputs
+        x = con.unknown(y0n, s_new)
         _, vjp_v = jax.vjp(st.velocity, y0n, y0, y1, dt)
         v_y0n, v_y0, v_y1, v_dt = vjp_v(lam1)
-        blocks, col, row = st.jacobian_parts(x, y0, dt, y1, t0)
+        lam_s = lam_s + jax.vjp(con.pressure, s_new)[1](jnp.asarray(gp, dtype=x.dtype))[0]
+        _, vjp_next = jax.vjp(con.next_state, s_prev, x, y0, dt)
+        n_s, n_x, n_y0, n_dt = vjp_next(lam_s)
+        blocks, col, row, corner = st.jacobian_parts(x, y0, dt, y1, t0, s_prev)
         if not st.symmetric:
             blocks = jnp.swapaxes(blocks, 1, 2)
-        _, vjp_s = jax.vjp(st.constraint.split, x)
-        rhs = vjp_s((lam0 + v_y0n, jnp.asarray(gp, dtype=x.dtype)))[0]
-        w_u, w_p = st.solver.solve(blocks, row, col, rhs[:-1], rhs[-1])  # transpose: col <-> row
+        _, vjp_split = jax.vjp(con.split, x)
+        rhs = vjp_split((lam0 + v_y0n, jnp.zeros((), x.dtype)))[0] + n_x
+        w_u, w_p = st.solver.solve(blocks, row, col, rhs[:-1], rhs[-1], corner)  # transpose: col <-> row
         w = jnp.concatenate([w_u, w_p[None]])
-        res = lambda y0, y1, xi0, xi1, dt, t0: st.residual(x, y0, y1, 0.0, xi0, xi1, f0, f1, dt, V0, t0)
-        _, vjp_r = jax.vjp(res, y0, y1, xi0, xi1, dt, t0)
-        r_y0, r_y1, r_xi0, r_xi1, r_dt, r_t0 = vjp_r(w)
-        return (v_y0 - r_y0, v_y1 - r_y1), (-r_xi0, -r_xi1, v_dt - r_dt, -r_t0)
+        res = lambda y0, y1, s, xi0, xi1, dt, t0: st.residual(x, y0, y1, s, xi0, xi1, f0, f1, dt, V0, t0)
+        _, vjp_r = jax.vjp(res, y0, y1, s_prev, xi0, xi1, dt, t0)
+        r_y0, r_y1, r_s, r_xi0, r_xi1, r_dt, r_t0 = vjp_r(w)
+        return (v_y0 - r_y0 + n_y0, v_y1 - r_y1, n_s - r_s), (-r_xi0, -r_xi1, v_dt - r_dt + n_dt, -r_t0)
 
     @cached_property
     def _jitted_step(self):
@@ -145,18 +165,18 @@ class Adjoint:
 
     @cached_property
     def _scan(self):
-        """`step` over a range of L steps, last first, in one compiled loop: ``(lam, Y0, Y1 (L+1, n), P (L,),
-        Xi (L+1, n_ctrl), F (L+1, n), dt (L,), V0, t0 (L,), gY0, gY1 (L, n), gP (L,))`` to the totals at the
-        range's first level and the steps' derivatives ``(dJ/dxi_n, dJ/dxi_{n+1} (L, n_ctrl), dJ/ddt_n,
-        dJ/dt_n (L,))``."""
-        def run(lam, Y0, Y1, P, Xi, F, dt, V0, t0, gY0, gY1, gP):
+        """`step` over a range of L steps, last first, in one compiled loop: ``(lam, Y0, Y1 (L+1, n), S (L+1, ...),
+        Xi (L+1, n_ctrl), F (L+1, n), dt (L,), V0, t0 (L,), gY0, gY1 (L, n), gP (L,))`` (S the carried states
+        at the levels) to the totals at the range's first level and the steps' derivatives ``(dJ/dxi_n,
+        dJ/dxi_{n+1} (L, n_ctrl), dJ/ddt_n, dJ/dt_n (L,))``."""
+        def run(lam, Y0, Y1, S, Xi, F, dt, V0, t0, gY0, gY1, gP):
             def body(carry, inp):
-                (l0, l1), out = self.step(carry, inp[:-2])
+                (l0, l1, ls), out = self.step(carry, inp[:-2])
                 g0, g1 = inp[-2:]
-                return (l0 + g0, l1 + g1), out
+                return (l0 + g0, l1 + g1, ls), out
 
-            xs = (Y0[1:], P, Y0[:-1], Y1[:-1], Xi[:-1], Xi[1:], F[:-1], F[1:], dt, jnp.full(dt.shape[0], V0), t0, gP,
-                  gY0, gY1)
+            xs = (Y0[1:], S[1:], S[:-1], Y0[:-1], Y1[:-1], Xi[:-1], Xi[1:], F[:-1], F[1:], dt,
+                  jnp.full(dt.shape[0], V0), t0, gP, gY0, gY1)
             return jax.lax.scan(body, lam, xs, reverse=True)
 
         return jax.jit(run)
@@ -171,14 +191,18 @@ class Adjoint:
         hold = {*levels, *keep}
         V0, y0, y1 = self._initial_state(u0, v0, grid.t)
         rec = Record(grid, xi, loads, V0, schedule, tuple(sorted(set(keep))), np.zeros(N), *_block({}, n))
+        start_state = np.asarray(self.stepper.constraint.carried(0.0), dtype=np.float64)
+        rec.carried = np.zeros((N + 1, *start_state.shape))
+        rec.carried[0] = start_state
         blocks = [_block({0: (y0, y1)} if 0 in hold else {}, n)]
         its, status, mindet, maxgrad = np.zeros(N, int), np.zeros(N, int), np.zeros(N), np.zeros(N)
         state, start = (y0, y1), time.perf_counter()
         for a, b in zip(bounds[:-1], bounds[1:]):
             kept, state, monitors = self._steps(rec, state, a, b, hold)
             blocks.append(kept)
-            rec.p_steps[a:b], its[a:b], status[a:b], mindet[a:b], maxgrad[a:b] = (
+            rec.carried[a + 1:b + 1], its[a:b], status[a:b], mindet[a:b], maxgrad[a:b] = (
                 np.asarray(m) for m in jax.device_get(monitors))
+            rec.p_steps[a:b] = np.asarray(self.stepper.constraint.pressure(rec.carried[a + 1:b + 1]))
             self.stepper.raise_on_failure(status, grid, its, mindet)
         rec.levels, rec.y0, rec.y1 = (np.concatenate(parts) for parts in zip(*blocks))
         rec.newton_iterations, rec.min_det_F, rec.max_grad = its, mindet, maxgrad
@@ -195,9 +219,10 @@ class Adjoint:
         """The steps a .. b-1 from ``state = (y0, y1)`` at level a with Newton's first guess ``p_{a-1/2}`` (0
         at a = 0), by the loop of ``rec.schedule``: the stepper's own loop or one jitted step at a time.
         Returns the states at the levels ``hold`` in a+1 .. b as a `_block` (only those stay in memory), the
-        state at level b and the steps' ``(p, iterations, status, min det F, max |grad u|)``, (b - a,) each
-        (on the device for the jitted steps)."""
-        p_prev = float(rec.p_steps[a - 1]) if a else 0.0
+        state at level b and the steps' ``(carried state, iterations, status, min det F, max |grad u|)``, (b - a,)
+        each (on the device for the jitted steps)."""
+        s = rec.carried[a]
+        p_prev = float(s) if s.ndim == 0 else s  # a number as `TimeStepper.run` passes it: the loops are shared
         if rec.schedule.compiled:
             out = self.stepper.march_levels(*state, p_prev, rec.grid.t[a:b + 1], rec.xi[a:b + 1], rec.loads[a:b + 1],
                                             rec.V0)
@@ -232,7 +257,8 @@ def _block(states: dict, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 class _Reversal:
     """The reverse pass over a `Record`: the snapshots (the kept states, then as the actions store and
     free them), the current state, the first level of the part reversed so far with its state, the
-    totals ``lam = (dJ/dy0, dJ/dy1)`` there and the derivatives of the steps reversed."""
+    totals ``lam = (dJ/dy0, dJ/dy1, dJ/ds)`` there (s the constraint's carried state) and the derivatives of
+    the steps reversed."""
 
     def __init__(self, adjoint: Adjoint, rec: Record, g_kept, gP: np.ndarray):
         N = rec.grid.num_steps
@@ -240,7 +266,7 @@ class _Reversal:
         self.g, self.g_row = [np.asarray(g) for g in g_kept], {k: i for i, k in enumerate(rec.keep)}
         self.snapshots, self.current = dict(zip(rec.levels.tolist(), zip(rec.y0, rec.y1))), None
         self.top = {N: self.snapshots[N]} if N in self.snapshots else {}
-        self.lam = self._partial(N) or (np.zeros(rec.loads.shape[1]),) * 2
+        self.lam = (*(self._partial(N) or (np.zeros(rec.loads.shape[1]),) * 2), np.zeros_like(rec.carried[0]))
         self.derivatives = []
 
     def run(self, action) -> None:
@@ -279,16 +305,17 @@ class _Reversal:
         dJ/dt_n (L,))``."""
         rec, adjoint = self.rec, self.adjoint
         if rec.schedule.compiled and adjoint.stepper.solver.traced:
-            args = (Y0, Y1, rec.p_steps[a:b], rec.xi[a:b + 1], rec.loads[a:b + 1], rec.dt[a:b])
+            args = (Y0, Y1, rec.carried[a:b + 1], rec.xi[a:b + 1], rec.loads[a:b + 1], rec.dt[a:b])
             self.lam, out = adjoint._scan(self.lam, *(on_device(x) for x in args), rec.V0, on_device(rec.grid.t[a:b]),
                                           *(on_device(g) for g in self._partials(a, b)), on_device(self.gP[a:b]))
             return out
         outs = [None] * (b - a)
         for n in reversed(range(a, b)):
-            step_in = (Y0[n - a + 1], rec.p_steps[n], Y0[n - a], Y1[n - a], *rec.step_inputs(n), self.gP[n])
-            (l0, l1), outs[n - a] = adjoint._jitted_step(self.lam, step_in)
+            step_in = (Y0[n - a + 1], rec.carried[n + 1], rec.carried[n], Y0[n - a], Y1[n - a], *rec.step_inputs(n),
+                       self.gP[n])
+            (l0, l1, ls), outs[n - a] = adjoint._jitted_step(self.lam, step_in)
             g = self._partial(n)
-            self.lam = (l0, l1) if g is None else (l0 + g[0], l1 + g[1])
+            self.lam = (l0, l1, ls) if g is None else (l0 + g[0], l1 + g[1], ls)
         return tuple(zip(*outs))
 
     def _partial(self, k: int) -> tuple | None:

@@ -135,7 +135,8 @@ class DistributedStepper(TimeStepper):
 
         def jacobian(xl, q):
             with L.clock("kernels"):
-                blocks, col, row = (np.asarray(a) for a in k["jacobian"](jnp.append(jnp.asarray(xl), q), yl0, dt))
+                # the corner is 0: the distributed step holds the tissue volume
+                blocks, col, row, _ = (np.asarray(a) for a in k["jacobian"](jnp.append(jnp.asarray(xl), q), yl0, dt))
             return blocks, L.add(col), L.add(row)
 
         x, it, status = newton(residual, jacobian, L, np.append(y0[o] + dt * y1[o], float(p_prev)), rtol=sch.rtol,
@@ -173,13 +174,15 @@ class DistributedAdjoint(Adjoint):
         st = self.stepper
         L, k, th = st.layout, st._kernels, st.scheme.theta
         d, o = L.dofs, L.owned_serial
-        lam0, lam1 = (np.asarray(c) for c in carry)
-        y0n, pn, y0, y1, xi0, xi1, f0, f1, dt, V0, _, gp = inputs
-        y0n, y0, y1, pn, dt, gp = np.asarray(y0n), np.asarray(y0), np.asarray(y1), float(pn), float(dt), float(gp)
+        lam0, lam1, lam_p = (np.asarray(c) for c in carry)
+        # the tissue volume's carried state is p' itself, in no residual: lam_p is J's partial in p' alone
+        y0n, pn, _, y0, y1, xi0, xi1, f0, f1, dt, V0, _, gp = inputs
+        y0n, y0, y1, pn, dt = np.asarray(y0n), np.asarray(y0), np.asarray(y1), float(pn), float(dt)
+        gp = float(gp) + float(lam_p)
         with L.clock("kernels"):
             v_y0n, v_y0, v_y1, v_dt = (np.asarray(a) for a in k["velocity_vjp"](y0n[o], y0[o], y1[o], dt, lam1[o]))
             x = jnp.append(jnp.asarray(y0n[d]), pn)
-            blocks, col, row = (np.asarray(a) for a in k["jacobian"](x, jnp.asarray(y0[d]), dt))
+            blocks, col, row, _ = (np.asarray(a) for a in k["jacobian"](x, jnp.asarray(y0[d]), dt))  # corner 0
         col, row = L.add(col), L.add(row)
         L.factor(blocks)
         w_u, w_p = _eliminate(L.solve(lam0[o] + v_y0n, row), col, gp, dot=L.dot)  # transpose: col <-> row
@@ -191,4 +194,5 @@ class DistributedAdjoint(Adjoint):
         load_dt = st.owned_load(xi0, xi1, f0, f1, 1.0) @ w_u
         Bw = L.sum_array(st._B.T @ w_u) if st._B is not None else np.zeros(0)
         lam = (L.serial(v_y0 - L.add(r_y0)), L.serial(v_y1 - L.add(r_y1)))
-        return lam, (dt * (1 - th) * Bw, dt * th * Bw, L.sum(float(v_dt) - float(r_dt) - load_dt), 0.0)
+        return (*lam, np.float64(0.0)), (dt * (1 - th) * Bw, dt * th * Bw, L.sum(float(v_dt) - float(r_dt) - load_dt),
+                                          0.0)

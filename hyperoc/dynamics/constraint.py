@@ -8,6 +8,11 @@ multiplier ``p'`` (`split`), what the multiplier adds to the momentum rows (`mom
 element blocks (`tangent_weight`, `add_tangent`), what its row is (`row`, against `target`) and the
 border of the Jacobian (`border`). ``V0`` is the constrained quantity of the initial state (`value`).
 
+The step carries the constraint's multiplier state from one step to the next (`carried` at the first level,
+`next_state` after each step, `pressure` its multiplier): the multiplier p' itself, but for the circulation.
+A row may read the step's previous level (y0, the carried state, dt) and depend on p' (`corner`, the
+bordered Jacobian's ``dF_c/dp'``, 0 but for the circulation).
+
 A constraint with a multiplier holds ``c(y0') = target(V0, t')`` with a force ``-p' G`` on the momentum
 rows, ``G`` the *force direction* (`force_direction`) and ``c`` the constrained quantity; step weighting
 (default): ``dt p' (theta G(y0') + (1 - theta) G(y0))``; "theta": ``dt (theta p' G' + (1 - theta) p G)``.
@@ -21,6 +26,30 @@ rows, ``G`` the *force direction* (`force_direction`) and ``c`` the constrained 
   when it pushes the wall out of the cavity: the load ``p' dV_cav/du`` (a follower pressure on the wall
   and the lid's reaction on the rim), so ``G = -dV_cav/du``; its stiffness ``-p' d2V_cav/du2`` is
   symmetric (a Hessian), added to the element blocks of the wall's cells.
+- `Circulation` (``"circulation"``): the cavity of `CavityVolumeConstraint` closed by a lumped (0D) circulation,
+  coupled monolithically: its multiplier p is still the cavity pressure, and the phase of the beat decides the
+  row. Each phase of the linear 0D model, its own state eliminated, gives a row linear in the step's volume
+  change and p': ``V_cav(y0') - V_cav(y0) + g (p' - p_ref) = 0`` (length^3), so the bordered Jacobian gains
+  the corner ``g`` (`hyperoc.solvers.linsolve`):
+
+  - isovolumic (both valves closed): ``g = 0``, the volume of the previous level held;
+  - ejection (aortic valve open), a 3-element Windkessel (``R_c = 0``: 2-element) by the trapezoidal rule,
+    outflow ``Q = -(V_cav(y0') - V_cav(y0)) / dt``: ``C (Pa' - Pa) / dt + (Pa + Pa') / (2 R) = Q`` and
+    ``p' = (Pa + Pa') / 2 + R_c Q`` (p' is the step's, mid-step, pressure); eliminating Pa' with
+    ``k = dt / (2 R C)``: ``Q = ((1 + k) p' - Pa) / (dt / (2 C) + R_c (1 + k))``, i.e.
+    ``g = dt (1 + k) / (dt / (2 C) + R_c (1 + k))``, ``p_ref = Pa / (1 + k)``;
+  - filling (mitral valve open): inflow ``(p_a - p') / R_m``, ``g = dt / R_m``, ``p_ref = p_a``.
+
+  While the aortic valve is closed the Windkessel discharges on its own: ``Pa' = Pa (1 - k) / (1 + k)``.
+  The 0D memory lives in the multiplier state the step carries (`carried`, `next_state`): for this
+  constraint alone it is ``(p, Pa, phase)`` (3,) instead of the number p, so the stepper's carry, its
+  compiled loops, the step outputs (`hyperoc.dynamics.stepper.StateSolution.circulation`) and the saved
+  segments of a resumable run (`hyperoc.dynamics.resumable`) hold it with no other change; `pressure` reads
+  p from it. The valves switch explicitly, from the converged step (the next step's row): from isovolumic the
+  aortic valve opens when ``p' > Pa'``, the mitral one when ``p' < p_a``; ejection ends when ``Q <= 0``,
+  filling when the inflow reverses (``p' >= p_a``). A switch therefore lags the condition by at most one
+  step, and the phase sequence of a run is piecewise constant in the data. The exact adjoint
+  (`hyperoc.control.adjoint`) does not carry the 0D state and refuses this constraint.
 - `NoConstraint` (``"none"``): only the material's own volumetric term controls the volume. The bordered
   solvers are reused through the gauge of `hyperoc.dynamics.statics`: ``y0' = w + s e`` with the unit
   vector ``e = (1, ..., 1) / sqrt(n)``, ``x = (w, s)``, ``F_c = e . w``, border ``(K e, e)``; the Schur
@@ -41,7 +70,7 @@ from ..mechanics.cavity import CavityVolume
 from ..mechanics.kernels import gather, scatter
 from .laws import TimeLaw
 
-__all__ = ["TissueVolume", "CavityVolumeConstraint", "NoConstraint", "make_constraint", "CONSTRAINTS"]
+__all__ = ["TissueVolume", "CavityVolumeConstraint", "Circulation", "NoConstraint", "make_constraint", "CONSTRAINTS"]
 
 
 class _HeldByMultiplier:
@@ -66,9 +95,26 @@ class _HeldByMultiplier:
             return x[-1] * (theta * G_new + (1 - theta) * G_old)
         return theta * x[-1] * G_new + (1 - theta) * p_prev * G_old
 
-    def row(self, x, V0, t):
-        """The constraint's residual ``c(y0') - target(V0, t)`` at the step's new level t."""
+    def row(self, x, V0, t, y0=None, p_prev=None, dt=None):
+        """The constraint's residual ``c(y0') - target(V0, t)`` at the step's new level t (the step's previous
+        level ``y0``, multiplier state ``p_prev`` and ``dt`` enter no row of this family)."""
         return self.value(x[:-1]) - self.target(V0, t)
+
+    def corner(self, p_prev, dt):
+        """``dF_c/dp'``, the bordered Jacobian's corner: 0 (the row does not depend on the multiplier)."""
+        return 0.0
+
+    def carried(self, p):
+        """The multiplier state the step carries, starting from the multiplier p: p itself."""
+        return p
+
+    def pressure(self, state):
+        """The multiplier (the reported pressure) of carried states (any leading shape): the states themselves."""
+        return state
+
+    def next_state(self, state, x, y0, dt):
+        """The state carried to the next step from the converged unknown x: its multiplier p'."""
+        return x[-1]
 
     def check_targets(self, t) -> None:
         """`InputError` if the target is not finite at a level of ``t`` (k,): nothing to check for a constant."""
@@ -165,6 +211,96 @@ class CavityVolumeConstraint(_HeldByMultiplier):
         return self.cavity.add_hessian(blocks, x[:-1], -scale * x[-1])
 
 
+class Circulation(CavityVolumeConstraint):
+    """The cavity closed by a lumped (0D) circulation: a Windkessel afterload behind the aortic valve, a constant
+    atrial pressure behind the mitral valve (module docstring, "circulation").
+
+    resistance R (peripheral, stress time / length^3, e.g. Pa s/m^3) > 0; compliance C (length^3 / stress) > 0;
+    characteristic_resistance R_c >= 0 (0: the 2-element Windkessel); atrial_pressure p_a (stress, finite);
+    mitral_resistance R_m > 0; aortic_pressure Pa(0) (stress, finite); phase: the phase at the first level,
+    "isovolumic", "ejection" or "filling". `InputError` for a value out of range (one line).
+    """
+
+    kind = "circulation"
+    PHASES = ("isovolumic", "ejection", "filling")
+
+    def __init__(self, model, boundary: str = "endocardium", *, resistance: float, compliance: float,
+                 atrial_pressure: float, mitral_resistance: float, aortic_pressure: float,
+                 characteristic_resistance: float = 0.0, phase: str = "filling"):
+        values = {"resistance": resistance, "compliance": compliance, "mitral_resistance": mitral_resistance,
+                  "characteristic_resistance": characteristic_resistance, "atrial_pressure": atrial_pressure,
+                  "aortic_pressure": aortic_pressure}
+        for name, value in values.items():
+            if not isinstance(value, (int, float)) or not np.isfinite(value):
+                raise InputError(f"circulation: {name} must be a finite number, got {value!r}")
+        for name in ("resistance", "compliance", "mitral_resistance"):
+            if not values[name] > 0:
+                raise InputError(f"circulation: {name} must be > 0, got {values[name]!r}")
+        if not characteristic_resistance >= 0:
+            raise InputError(f"circulation: characteristic_resistance must be >= 0, got {characteristic_resistance!r}")
+        if phase not in self.PHASES:
+            raise InputError(f"circulation: phase must be one of {', '.join(self.PHASES)}, got {phase!r}")
+        super().__init__(model, boundary)
+        self.R, self.C, self.Rc = float(resistance), float(compliance), float(characteristic_resistance)
+        self.p_atrial, self.R_mitral = float(atrial_pressure), float(mitral_resistance)
+        self.Pa0 = float(aortic_pressure)
+        self.phase0 = self.PHASES.index(phase)
+
+    def carried(self, p):
+        """The carried state ``(p, Pa, phase)`` (3,) at the first level: the multiplier p, Pa(0), the phase (its
+        index in `PHASES` as a number: 0 isovolumic, 1 ejection, 2 filling)."""
+        return jnp.array([p, self.Pa0, self.phase0], dtype=jnp.float64)
+
+    def pressure(self, state):
+        return state[..., 0]
+
+    def unknown(self, y0, state):
+        return super().unknown(y0, state[0])
+
+    def _ejection(self, Pa, dt):
+        """``(g, p_ref)`` of the ejection row ``V' - V + g (p' - p_ref) = 0`` (module docstring): ``k = dt / (2 R C)``,
+        ``g = dt (1 + k) / (dt / (2 C) + R_c (1 + k))``, ``p_ref = Pa / (1 + k)``."""
+        k = dt / (2 * self.R * self.C)
+        return dt * (1 + k) / (dt / (2 * self.C) + self.Rc * (1 + k)), Pa / (1 + k)
+
+    def _conductance(self, state, dt):
+        """``(g, p_ref)`` of the phase of ``state``: 0 and 0 isovolumic, the Windkessel's in ejection,
+        ``(dt / R_m, p_a)`` in filling."""
+        g_ej, p_ej = self._ejection(state[1], dt)
+        phase = state[2]
+        g = jnp.where(phase == 1, g_ej, jnp.where(phase == 2, dt / self.R_mitral, 0.0))
+        p_ref = jnp.where(phase == 1, p_ej, jnp.where(phase == 2, self.p_atrial, 0.0))
+        return g, p_ref
+
+    def row(self, x, V0, t, y0=None, p_prev=None, dt=None):
+        """``V_cav(y0') - V_cav(y0) + g (p' - p_ref)`` (length^3), ``(g, p_ref)`` those of the carried phase."""
+        g, p_ref = self._conductance(p_prev, dt)
+        return self.value(x[:-1]) - self.value(y0) + g * (x[-1] - p_ref)
+
+    def corner(self, p_prev, dt):
+        return self._conductance(p_prev, dt)[0]
+
+    def outflow(self, state, x, y0, dt):
+        """The step's outflow through the aortic valve minus the inflow through the mitral one,
+        ``Q = -(V_cav(y0') - V_cav(y0)) / dt`` (length^3 / time)."""
+        return -(self.value(x[:-1]) - self.value(y0)) / dt
+
+    def next_state(self, state, x, y0, dt):
+        """``(p', Pa', phase')`` after the converged step x: the Windkessel's Pa by the trapezoidal rule (the
+        aortic valve open: ``Pa_mid = p' - R_c Q``, ``Pa' = 2 Pa_mid - Pa``; closed: the free decay
+        ``Pa' = Pa (1 - k) / (1 + k)``), the phase by the valve conditions at the step's values (module
+        docstring)."""
+        p, Pa, phase = x[-1], state[1], state[2]
+        Q = self.outflow(state, x, y0, dt)
+        k = dt / (2 * self.R * self.C)
+        Pa_new = jnp.where(phase == 1, 2 * (p - self.Rc * Q) - Pa, Pa * (1 - k) / (1 + k))
+        opens_aortic, opens_mitral = p > Pa_new, p < self.p_atrial
+        isovolumic_next = jnp.where(opens_aortic, 1.0, jnp.where(opens_mitral, 2.0, 0.0))
+        phase_new = jnp.where(phase == 1, jnp.where(Q > 0, 1.0, 0.0),
+                              jnp.where(phase == 2, jnp.where(p < self.p_atrial, 2.0, 0.0), isovolumic_next))
+        return jnp.stack([p, Pa_new, phase_new]).astype(x.dtype)
+
+
 class NoConstraint:
     """No global constraint: the gauge ``y0' = w + s e``, ``e . w = 0`` (module docstring); pressure 0."""
 
@@ -195,8 +331,20 @@ class NoConstraint:
     def momentum(self, x, y0, p_prev, theta, weighting):
         return jnp.zeros(self.model.n, x.dtype)
 
-    def row(self, x, V0, t):
+    def row(self, x, V0, t, y0=None, p_prev=None, dt=None):
         return self.e @ x[:-1]
+
+    def corner(self, p_prev, dt):
+        return 0.0
+
+    def carried(self, p):
+        return p
+
+    def pressure(self, state):
+        return state
+
+    def next_state(self, state, x, y0, dt):
+        return jnp.zeros((), x.dtype)
 
     def tangent_weight(self, x):
         return 0.0
@@ -219,6 +367,8 @@ def make_constraint(model, kind="tissue_volume"):
     returned as is)."""
     if not isinstance(kind, str):
         return kind
+    if kind == "circulation":
+        raise InputError("the circulation constraint needs its parameters: pass Circulation(model, ...)")
     if kind not in CONSTRAINTS:
         raise InputError(f"constraint must be one of {sorted(CONSTRAINTS)}, got {kind!r}")
     return CONSTRAINTS[kind](model)

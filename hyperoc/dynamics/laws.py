@@ -41,8 +41,8 @@ import numpy as np
 from .. import _jax  # noqa: F401
 from ..errors import InputError
 
-__all__ = ["TimeLaw", "Constant", "ExpressionLaw", "Table", "OdeLaw", "bestel_activation", "bestel_pressure",
-           "BESTEL_ACTIVATION", "BESTEL_PRESSURE"]
+__all__ = ["TimeLaw", "Constant", "ExpressionLaw", "Table", "Periodic", "OdeLaw", "bestel_activation",
+           "bestel_pressure", "BESTEL_ACTIVATION", "BESTEL_PRESSURE"]
 
 BESTEL_ACTIVATION = {"t_sys": 0.16, "t_dias": 0.484, "gamma": 0.005, "a_max": 5.0, "a_min": -30.0,
                      "sigma_0": 150e3}
@@ -118,6 +118,21 @@ class Table(TimeLaw):
 
     def __call__(self, t):
         return jnp.interp(t, self.times, self.values_)
+
+
+@dataclass(frozen=True, eq=False)
+class Periodic(TimeLaw):
+    """``g(t) = law(t mod period)``: a law of one beat repeated (``period`` > 0, else `InputError`)."""
+
+    law: TimeLaw
+    period: float
+
+    def __post_init__(self):
+        if not (math.isfinite(self.period) and self.period > 0):
+            raise InputError(f"a periodic time law needs a finite period > 0, got {self.period}")
+
+    def __call__(self, t):
+        return self.law(jnp.mod(t, self.period))
 
 
 @dataclass(frozen=True, eq=False)

@@ -67,7 +67,7 @@ def run_resumable(stepper: TimeStepper, grid: TimeGrid, xi=None, *, folder, ever
     folder = Path(folder)
     _claim(folder, _fingerprint(stepper, grid, xis, fs, y0, y1, every) | {"identity": _as_json(identity)})
     V0 = stepper.constraint_reference(y0, grid.t)
-    state, outputs = (y0, y1, 0.0), []
+    state, outputs = (y0, y1, stepper.constraint.carried(0.0)), []
     starts = range(0, N, every)
     from tqdm.auto import tqdm
 
@@ -87,7 +87,8 @@ def run_resumable(stepper: TimeStepper, grid: TimeGrid, xi=None, *, folder, ever
             on_segment(index, len(starts), segment, solved)
         stepper.raise_on_failure(*(np.concatenate([o[name] for o in outputs]) if name else grid
                                    for name in ("status", None, "newton_iterations", "min_det_F")))
-        state = (segment["y0"][-1], segment["y1"][-1], float(segment["p"][-1]))
+        p = segment["p"][-1]  # the carried multiplier state: a number, or the circulation's (p, Pa, phase)
+        state = (segment["y0"][-1], segment["y1"][-1], float(p) if np.ndim(p) == 0 else p)
     stacked = {name: np.concatenate([o[name] for o in outputs]) for name in SEGMENT_OUTPUTS}
     Y0 = np.concatenate([y0[None], stacked["y0"]])
     Y1 = np.concatenate([y1[None], stacked["y1"]])
@@ -116,7 +117,8 @@ def _peak_memory_mib() -> float:
 
 
 def _solve_segment(stepper: TimeStepper, state, t, xis, fs, V0) -> dict:
-    """The outputs (`SEGMENT_OUTPUTS`) of the steps over the levels ``t`` from ``state = (y0, y1, p)``,
+    """The outputs (`SEGMENT_OUTPUTS`) of the steps over the levels ``t`` from ``state = (y0, y1, p)`` (p the
+    carried multiplier state),
     with no factorization kept from before."""
     forget = getattr(stepper.solver, "forget_factorization", None)
     if forget is not None:

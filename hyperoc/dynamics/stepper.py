@@ -168,6 +168,7 @@ class StepRecord:
     min_det_F : the smallest det F over the quadrature points at t_{n+1}.
     volume_drift : ``|c(u_{n+1}) - target| / |target|`` of the constrained volume (tissue or cavity;
         without a constraint the tissue volume's drift from V0): the constraint holds to Newton's tolerance.
+        The circulation has no fixed target: this is then its cavity volume's relative change from V0.
     pressure : the step's multiplier p' (the mid-step pressure).
     status : `StepStatus.cause`: "ok", or the cause of the failure ("newton", "nonfinite", "detF"); a
         failed step is the last one a monitor sees before the solve raises.
@@ -203,6 +204,10 @@ class StateSolution:
     xi : (N+1, n_ctrl) control at the levels (or None).
     wall_time : seconds spent in the solve (excluding compilation when it was cached).
     warnings : regimes detected after the solve (loss of convexity, under-resolved fronts).
+    multiplier_states : (N, k) the multiplier states carried after each step when the constraint carries more
+        than its multiplier (`hyperoc.dynamics.constraint`), else None.
+    constrained_volume : (N+1,) the volume a cavity constraint holds (its fixed apex), at the levels; None for
+        the other constraints.
     """
 
     model: StateModel
@@ -218,6 +223,8 @@ class StateSolution:
     xi: np.ndarray | None = None
     wall_time: float = 0.0
     warnings: list = field(default_factory=list)
+    multiplier_states: np.ndarray | None = None
+    constrained_volume: np.ndarray | None = None
 
     @property
     def dt(self) -> np.ndarray:
@@ -344,11 +351,12 @@ class TimeStepper:
         A = m.internal_force(y0n) + self.terms_force(y0n, y1n, t0 + dt)
         Fu = (self._inertia_damping(y1n, 1.0, dt * th * m.damping) + dt * th * A
               + dt * con.momentum(x, y0, p_prev, th, self.scheme.multiplier) + known)
-        return jnp.concatenate([Fu, jnp.reshape(con.row(x, V0, t0 + dt), (1,))])
+        return jnp.concatenate([Fu, jnp.reshape(con.row(x, V0, t0 + dt, y0, p_prev, dt), (1,))])
 
-    def jacobian_parts(self, x, y0, dt, y1=None, t0=0.0):
-        """(element blocks of dFu/dy0', border column, border row) at x (`hyperoc.dynamics.constraint`);
-        ``y1`` (the level's velocity) is needed when a term depends on the velocity."""
+    def jacobian_parts(self, x, y0, dt, y1=None, t0=0.0, p_prev=0.0):
+        """(element blocks of dFu/dy0', border column, border row, corner dF_c/dp') at x
+        (`hyperoc.dynamics.constraint`); ``y1`` (the level's velocity) is needed when a term depends on the
+        velocity, ``p_prev`` (the carried multiplier state) when the constraint's row does."""
         m, th, con = self.model, self.scheme.theta, self.constraint
         y0n, _ = con.split(x)
         blocks = con.add_tangent(self._mass_blocks / (th * dt) + m.damping * self._lap_blocks
@@ -358,13 +366,15 @@ class TimeStepper:
             for term in self.terms:
                 blocks = term.add_tangent(blocks, y0n, y1n, t0 + dt, dt * th, 1.0)
         col, row = con.border(blocks, x, y0, dt, th, self.scheme.multiplier)
-        return blocks, col, row
+        return blocks, col, row, con.corner(p_prev, dt)
 
     def step(self, carry, inputs):
         """One time step on traced arrays.
 
         carry = (y0, y1, p_prev, failed); inputs = (xi0, xi1, f0, f1, dt, V0, t0) with f the external
-        load vectors at both ends of the step and t0 its first level.
+        load vectors at both ends of the step and t0 its first level. ``p_prev`` is the constraint's carried
+        multiplier state (`hyperoc.dynamics.constraint`: the step multiplier, or a small vector whose first
+        entry it is), carried as the outputs' p.
         """
         y0, y1, p_prev, failed = carry
         xi0, xi1, f0, f1, dt, V0, t0 = inputs
@@ -374,11 +384,12 @@ class TimeStepper:
         # After a failed step no Newton iteration is made (max_iter 0: x stays at the old state);
         # a traced bound rather than a lax.cond, which costs XLA's CPU runtime more per step.
         x, it, status = newton(lambda x: self.residual_at(x, known, y0, y1, p_prev, dt, V0, t0),
-                               lambda x: self.jacobian_parts(x, y0, dt, y1, t0),
+                               lambda x: self.jacobian_parts(x, y0, dt, y1, t0, p_prev),
                                self.solver, con.unknown(y0 + dt * y1, p_prev),
                                rtol=sch.rtol, atol=sch.atol, max_iter=jnp.where(failed, 0, sch.max_iter),
                                chord=self.chord)
-        y0n, pn = con.split(x)
+        y0n, _ = con.split(x)
+        pn = con.next_state(p_prev, x, y0, dt)
         mindet, maxgrad = m.min_det_F(y0n), m.max_grad(y0n)
         status = jnp.where(failed, int(StepStatus.AFTER_FAILURE),
                            jnp.where((status == int(NewtonStatus.CONVERGED)) & ~(mindet > 0), int(StepStatus.DET_F),
@@ -512,6 +523,7 @@ class TimeStepper:
         self._check_initial_velocity(y0, y1, grid.t[0])
         V0 = self.constraint_reference(y0, grid.t)
         p0 = self.initial_pressure(y0, y1, xis[0], fs[0], grid.t[0]) if self.scheme.multiplier == "theta" else 0.0
+        p0 = self.constraint.carried(p0)
         start = _time.perf_counter()
         if self.solver.traced and monitor is None and progress:
             out = self._march_with_bar(y0, y1, p0, xis, fs, grid, V0)
@@ -531,12 +543,18 @@ class TimeStepper:
     def solution(self, grid, Y0, Y1, P, monitors, xi, wall_time: float = 0.0, diagnose: bool = False) -> StateSolution:
         """The `StateSolution` of a solve on ``grid``: the level states Y0, Y1 (N+1, n), the multipliers P
         (as in `StateSolution.p_steps`), the steps' ``monitors = (newton_iterations, min_det_F, max_grad)``
-        (N,) each, the controls xi (N+1, n_ctrl); the level volumes and pressures are computed here, the
+        (N,) each, the controls xi (N+1, n_ctrl); P may be carried states (N, k) whose first column is the
+        multiplier, kept as `StateSolution.multiplier_states`; the level volumes (and a cavity constraint's) and
+        pressures are computed here, the
         regimes (`detect_regimes`) with ``diagnose``."""
         m = self.model
         vol = self.level_volumes(Y0)
+        states = np.asarray(P) if np.ndim(P) == 2 else None
+        P = np.asarray(self.constraint.pressure(P))
+        cavity = getattr(self.constraint, "cavity", None)
         sol = StateSolution(m, grid.t, Y0, Y1, P, level_pressure(P, grid.dt, self.scheme.multiplier), vol,
-                            *monitors, xi if m.control is not None else None, wall_time)
+                            *monitors, xi if m.control is not None else None, wall_time, multiplier_states=states,
+                            constrained_volume=None if cavity is None else cavity.volumes(Y0))
         if diagnose:
             sol.warnings = detect_regimes(sol)
         return sol
@@ -633,7 +651,7 @@ class TimeStepper:
         y0n, _, pn, its, status, mindet, _ = out
         target = float(self.constraint.target(V0, grid.t[n + 1]))
         drift = abs(self.constraint_value(y0n) - target) / abs(target)
-        return StepRecord(n, float(grid.t[n + 1]), int(its), float(mindet), drift, float(pn),
+        return StepRecord(n, float(grid.t[n + 1]), int(its), float(mindet), drift, float(self.constraint.pressure(pn)),
                           StepStatus(int(status)).cause)
 
     def raise_on_failure(self, status, grid, its, mindet):

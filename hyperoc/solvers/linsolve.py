@@ -3,10 +3,11 @@
 Each Newton iteration (and each adjoint step) solves
 
     [ K    col ] [x]   [r_u]
-    [ row^T  0 ] [q] = [r_c]
+    [ row^T  d ] [q] = [r_c]
 
-with K symmetric (possibly indefinite under compression) given by element blocks. With one
-factorization of K: ``K a = r_u``, ``K b = col``, ``q = (row.a - r_c) / (row.b)``, ``x = a - b q``.
+with K symmetric (possibly indefinite under compression) given by element blocks and the scalar corner
+``d`` (0 unless the constraint's row depends on its multiplier, `hyperoc.dynamics.constraint`). With one
+factorization of K: ``K a = r_u``, ``K b = col``, ``q = (row.a - r_c) / (row.b - d)``, ``x = a - b q``.
 The adjoint solves the transpose, which is the same call with ``col`` and ``row`` swapped.
 
 - `DenseSolver`: LU in JAX (small problems; the whole time loop can be compiled).
@@ -34,18 +35,18 @@ from ..fem.assembly import dump_index
 __all__ = ["DenseSolver", "TridiagonalSolver", "SparseSolver", "make_solver", "nested_dissection"]
 
 
-def _eliminate(ab, row, r_c, dot=None):
+def _eliminate(ab, row, r_c, dot=None, corner=0.0):
     """The bordered solution ``(x, q)`` from ``a = K^-1 r_u`` and ``b = K^-1 col``, the columns of ab
-    (NumPy or JAX arrays): ``q = (row . a - r_c) / (row . b)``, ``x = a - b q``. ``dot(u, v)``: the
-    inner product (default ``u @ v``; a distributed solve passes the sum over the ranks of their parts')."""
+    (NumPy or JAX arrays): ``q = (row . a - r_c) / (row . b - corner)``, ``x = a - b q``. ``dot(u, v)``:
+    the inner product (default ``u @ v``; a distributed solve passes the sum over the ranks of their parts')."""
     a, b = ab[:, 0], ab[:, 1]
     dot = dot or (lambda u, v: u @ v)
-    q = (dot(row, a) - r_c) / dot(row, b)
+    q = (dot(row, a) - r_c) / (dot(row, b) - corner)
     return a - b * q, q
 
 
-def _schur(solve2, col, row, r_u, r_c):
-    return _eliminate(solve2(jnp.stack([r_u, col], axis=1)), row, r_c)
+def _schur(solve2, col, row, r_u, r_c, corner):
+    return _eliminate(solve2(jnp.stack([r_u, col], axis=1)), row, r_c, corner=corner)
 
 
 class DenseSolver:
@@ -65,9 +66,9 @@ class DenseSolver:
         K = jnp.zeros((self.n + 1, self.n + 1), blocks.dtype).at[self._rows, self._cols].add(blocks.reshape(-1))
         return K[: self.n, : self.n]
 
-    def solve(self, blocks, col, row, r_u, r_c):
+    def solve(self, blocks, col, row, r_u, r_c, corner=0.0):
         lu = jax.scipy.linalg.lu_factor(self.assemble(blocks))
-        return _schur(lambda B: jax.scipy.linalg.lu_solve(lu, B), col, row, r_u, r_c)
+        return _schur(lambda B: jax.scipy.linalg.lu_solve(lu, B), col, row, r_u, r_c, corner)
 
 
 class TridiagonalSolver:
@@ -95,11 +96,11 @@ class TridiagonalSolver:
         self._upper = _gather_table(n, [(np.where(both, row_lo, -1), flat(cells, lo, hi))], 4 * len(ed))
         self._lower = _gather_table(n, [(np.where(both, row_lo + 1, -1), flat(cells, hi, lo))], 4 * len(ed))
 
-    def solve(self, blocks, col, row, r_u, r_c):
+    def solve(self, blocks, col, row, r_u, r_c, corner=0.0):
         flat = jnp.concatenate([blocks.reshape(-1), jnp.zeros(1, blocks.dtype)])
         d, du, dl = (flat[t].sum(axis=1) for t in (self._diag, self._upper, self._lower))
         solve2 = lambda B: jax.lax.linalg.tridiagonal_solve(dl, d, du, B)
-        return _schur(solve2, col, row, r_u, r_c)
+        return _schur(solve2, col, row, r_u, r_c, corner)
 
 
 def _gather_table(n, pairs, sentinel):
@@ -316,12 +317,12 @@ class SparseSolver:
         return K, q
 
     # --- solves -------------------------------------------------------------------------------
-    def host_solve(self, blocks, col, row, r_u, r_c, keep: bool = False):
+    def host_solve(self, blocks, col, row, r_u, r_c, corner=0.0, keep: bool = False):
         """The bordered solve ``(x, q)`` as one array (n + 1,), on the solver's worker thread (class
-        docstring); ``keep``: keep this Jacobian for `kept_solve`."""
-        return self._worker.submit(self._host_solve, blocks, col, row, r_u, r_c, keep).result()
+        docstring); ``keep``: keep this Jacobian (with its ``corner``) for `kept_solve`."""
+        return self._worker.submit(self._host_solve, blocks, col, row, r_u, r_c, corner, keep).result()
 
-    def _host_solve(self, blocks, col, row, r_u, r_c, keep: bool = False):
+    def _host_solve(self, blocks, col, row, r_u, r_c, corner=0.0, keep: bool = False):
         t_start = time.perf_counter()
         self.stats["calls"] += 1
         if self._order is None and self.ordering == "nd" and self.method in ("lu", "lu_reuse"):
@@ -343,7 +344,8 @@ class SparseSolver:
             if keep:
                 self._kept = None  # freed before the new factorization is built
                 lu, ab = self._fresh_solve(K, rhs, q is not None)
-                self._kept = (lu, _unpermuted(ab, q)[:, 1], np.asarray(row, dtype=np.float64)) if keepable else None
+                self._kept = ((lu, _unpermuted(ab, q)[:, 1], np.asarray(row, dtype=np.float64), float(corner))
+                              if keepable else None)
             elif self._reuse and self._lu is not None:
                 ab = self._solve_refined(K, rhs, self._lu, max_iter=self.reuse_max_iter, rate=self.reuse_rate)
                 if ab is None:  # the kept factorization is too far from K: refresh it
@@ -355,21 +357,21 @@ class SparseSolver:
                 self._lu = lu if self._reuse and keepable else None
             ab = _unpermuted(ab, q)
         self.stats["host_s"] += time.perf_counter() - t_start
-        return _bordered(ab, row, r_c)
+        return _bordered(ab, row, r_c, corner)
 
     def _host_kept_solve(self, r_u, r_c):
         """The bordered solve with the whole Jacobian of the last `refresh_solve`: its factorization,
-        ``b = K^-1 col`` and ``row`` (one solve, no refinement: chord Newton)."""
+        ``b = K^-1 col``, ``row`` and the corner (one solve, no refinement: chord Newton)."""
         t_start = time.perf_counter()
         self.stats["calls"] += 1
-        lu, b, row = self._kept
+        lu, b, row, corner = self._kept
         q = None if self._pardiso else self._order[0]
         r_u = _checked_rhs(r_u)
         a = _unpermuted(lu.solve(r_u if q is None else r_u[q]), q)
         self.stats["kept_solves"] += 1
         self.stats["solve_s"] += time.perf_counter() - t_start
         self.stats["host_s"] += time.perf_counter() - t_start
-        return _bordered(np.stack([a, b], axis=1), row, r_c)
+        return _bordered(np.stack([a, b], axis=1), row, r_c, corner)
 
     def _fresh_solve(self, K, rhs, permuted: bool):
         """Factor K (``permuted``: in the fixed ordering, `_matrix`) and solve with refinement:
@@ -475,18 +477,19 @@ class SparseSolver:
         out = jax.pure_callback(fn, jax.ShapeDtypeStruct((self.n + 1,), jnp.float64), *args)
         return out[:-1], out[-1]
 
-    def solve(self, blocks, col, row, r_u, r_c):
-        return self._callback(self._host_solve_or_nan, blocks, col, row, r_u, r_c)
+    def solve(self, blocks, col, row, r_u, r_c, corner=0.0):
+        return self._callback(self._host_solve_or_nan, blocks, col, row, r_u, r_c, jnp.asarray(corner, jnp.float64))
 
     @property
     def chord(self) -> bool:
         """Whether `refresh_solve` / `kept_solve` are available (every method with a factorization)."""
         return self.method != "minres"
 
-    def refresh_solve(self, blocks, col, row, r_u, r_c):
-        """`solve`, keeping this Jacobian (the factorization of K, ``K^-1 col`` and ``row``) for
+    def refresh_solve(self, blocks, col, row, r_u, r_c, corner=0.0):
+        """`solve`, keeping this Jacobian (the factorization of K, ``K^-1 col``, ``row`` and the corner) for
         `kept_solve` (chord Newton, traced)."""
-        return self._callback(lambda *a: self._host_solve_or_nan(*a, keep=True), blocks, col, row, r_u, r_c)
+        return self._callback(lambda *a: self._host_solve_or_nan(*a, keep=True), blocks, col, row, r_u, r_c,
+                              jnp.asarray(corner, jnp.float64))
 
     def kept_solve(self, r_u, r_c):
         """The bordered solve with the Jacobian of the last `refresh_solve` (traced); NaN if there is
@@ -518,9 +521,9 @@ def _unpermuted(ab, q):
     return out
 
 
-def _bordered(ab, row, r_c) -> np.ndarray:
+def _bordered(ab, row, r_c, corner=0.0) -> np.ndarray:
     """`_eliminate` on the host, as one array ``(x, q)`` (n + 1,)."""
-    x, q = _eliminate(ab, np.asarray(row, dtype=np.float64), float(r_c))
+    x, q = _eliminate(ab, np.asarray(row, dtype=np.float64), float(r_c), corner=float(corner))
     return np.concatenate([x, [q]])
 
 

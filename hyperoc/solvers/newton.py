@@ -102,6 +102,9 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
            line_search: bool = True, monitor=None, n_u: int | None = None, chord: bool = False):
     """Solve ``residual(x) = 0``; returns ``(x, iterations, status)``.
 
+    ``jacobian_parts(x)``: the bordered Jacobian at x as ``(blocks, col, row)`` or ``(blocks, col, row,
+    corner)`` (`hyperoc.solvers.linsolve`; the corner is 0 when not given), passed to the solver's solves.
+
     Convergence: ``|du|_inf <= rtol |u + du|_inf + atol`` for the Newton increment du; with
     quadratic convergence the error after that update is far below the test. With ``n_u`` (a
     pressure field q among the unknowns) the test is made on each block apart,
@@ -139,8 +142,8 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
         # r = residual(x) is carried: the line search evaluates it at the point it accepts, which
         # is the next iterate, so each iteration evaluates the residual once (plus backtracking).
         x, r, it, _, _ = state
-        blocks, col, row = jacobian_parts(x)
-        du, dp = solver.solve(blocks, col, row, -r[:-1], -r[-1])
+        blocks, col, row, *corner = jacobian_parts(x)
+        du, dp = solver.solve(blocks, col, row, -r[:-1], -r[-1], *corner)
         dx = jnp.concatenate([du, dp[None]])
         # A failed linear solve returns NaN, whose max is not NaN in XLA's reduction (-inf on CPU):
         # test for it first, so that it is neither "converged" nor backtracked on 12 times.
@@ -174,8 +177,8 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
 def _chord_newton(residual, jacobian_parts, solver, x0, *, rtol, atol, max_iter, line_search, monitor, n_u):
     """`newton` with ``chord=True`` (its docstring); returns ``(x, iterations, status)``."""
     def fresh(x, r):
-        blocks, col, row = jacobian_parts(x)
-        return solver.refresh_solve(blocks, col, row, -r[:-1], -r[-1])
+        blocks, col, row, *corner = jacobian_parts(x)
+        return solver.refresh_solve(blocks, col, row, -r[:-1], -r[-1], *corner)
 
     def kept(x, r):
         return solver.kept_solve(-r[:-1], -r[-1])
