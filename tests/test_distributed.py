@@ -228,6 +228,23 @@ def test_bad_input_to_the_gradient_command_is_one_line_and_status_2(tmp_path, ca
     assert not out.exists()
 
 
+@pytest.mark.parametrize("entry", ["dynamics.constraint=none", "material.viscosity=10.0",
+                                   'dynamics.robin=[{ boundary = "epicardium", stiffness = 1.0 }]',
+                                   'dynamics.pressure={ boundary = "endocardium", law = "t" }',
+                                   'dynamics.activation={ law = "t" }'])
+def test_the_distributed_gradient_refuses_the_step_terms_it_does_not_take(tmp_path, capsys, entry):
+    """The distributed step holds the tissue volume and has no step terms (`DistributedStepper` takes none):
+    a config with Robin boundaries, a dynamic pressure, a prescribed activation, viscosity or another
+    constraint is refused in one line, status 2, nothing written (before any rank starts a solve)."""
+    from hyperoc.app.distributed_gradient import main
+
+    out = tmp_path / "g.json"
+    assert main([*SMALL_VENTRICLE, "--set", entry, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "does not yet take" in err[0], err
+    assert not out.exists()
+
+
 def test_two_rank_gradient_with_the_iterative_solver_equals_the_serial_one(mpiexec, tmp_path, serial_gradient):
     """GMRES + algebraic multigrid (relative residual 1e-13) in place of MUMPS: Newton and the adjoint's
     transposed solves stay accurate enough for the gradient's criterion."""
