@@ -6,8 +6,9 @@ Step ``n -> n+1`` is the serial one (`hyperoc.dynamics.stepper`): with ``x = (y0
     F_u(x) = sum_e F_u^e(y0', p'; y0, y1, dt) - dt (theta L(xi', f') + (1 - theta) L(xi, f)) = 0,
     F_c(x) = sum_e vol^e(y0') - V0 = 0,
 
-the element parts ``F_u^e`` (inertia, damping, internal force, multiplier) computed by the serial
-`TimeStepper.residual_at` of the model restricted to the rank's cells, summed into the owners' rows,
+the element parts ``F_u^e`` (inertia, damping, internal force, multiplier, Robin springs and dashpots on the
+facets of the rank's cells) computed by the serial `TimeStepper.residual_at` of the model restricted to the
+rank's cells, summed into the owners' rows,
 the loads ``L = B xi + f`` applied on the owned rows (B and f are assembled already), the volumes summed
 over the ranks. The adjoint step (`hyperoc.control.adjoint`) solves the transposed bordered step
 matrix by the same Schur elimination with ``col`` and ``row`` swapped, and takes the vector-Jacobian
@@ -32,6 +33,7 @@ from mpi4py import MPI
 from ..control.adjoint import Adjoint
 from ..dynamics.constraint import TissueVolume
 from ..dynamics.stepper import Scheme, StepStatus, TimeStepper
+from ..dynamics.terms import RobinBoundary
 from ..errors import InputError
 from ..mechanics import operators
 from ..mechanics.model import StateModel
@@ -51,11 +53,21 @@ class DistributedStepper(TimeStepper):
     steps (no line search). `run`, `march_stepwise`, `solution` and the monitors are the serial ones,
     driven one `advance` at a time.
 
-    local : the serial `TimeStepper` of the model restricted to the rank's cells, without control
-        and loads (they enter on the owned rows): the single source of the step's element terms.
+    terms : step terms (`hyperoc.dynamics.terms`) of the serial model: Robin boundaries only (symmetric and
+        independent of t, so the transposed solve and the step's t-derivative are those without terms);
+        another term is an `InputError`.
+    local : the serial `TimeStepper` of the model restricted to the rank's cells, with its terms restricted
+        to the facets of those cells (each facet on the rank of its owner cell), without control and loads
+        (they enter on the owned rows): the single source of the step's element terms.
     """
 
-    def __init__(self, model: StateModel, scheme: Scheme = Scheme(), *, comm=MPI.COMM_WORLD, solver: str = "mumps"):
+    def __init__(self, model: StateModel, scheme: Scheme = Scheme(), *, comm=MPI.COMM_WORLD, solver: str = "mumps",
+                 terms=()):
+        self.terms = tuple(terms)
+        others = sorted({type(term).__name__ for term in self.terms if not isinstance(term, RobinBoundary)})
+        if others:
+            raise InputError(f"DistributedStepper: of the step terms only RobinBoundary is distributed, got "
+                             f"{', '.join(others)}")
         if hasattr(model, "n_u"):
             raise InputError("DistributedStepper: the dynamics of a Taylor-Hood model is not implemented")
         if scheme.multiplier != "step":
@@ -66,7 +78,10 @@ class DistributedStepper(TimeStepper):
         self.chord = scheme.chord_with(self.layout, auto=True)
         self._kept = KeptJacobian()  # chord Newton's Jacobian, kept across iterations and steps
         # the restricted model has no control or traction: B xi + f is assembled, it enters on the owned rows
-        self.local = TimeStepper(model.restricted(self.layout.cells, self.layout.dofs), scheme, solver=None)
+        cells, dofs = self.layout.cells, self.layout.dofs
+        local = model.restricted(cells, dofs)
+        self.local = TimeStepper(local, scheme, solver=None,
+                                 terms=tuple(term.restricted(model, local, cells, dofs) for term in self.terms))
         owned = self.layout.owned_serial
         self._B = model.control.load[owned] if model.control is not None else None
 
@@ -92,7 +107,8 @@ class DistributedStepper(TimeStepper):
         return {"known": jax.jit(lambda yl0, yl1, dt: st.known_terms(yl0, yl1, None, None, zero, zero, dt)),
                 "residual_at": jax.jit(lambda x, known, yl0, yl1, dt: st.residual_at(x, known, yl0, yl1, 0.0, dt,
                                                                                      0.0)),
-                "jacobian": jax.jit(st.jacobian_parts), "residual_vjp": jax.jit(residual_vjp),
+                "jacobian": jax.jit(lambda x, yl0, yl1, dt: st.jacobian_parts(x, yl0, dt, yl1)),
+                "residual_vjp": jax.jit(residual_vjp),
                 "velocity_vjp": jax.jit(lambda a, b, c, dt, w: jax.vjp(st.velocity, a, b, c, dt)[1](w)),
                 "volume": jax.jit(st.model.volume), "min_det_F": jax.jit(st.model.min_det_F),
                 "max_grad": jax.jit(st.model.max_grad)}
@@ -135,7 +151,8 @@ class DistributedStepper(TimeStepper):
 
         def jacobian(xl, q):
             with L.clock("kernels"):
-                blocks, col, row = (np.asarray(a) for a in k["jacobian"](jnp.append(jnp.asarray(xl), q), yl0, dt))
+                blocks, col, row = (np.asarray(a) for a in k["jacobian"](jnp.append(jnp.asarray(xl), q), yl0, yl1,
+                                                                         dt))
             return blocks, L.add(col), L.add(row)
 
         x, it, status = newton(residual, jacobian, L, np.append(y0[o] + dt * y1[o], float(p_prev)), rtol=sch.rtol,
@@ -179,7 +196,7 @@ class DistributedAdjoint(Adjoint):
         with L.clock("kernels"):
             v_y0n, v_y0, v_y1, v_dt = (np.asarray(a) for a in k["velocity_vjp"](y0n[o], y0[o], y1[o], dt, lam1[o]))
             x = jnp.append(jnp.asarray(y0n[d]), pn)
-            blocks, col, row = (np.asarray(a) for a in k["jacobian"](x, jnp.asarray(y0[d]), dt))
+            blocks, col, row = (np.asarray(a) for a in k["jacobian"](x, jnp.asarray(y0[d]), jnp.asarray(y1[d]), dt))
         col, row = L.add(col), L.add(row)
         L.factor(blocks)
         w_u, w_p = _eliminate(L.solve(lam0[o] + v_y0n, row), col, gp, dot=L.dot)  # transpose: col <-> row
