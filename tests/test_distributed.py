@@ -228,53 +228,40 @@ def test_bad_input_to_the_gradient_command_is_one_line_and_status_2(tmp_path, ca
     assert not out.exists()
 
 
-# Robin springs and dashpots on the epicardium (kPa/mm, kPa ms/mm): J changes by 6 % from the point's without them
-ROBIN = ["--set", 'dynamics.robin=[{ boundary = "epicardium", stiffness = 1.0, damping = 0.1 }]']
+# The step terms of the cardiac benchmark on the ventricle example (kPa, mm, ms): Robin springs and dashpots on
+# the epicardium, an endocardial follower pressure and an active tension rising in time, viscosity. Measured,
+# serial: J -0.10188 (-0.10150 without them), Taylor rates 1.79, 1.91, 1.96, 1.98 as h halves.
+STEP_TERMS = ["--set", 'dynamics.robin=[{ boundary = "epicardium", stiffness = 1.0, damping = 0.1 }]',
+              "--set", 'dynamics.pressure={ boundary = "endocardium", law = "0.05*t" }',
+              "--set", 'dynamics.activation={ law = "0.1*t" }', "--set", "material.viscosity=0.05"]
 
 
-def test_two_rank_gradient_with_robin_boundaries_equals_the_serial_one_and_passes_the_taylor_test(
+def test_two_rank_gradient_with_the_step_terms_equals_the_serial_one_and_passes_the_taylor_test(
         mpiexec, tmp_path, serial_gradient):
-    """`DistributedStepper(..., terms=robin)`: the Robin boundaries of the config on the facets of each rank's
-    cells. J and dJ on 2 ranks equal the serial path's with the same boundaries, which change J, and the
-    Taylor remainder falls at rate 2.00 +- 0.05."""
+    """`DistributedStepper(..., terms=...)`: Robin boundaries and the follower pressure on the facets of each
+    rank's cells, the prescribed tension and the viscosity on its cells, the time laws at the step's levels
+    (dJ/dtau through them), the adjoint with the transposed blocks (pressure on an open surface, viscosity: not
+    symmetric). J and dJ on 2 ranks equal the serial path's with the same terms, which change J, and the Taylor
+    remainder falls at rate 2.00 +- 0.05."""
     from hyperoc.app.distributed_gradient import main
 
-    out = tmp_path / "serial-robin.json"
-    assert main([*SMALL_VENTRICLE, *ROBIN, "--serial", "--out", str(out)]) == 0
+    out = tmp_path / "serial-terms.json"
+    assert main([*SMALL_VENTRICLE, *STEP_TERMS, "--serial", "--out", str(out)]) == 0
     serial = json.loads(out.read_text())
-    assert abs(serial["J"] - serial_gradient["J"]) > 0.01 * abs(serial_gradient["J"])
-    dist = _on_two_ranks(mpiexec, tmp_path, "hyperoc.app.distributed_gradient", [*SMALL_VENTRICLE, *ROBIN, "--taylor"])
+    assert abs(serial["J"] - serial_gradient["J"]) > 1e-3 * abs(serial_gradient["J"])
+    dist = _on_two_ranks(mpiexec, tmp_path, "hyperoc.app.distributed_gradient",
+                         [*SMALL_VENTRICLE, *STEP_TERMS, "--taylor"])
     _assert_same_gradient(dist, serial)
     assert abs(dist["taylor"]["rate"] - 2.0) <= 0.05
 
 
-def test_the_distributed_stepper_refuses_the_terms_it_does_not_distribute():
-    """Time-dependent and non-symmetric step terms are not distributed: one-line `InputError` naming them."""
-    pytest.importorskip("dolfinx_solver")
-    pytest.importorskip("petsc4py")
-    from hyperoc.distributed.dynamics import DistributedStepper
-    from hyperoc.dynamics.terms import DynamicPressure, RobinBoundary, Viscosity
-    from hyperoc.fem.mesh import box
-    from hyperoc.mechanics.materials import NeoHookean
-    from hyperoc.mechanics.model import StateModel
-
-    model = StateModel(box(1, 1, 1), NeoHookean(1.0, 1.0))
-    terms = (RobinBoundary(model, "right", 1.0), Viscosity(model, 1.0), DynamicPressure(model, "top", 1.0))
-    with pytest.raises(InputError, match="only RobinBoundary is distributed, got DynamicPressure, Viscosity$"):
-        DistributedStepper(model, terms=terms)
-
-
-@pytest.mark.parametrize("entry", ["dynamics.constraint=none", "material.viscosity=10.0",
-                                   'dynamics.pressure={ boundary = "endocardium", law = "t" }',
-                                   'dynamics.activation={ law = "t" }'])
-def test_the_distributed_gradient_refuses_the_step_terms_it_does_not_take(tmp_path, capsys, entry):
-    """The distributed step holds the tissue volume and takes Robin boundaries only (`DistributedStepper`):
-    a config with a dynamic pressure, a prescribed activation, viscosity or another constraint is refused in
-    one line, status 2, nothing written (before any rank starts a solve)."""
+def test_the_distributed_gradient_refuses_a_constraint_other_than_the_tissue_volume(tmp_path, capsys):
+    """The distributed step holds the tissue volume: ``constraint = "none"`` is refused in one line, status 2,
+    nothing written (before any rank starts a solve)."""
     from hyperoc.app.distributed_gradient import main
 
     out = tmp_path / "g.json"
-    assert main([*SMALL_VENTRICLE, "--set", entry, "--out", str(out)]) == 2
+    assert main([*SMALL_VENTRICLE, "--set", "dynamics.constraint=none", "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "does not yet take" in err[0], err
     assert not out.exists()
