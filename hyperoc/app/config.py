@@ -233,13 +233,10 @@ class Config:
     def step_terms(self, model) -> tuple:
         """The terms of the step (`hyperoc.dynamics.terms`) of ``[dynamics] robin, pressure, activation`` and
         ``[material] viscosity`` on ``model``; `InputError` for a boundary the mesh does not have."""
-        from ..dynamics.terms import DynamicPressure, PrescribedTension, RobinBoundary, Viscosity
+        from ..dynamics.terms import DynamicPressure, PrescribedTension, Viscosity
 
-        d, terms = self["dynamics"], []
+        d, terms = self["dynamics"], list(self.robin(model))
         with _in_section("dynamics"):
-            for r in d.get("robin") or []:
-                terms.append(RobinBoundary(model, r["boundary"], float(r["stiffness"]), float(r["damping"]),
-                                           r["direction"]))
             if d.get("pressure") is not None:
                 terms.append(DynamicPressure(model, d["pressure"]["boundary"], time_law(d["pressure"]["law"])))
             if d.get("activation") is not None:
@@ -249,6 +246,16 @@ class Config:
         if self["material"]["viscosity"] > 0:
             terms.append(Viscosity(model, float(self["material"]["viscosity"])))
         return tuple(terms)
+
+    def robin(self, model) -> tuple:
+        """The `hyperoc.dynamics.terms.RobinBoundary` terms of ``[[dynamics.robin]]`` on ``model``: in the step
+        (`step_terms`) and, their springs, in a static solve (`hyperoc.dynamics.statics.solve_static`'s ``robin``);
+        `InputError` for a boundary the mesh does not have."""
+        from ..dynamics.terms import RobinBoundary
+
+        with _in_section("dynamics"):
+            return tuple(RobinBoundary(model, r["boundary"], float(r["stiffness"]), float(r["damping"]), r["direction"])
+                         for r in self["dynamics"].get("robin") or [])
 
     def stepper(self, model):
         """The `hyperoc.dynamics.stepper.TimeStepper` of the config on ``model``: scheme, solver, step terms and

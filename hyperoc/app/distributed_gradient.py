@@ -9,7 +9,9 @@ ranks or in one process, written as JSON.
 The point: tau = ``optimize.tau0`` (or ``--tau``), xi uniform in [-a, a] at every node and s-level
 (``--amplitude`` a, ``--seed``), the same on every rank. The distributed path solves with
 `hyperoc.distributed.dynamics.DistributedStepper` (Newton on PETSc, MUMPS) and
-`DistributedAdjoint`; ``--serial`` with the package's serial `ReducedFunctional` (the config's solver).
+`DistributedAdjoint`; ``--serial`` with the package's serial `ReducedFunctional` (the config's solver). Both
+take the config's step terms (``[[dynamics.robin]]``, ``[dynamics] pressure, activation``, ``[material]
+viscosity``); a constraint other than the tissue volume is refused.
 ``--snapshots s``: binomial checkpointing with s snapshots (`hyperoc.control.revolve.Binomial`).
 ``--taylor``: the Taylor test along the joint (xi, tau) direction of
 `hyperoc.control.verification.random_directions`. ``--optimize``: then the config's optimization from
@@ -67,19 +69,24 @@ def reduced_functional(args):
     tau = float(cfg["optimize"].get("tau0", cfg["dynamics"]["T"] / 2)) if args.tau is None else args.tau
     transform = cfg.transform(tau)
     model = cfg.model()
-    if cfg.step_terms(model) or cfg["dynamics"]["constraint"] != "tissue_volume":
-        raise InputError("the distributed gradient does not yet take [dynamics] robin, pressure, activation, "
-                         "[material] viscosity or a constraint other than 'tissue_volume'")
-    comm, options = None, {"scheme": cfg.scheme(), "solver": cfg["dynamics"]["solver"],
-                           "checkpoint_snapshots": args.snapshots, "horizon": cfg["optimize"]["horizon"]}
-    if not args.serial:
+    terms = cfg.step_terms(model)
+    if cfg["dynamics"]["constraint"] != "tissue_volume":
+        raise InputError(f"the distributed gradient does not yet take [dynamics] constraint = "
+                         f"{cfg['dynamics']['constraint']!r} (only 'tissue_volume')")
+    comm, options = None, {"checkpoint_snapshots": args.snapshots, "horizon": cfg["optimize"]["horizon"]}
+    if args.serial:
+        from ..control.adjoint import Adjoint
+        from ..dynamics.stepper import TimeStepper
+
+        options["adjoint"] = Adjoint(TimeStepper(model, cfg.scheme(), cfg["dynamics"]["solver"], terms=terms))
+    else:
         from mpi4py import MPI
 
         from ..distributed.dynamics import DistributedAdjoint, DistributedStepper
 
         comm = MPI.COMM_WORLD
         options["adjoint"] = DistributedAdjoint(DistributedStepper(model, cfg.scheme(), comm=comm,
-                                                                   solver=args.solver))
+                                                                   solver=args.solver, terms=terms))
     J = ReducedFunctional(model, transform, cfg.objective(), **options)
     xi = np.random.default_rng(args.seed).uniform(-args.amplitude, args.amplitude, (J.N + 1, model.control.size))
     return J, ControlPoint(xi, tau), comm, cfg

@@ -6,12 +6,14 @@ Step ``n -> n+1`` is the serial one (`hyperoc.dynamics.stepper`): with ``x = (y0
     F_u(x) = sum_e F_u^e(y0', p'; y0, y1, dt) - dt (theta L(xi', f') + (1 - theta) L(xi, f)) = 0,
     F_c(x) = sum_e vol^e(y0') - V0 = 0,
 
-the element parts ``F_u^e`` (inertia, damping, internal force, multiplier) computed by the serial
-`TimeStepper.residual_at` of the model restricted to the rank's cells, summed into the owners' rows,
-the loads ``L = B xi + f`` applied on the owned rows (B and f are assembled already), the volumes summed
-over the ranks. The adjoint step (`hyperoc.control.adjoint`) solves the transposed bordered step
-matrix by the same Schur elimination with ``col`` and ``row`` swapped, and takes the vector-Jacobian
-products of the same local residual, summed over the ranks.
+the element parts ``F_u^e`` (inertia, damping, internal force, multiplier, the step terms: Robin boundaries
+and follower pressure on the facets of the rank's cells, prescribed tension, viscosity, their time laws at
+the step's levels) computed by the serial `TimeStepper.residual_at` of the model restricted to the rank's
+cells, summed into the owners' rows, the loads ``L = B xi + f`` applied on the owned rows (B and f are
+assembled already), the volumes summed over the ranks. The adjoint step (`hyperoc.control.adjoint`) solves
+the transposed bordered step matrix by the same Schur elimination with ``col`` and ``row`` swapped (and the
+element blocks transposed when a term is not symmetric), and takes the vector-Jacobian products of the same
+local residual, in the states, dt and the level t0, summed over the ranks.
 
 States cross this module's boundary in the serial numbering, the same vector on every rank (each
 step ends with an allgather of the new state): `Adjoint.record`, the checkpointing schedules and
@@ -51,11 +53,18 @@ class DistributedStepper(TimeStepper):
     steps (no line search). `run`, `march_stepwise`, `solution` and the monitors are the serial ones,
     driven one `advance` at a time.
 
-    local : the serial `TimeStepper` of the model restricted to the rank's cells, without control
-        and loads (they enter on the owned rows): the single source of the step's element terms.
+    terms : the step terms of the serial model (`hyperoc.dynamics.terms`: Robin boundaries, follower pressure,
+        prescribed tension, viscosity), each on the rank's cells (a boundary term on the facets whose owner
+        cell is the rank's); their time laws are evaluated at the step's levels, and when one is not
+        symmetric the adjoint factors the transposed element blocks (the assembled transpose).
+    local : the serial `TimeStepper` of the model restricted to the rank's cells, with its terms restricted
+        to the facets of those cells (each facet on the rank of its owner cell), without control and loads
+        (they enter on the owned rows): the single source of the step's element terms.
     """
 
-    def __init__(self, model: StateModel, scheme: Scheme = Scheme(), *, comm=MPI.COMM_WORLD, solver: str = "mumps"):
+    def __init__(self, model: StateModel, scheme: Scheme = Scheme(), *, comm=MPI.COMM_WORLD, solver: str = "mumps",
+                 terms=()):
+        self.terms = tuple(terms)
         if hasattr(model, "n_u"):
             raise InputError("DistributedStepper: the dynamics of a Taylor-Hood model is not implemented")
         if scheme.multiplier != "step":
@@ -66,7 +75,10 @@ class DistributedStepper(TimeStepper):
         self.chord = scheme.chord_with(self.layout, auto=True)
         self._kept = KeptJacobian()  # chord Newton's Jacobian, kept across iterations and steps
         # the restricted model has no control or traction: B xi + f is assembled, it enters on the owned rows
-        self.local = TimeStepper(model.restricted(self.layout.cells, self.layout.dofs), scheme, solver=None)
+        cells, dofs = self.layout.cells, self.layout.dofs
+        local = model.restricted(cells, dofs)
+        self.local = TimeStepper(local, scheme, solver=None,
+                                 terms=tuple(term.restricted(model, local, cells, dofs) for term in self.terms))
         owned = self.layout.owned_serial
         self._B = model.control.load[owned] if model.control is not None else None
 
@@ -82,17 +94,18 @@ class DistributedStepper(TimeStepper):
         st = self.local
         zero = jnp.zeros(st.model.n)
 
-        def residual(yl0, yl1, dt, x):
-            """The element rows (m,) and the local volume of ``x = (y0' (m,), p')``."""
-            return st.residual(x, yl0, yl1, 0.0, None, None, zero, zero, dt, 0.0)
+        def residual(yl0, yl1, dt, t0, x):
+            """The element rows (m,) and the local volume of ``x = (y0' (m,), p')``, the step from level t0."""
+            return st.residual(x, yl0, yl1, 0.0, None, None, zero, zero, dt, 0.0, t0)
 
-        def residual_vjp(yl0, yl1, dt, x, w):
-            return jax.vjp(lambda a, b, c: residual(a, b, c, x), yl0, yl1, dt)[1](w)
+        def residual_vjp(yl0, yl1, dt, t0, x, w):
+            return jax.vjp(lambda a, b, c, s: residual(a, b, c, s, x), yl0, yl1, dt, t0)[1](w)
 
-        return {"known": jax.jit(lambda yl0, yl1, dt: st.known_terms(yl0, yl1, None, None, zero, zero, dt)),
-                "residual_at": jax.jit(lambda x, known, yl0, yl1, dt: st.residual_at(x, known, yl0, yl1, 0.0, dt,
-                                                                                     0.0)),
-                "jacobian": jax.jit(st.jacobian_parts), "residual_vjp": jax.jit(residual_vjp),
+        return {"known": jax.jit(lambda yl0, yl1, dt, t0: st.known_terms(yl0, yl1, None, None, zero, zero, dt, t0)),
+                "residual_at": jax.jit(lambda x, known, yl0, yl1, dt, t0: st.residual_at(x, known, yl0, yl1, 0.0, dt,
+                                                                                         0.0, t0)),
+                "jacobian": jax.jit(lambda x, yl0, yl1, dt, t0: st.jacobian_parts(x, yl0, dt, yl1, t0)),
+                "residual_vjp": jax.jit(residual_vjp),
                 "velocity_vjp": jax.jit(lambda a, b, c, dt, w: jax.vjp(st.velocity, a, b, c, dt)[1](w)),
                 "volume": jax.jit(st.model.volume), "min_det_F": jax.jit(st.model.min_det_F),
                 "max_grad": jax.jit(st.model.max_grad)}
@@ -117,26 +130,27 @@ class DistributedStepper(TimeStepper):
         dt, V0)``, the states and loads serial (n,); returns the new carry and ``(y0', y1', p', iterations,
         status, min det F, max |grad u|)``."""
         y0, y1, p_prev, failed = carry
-        xi0, xi1, f0, f1, dt, V0, _ = inputs  # the level t0: no term of time on the distributed path
-        y0, y1, dt, V0 = np.asarray(y0), np.asarray(y1), float(dt), float(V0)
+        xi0, xi1, f0, f1, dt, V0, t0 = inputs
+        y0, y1, dt, V0, t0 = np.asarray(y0), np.asarray(y1), float(dt), float(V0), float(t0)
         if bool(failed):
             return carry, (y0, y1, float(p_prev), 0, int(StepStatus.AFTER_FAILURE), np.nan, np.nan)
         L, k, sch = self.layout, self._kernels, self.scheme
         d, o = L.dofs, L.owned_serial
         yl0, yl1 = jnp.asarray(y0[d]), jnp.asarray(y1[d])
         with L.clock("kernels"):
-            known = k["known"](yl0, yl1, dt)
+            known = k["known"](yl0, yl1, dt, t0)
         load = self.owned_load(xi0, xi1, f0, f1, dt)
 
         def residual(xl, q):
             with L.clock("kernels"):
-                r = np.asarray(k["residual_at"](jnp.append(jnp.asarray(xl), q), known, yl0, yl1, dt))
+                r = np.asarray(k["residual_at"](jnp.append(jnp.asarray(xl), q), known, yl0, yl1, dt, t0))
             return np.append(L.add(r[:-1]) + load, L.sum(r[-1]) - V0)
 
         def jacobian(xl, q):
             with L.clock("kernels"):
                 # the corner is 0: the distributed step holds the tissue volume
-                blocks, col, row, _ = (np.asarray(a) for a in k["jacobian"](jnp.append(jnp.asarray(xl), q), yl0, dt))
+                blocks, col, row, _ = (np.asarray(a) for a in k["jacobian"](jnp.append(jnp.asarray(xl), q), yl0, yl1,
+                                                                             dt, t0))
             return blocks, L.add(col), L.add(row)
 
         x, it, status = newton(residual, jacobian, L, np.append(y0[o] + dt * y1[o], float(p_prev)), rtol=sch.rtol,
@@ -176,23 +190,27 @@ class DistributedAdjoint(Adjoint):
         d, o = L.dofs, L.owned_serial
         lam0, lam1, lam_p = (np.asarray(c) for c in carry)
         # the tissue volume's carried state is p' itself, in no residual: lam_p is J's partial in p' alone
-        y0n, pn, _, y0, y1, xi0, xi1, f0, f1, dt, V0, _, gp = inputs
+        y0n, pn, _, y0, y1, xi0, xi1, f0, f1, dt, V0, t0, gp = inputs
         y0n, y0, y1, pn, dt = np.asarray(y0n), np.asarray(y0), np.asarray(y1), float(pn), float(dt)
         gp = float(gp) + float(lam_p)
+        t0 = jnp.asarray(float(t0))
         with L.clock("kernels"):
             v_y0n, v_y0, v_y1, v_dt = (np.asarray(a) for a in k["velocity_vjp"](y0n[o], y0[o], y1[o], dt, lam1[o]))
             x = jnp.append(jnp.asarray(y0n[d]), pn)
-            blocks, col, row, _ = (np.asarray(a) for a in k["jacobian"](x, jnp.asarray(y0[d]), dt))  # corner 0
+            blocks, col, row, _ = (np.asarray(a) for a in k["jacobian"](x, jnp.asarray(y0[d]), jnp.asarray(y1[d]),
+                                                                         dt, t0))  # corner 0
+        if not st.symmetric:  # the assembled transpose: the transposed blocks on the same pattern
+            blocks = np.swapaxes(blocks, 1, 2)
         col, row = L.add(col), L.add(row)
         L.factor(blocks)
         w_u, w_p = _eliminate(L.solve(lam0[o] + v_y0n, row), col, gp, dot=L.dot)  # transpose: col <-> row
         with L.clock("kernels"):
             w = jnp.append(jnp.asarray(L.local_of_owned(w_u)), w_p)
-            r_y0, r_y1, r_dt = (np.asarray(a) for a in k["residual_vjp"](jnp.asarray(y0[d]), jnp.asarray(y1[d]), dt,
-                                                                         x, w))
+            r_y0, r_y1, r_dt, r_t0 = (np.asarray(a) for a in k["residual_vjp"](jnp.asarray(y0[d]), jnp.asarray(y1[d]),
+                                                                               dt, t0, x, w))
         # the loads' part -dt (th L1 + (1 - th) L0), L = B xi + f, on the owned rows
         load_dt = st.owned_load(xi0, xi1, f0, f1, 1.0) @ w_u
         Bw = L.sum_array(st._B.T @ w_u) if st._B is not None else np.zeros(0)
         lam = (L.serial(v_y0 - L.add(r_y0)), L.serial(v_y1 - L.add(r_y1)))
         return (*lam, np.float64(0.0)), (dt * (1 - th) * Bw, dt * th * Bw, L.sum(float(v_dt) - float(r_dt) - load_dt),
-                                          0.0)
+                                          -L.sum(float(r_t0)))

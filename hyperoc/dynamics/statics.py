@@ -2,7 +2,7 @@
 
 Constrained (default): find ``(u, p)`` with
 
-    R(u) + p G(u) = B xi + f + sum_j f_j(u),      c(u) = V,
+    R(u) + sum_k k_k S_k u + p G(u) = B xi + f + sum_j f_j(u),      c(u) = V,
 
 the same residual and Newton as a time step with ``M = 0`` and no damping, with a constraint of the
 family of the time step (`hyperoc.dynamics.constraint`): the tissue volume (default, ``c = vol``,
@@ -10,10 +10,13 @@ family of the time step (`hyperoc.dynamics.constraint`): the tissue volume (defa
 stiffness ``-p d2V_cav/du2`` in the tangent); ``V`` defaults to the initial value of c. ``f_j(u)`` are
 loads that depend on the state: follower pressures (`hyperoc.mechanics.follower.FollowerPressure`), which
 act on the deformed boundary, and active fibre tension (`hyperoc.mechanics.active.FibreTension`); their
-stiffness ``-df_j/du`` enters the Newton tangent.
+stiffness ``-df_j/du`` enters the Newton tangent. ``k_k S_k u`` are the springs of Robin boundaries
+(`hyperoc.dynamics.terms.RobinBoundary`: the static part of the step's term, its force ``A(u, 0, t)`` and
+tangent ``dA/dy0``; the dashpot has no static part): part of the stiffness, not ramped. Springs make a body
+without Dirichlet boundary statically determinate (the benchmark's unclamped ventricle).
 
 Unconstrained (``constrained=False``, e.g. the Land et al. 2015 benchmarks, where only the material's
-volumetric penalty controls the volume): find u with ``R(u) = B xi + f + sum_j f_j(u)``. The bordered
+volumetric penalty controls the volume): find u with ``R(u) + sum_k k_k S_k u = B xi + f + sum_j f_j(u)``. The bordered
 solvers of `hyperoc.solvers.linsolve` are reused exactly: the unknown is written ``u = w + t e`` with the
 fixed unit vector ``e = (1, ..., 1) / sqrt(n)`` and the gauge ``e . w = 0``, so Newton solves
 
@@ -53,6 +56,7 @@ from ..solvers.linsolve import make_solver
 from ..solvers.newton import NewtonIteration, NewtonStatus, newton
 from .constraint import TissueVolume
 from .stepper import Scheme, StepStatus
+from .terms import RobinBoundary
 
 __all__ = ["StaticSolution", "solve_static"]
 
@@ -81,10 +85,10 @@ class StaticSolution:
 
 
 def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, constrained: bool,
-                    line_search: bool, monitored: bool = False, constraint=None):
+                    line_search: bool, monitored: bool = False, constraint=None, robin: tuple = ()):
     """The jitted Newton solve of one load step and its monitor slot, cached on the model per (linear
     solver instance, scheme, follower loads, constraint on/off, line search on/off, monitored or not,
-    constraint object: None for the tissue volume).
+    constraint object: None for the tissue volume, Robin boundaries).
 
     ``solve(x0, fk, Vk, s, fit_multiplier=False)`` takes the unknown ``x`` ((u, p), or (w, t)
     unconstrained), the fixed load ``fk`` (n,), the volume ``Vk`` and the load factor ``s`` of the
@@ -94,8 +98,9 @@ def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, co
     the caller sets the slot, so one compilation serves every monitor.
     """
     cache = model.__dict__.setdefault("_static_solves", {})
-    key = (id(lin), scheme, tuple(map(id, followers)), constrained, line_search, monitored, id(constraint))
-    if key in cache:  # lin lives in the cache, a constraint in its solve's closure: their ids stay their own
+    key = (id(lin), scheme, tuple(map(id, followers)), constrained, line_search, monitored, id(constraint),
+           tuple(map(id, robin)))
+    if key in cache:  # lin lives in the cache, loads and constraint in its solve's closure: their ids stay their own
         return cache[key]
     con = TissueVolume(model) if constraint is None else constraint
     slot = [None]
@@ -106,8 +111,9 @@ def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, co
         return x[:-1] if constrained else x[:-1] + x[-1] * e
 
     def force_balance(u, fk, s):
-        """``R(u) - fk - sum_j f_j(u)`` (n,): the residual without the multiplier term."""
-        return model.internal_force(u) - fk - sum((fol.force(u, s) for fol in followers), jnp.zeros(model.n))
+        """``R(u) + sum_k k_k S_k u - fk - sum_j f_j(u)`` (n,): the residual without the multiplier term."""
+        return (model.internal_force(u) + spring_force(robin, u) - fk
+                - sum((fol.force(u, s) for fol in followers), jnp.zeros(model.n)))
 
     def residual(x, fk, Vk, s):
         u = displacement(x)
@@ -121,6 +127,8 @@ def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, co
         blocks = model.tangent_blocks(u, 1.0, con.tangent_weight(x) if constrained else 0.0)
         for fol in followers:
             blocks = fol.add_stiffness(blocks, u, s)
+        for term in robin:  # the spring's tangent dA/dy0 (a = 1), no dashpot (b = 0)
+            blocks = term.add_tangent(blocks, u, jnp.zeros_like(u), 0.0, 1.0, 0.0)
         if constrained:
             return con.add_tangent(blocks, x, 1.0), con.force_direction(u), con.value_gradient(u)
         Ke = jax.jvp(lambda v: force_balance(v, fk, s), (u,), (e,))[1]
@@ -152,6 +160,14 @@ def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, co
     return cache[key]
 
 
+def spring_force(robin, u):
+    """``sum_k k_k S_k u`` (n,): the springs of the Robin boundaries ``robin`` at rest (velocity 0), the static
+    part ``A(u, 0, t)`` of their step terms (`hyperoc.dynamics.terms.RobinBoundary.force`); minus their
+    reaction on the body."""
+    zero = jnp.zeros_like(u)
+    return sum((term.force(u, zero, 0.0) for term in robin), zero)
+
+
 def initial_unknown(model: StateModel, u: np.ndarray, constrained: bool) -> jnp.ndarray:
     """The Newton unknown (n + 1,) of the compiled solve for the displacement u (n,): ``(u, p = 0)``
     with the constraint, else ``(w, t)`` with ``u = w + t e``, ``e = n^-1/2 (1, ..., 1)``, ``e . w = 0``."""
@@ -164,11 +180,13 @@ def initial_unknown(model: StateModel, u: np.ndarray, constrained: bool) -> jnp.
 def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None = None, steps: int = 1,
                  scheme: Scheme = Scheme(), solver="auto", u0=None, follower=(), constrained: bool = True,
                  line_search: bool = True, cutbacks: int = 0, predictor: str = "previous",
-                 guess=None, monitor=None, constraint=None) -> StaticSolution:
+                 guess=None, monitor=None, constraint=None, robin=()) -> StaticSolution:
     """Equilibrium under the load vector ``load`` (n,), control ``xi`` and follower pressures, ramped in ``steps``.
 
     Parameters
     ----------
+    robin : a `hyperoc.dynamics.terms.RobinBoundary` or a sequence of them: their springs ``k S u`` (the
+        dashpots have no static part), not ramped; with them the body needs no Dirichlet boundary.
     follower : a state-dependent load or a sequence of them: `hyperoc.mechanics.follower.FollowerPressure`
         (pressure on the deformed boundary), `hyperoc.mechanics.active.FibreTension` (active stress along the
         fibres); each is ramped as ``s * pressure`` (``s * tension``) at load step ``s = k / steps``.
@@ -214,6 +232,9 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
         Newton fails or an element inverts (``det F <= 0``) and no cutback is left.
     """
     followers = (follower,) if not isinstance(follower, (tuple, list)) else tuple(follower)
+    robin = (robin,) if not isinstance(robin, (tuple, list)) else tuple(robin)
+    if not all(isinstance(term, RobinBoundary) and term.n == model.n for term in robin):
+        raise InputError("solve_static: robin must hold RobinBoundary terms of this model")
     if predictor not in ("previous", "secant"):
         raise InputError(f"solve_static: predictor must be 'previous' or 'secant', got {predictor!r}")
     if not constrained and (volume is not None or constraint is not None):
@@ -232,7 +253,7 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
 
     def compiled(search: bool):
         solve, slot = _compiled_solve(model, lin, scheme, followers, constrained, search, monitor is not None,
-                                      constraint)
+                                      constraint, robin)
         slot[0] = monitor
         slots.append(slot)
         return solve
