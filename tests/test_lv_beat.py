@@ -54,7 +54,7 @@ def test_the_job_converges_and_raises_the_rate_of_pressure_rise(tmp_path):
     assert -3e4 <= s["control_min"] < 0
     assert 0 < s["tau"] < 0.06
     for name in ("summary.json", "pressure.png", "pv_loops.png", "optimized/summary.json",
-                 "optimized/paraview/state.pvd", "uncontrolled/summary.json"):
+                 "optimized/paraview/state.xdmf", "uncontrolled/summary.json"):
         assert (out / name).is_file(), name
     assert json.loads((out / "summary.json").read_text())["tau"] == s["tau"]
 
