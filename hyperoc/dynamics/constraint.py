@@ -73,7 +73,23 @@ from .laws import TimeLaw
 __all__ = ["TissueVolume", "CavityVolumeConstraint", "Circulation", "NoConstraint", "make_constraint", "CONSTRAINTS"]
 
 
-class _HeldByMultiplier:
+class _ScalarState:
+    """A constraint whose row does not read its multiplier and whose carried state is the multiplier itself."""
+
+    def corner(self, p_prev, dt):
+        """``dF_c/dp'``, the bordered Jacobian's corner: 0 (the row does not depend on the multiplier)."""
+        return 0.0
+
+    def carried(self, p):
+        """The multiplier state the step carries, starting from the multiplier p: p itself."""
+        return p
+
+    def pressure(self, state):
+        """The multiplier (the reported pressure) of carried states (any leading shape): the states themselves."""
+        return state
+
+
+class _HeldByMultiplier(_ScalarState):
     """A quantity ``c(y0)`` held at ``target(V0, t)`` by a multiplier whose force on the momentum rows is
     ``-p G(y0)`` (module docstring); subclasses give `value`, `value_gradient`, `force_direction`,
     `target` and the Hessian's part of the tangent."""
@@ -99,18 +115,6 @@ class _HeldByMultiplier:
         """The constraint's residual ``c(y0') - target(V0, t)`` at the step's new level t (the step's previous
         level ``y0``, multiplier state ``p_prev`` and ``dt`` enter no row of this family)."""
         return self.value(x[:-1]) - self.target(V0, t)
-
-    def corner(self, p_prev, dt):
-        """``dF_c/dp'``, the bordered Jacobian's corner: 0 (the row does not depend on the multiplier)."""
-        return 0.0
-
-    def carried(self, p):
-        """The multiplier state the step carries, starting from the multiplier p: p itself."""
-        return p
-
-    def pressure(self, state):
-        """The multiplier (the reported pressure) of carried states (any leading shape): the states themselves."""
-        return state
 
     def next_state(self, state, x, y0, dt):
         """The state carried to the next step from the converged unknown x: its multiplier p'."""
@@ -301,7 +305,7 @@ class Circulation(CavityVolumeConstraint):
         return jnp.stack([p, Pa_new, phase_new]).astype(x.dtype)
 
 
-class NoConstraint:
+class NoConstraint(_ScalarState):
     """No global constraint: the gauge ``y0' = w + s e``, ``e . w = 0`` (module docstring); pressure 0."""
 
     kind = "none"
@@ -333,15 +337,6 @@ class NoConstraint:
 
     def row(self, x, V0, t, y0=None, p_prev=None, dt=None):
         return self.e @ x[:-1]
-
-    def corner(self, p_prev, dt):
-        return 0.0
-
-    def carried(self, p):
-        return p
-
-    def pressure(self, state):
-        return state
 
     def next_state(self, state, x, y0, dt):
         return jnp.zeros((), x.dtype)
