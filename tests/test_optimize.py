@@ -54,11 +54,32 @@ def test_optimizers_converge_on_a_well_posed_case(method, bar_reference):
     _converges_to_the_reference(method, *bar_reference)
 
 
-@pytest.mark.parametrize("method", ["bb", "lbfgsb", "newton"])
+@pytest.mark.parametrize("method", ["bb", "lbfgsb", "newton", "newton-curvature"])
 def test_optimizers_converge_on_a_coarse_well_posed_case(method):
     """The test above, one method of each optimizer, on the coarse bar (h = 0.1, dt = 0.2): the same
     bounds, with that problem's reference maximizer and curvature."""
     _converges_to_the_reference(method, *_bar_reference(0.1, 0.2))
+
+
+def test_newton_tau_curvature_is_the_second_derivative_in_tau():
+    """``tau_scale = "curvature"``: the weight of tau in Newton-CG's metric is |d^2 J / d tau^2| at the start,
+    a forward difference of the exact gradient (relative error ~sqrt(eps_mach)), against the centred second
+    difference of J's values with h = 1e-3 (relative error ~h^2 / 12 times the ratio of the fourth to the
+    second derivative): they agree to 1e-5, and the metric's gradient has its tau-part divided by that weight."""
+    from hyperoc.control.optimize.box import BoxProblem
+    from hyperoc.control.optimize.newton import _tau_curvature
+    from hyperoc.control.optimize.run import Run
+
+    J = vibrating_bar(0.1, 0.2)
+    m0 = ControlPoint(0.01 * np.ones_like(J.zero(1.5).xi), 1.5)
+    run = Run(BoxProblem.around(J, m0.tau))
+    m, current, _ = run.start(m0)
+    weight = _tau_curvature(run, m, current, {"hessian_products": 0})
+    h = 1e-3
+    values = [J(ControlPoint(m.xi, m.tau + k * h)) for k in (-1, 0, 1)]
+    assert weight == pytest.approx(abs(values[0] - 2 * values[1] + values[2]) / h**2, rel=1e-5)
+    G = BoxProblem(J, run.box.tau_range, tau_weight=weight).metric.gradient(current.g)
+    assert G.tau == pytest.approx(current.g.tau / weight, rel=1e-14) and np.array_equal(G.xi, current.G.xi)
 
 
 def _converges_to_the_reference(method, ref, lam, J):
@@ -66,8 +87,9 @@ def _converges_to_the_reference(method, ref, lam, J):
         bound = 10 * np.max(np.abs(ref.point.xi))
         res = lbfgsb(J, J.zero(2.0), max_iter=100, gtol=1e-6, xi_bounds=(-bound, bound))
         assert np.max(np.abs(res.point.xi)) < bound
-    elif method == "newton":
-        res = newton_cg(J, J.zero(2.0), max_iter=100, gtol=1e-6)
+    elif method.startswith("newton"):
+        res = newton_cg(J, J.zero(2.0), max_iter=100, gtol=1e-6,
+                        tau_scale="curvature" if method.endswith("curvature") else 1.0)
     elif method.startswith("lbfgsb"):
         res = lbfgsb(J, J.zero(2.0), max_iter=100, gtol=1e-6,
                      tau_scale=float(method.rpartition("x")[2]) if "tau" in method else "range")
@@ -385,7 +407,7 @@ def test_tau_scaling_normalizes_both_blocks_to_their_ranges(bar_reference):
     assert tau_scaling(J, "range", (0.5, 3.0), (None, 0.2)) == 1.0
     assert tau_scaling(J, "range", (2.0, 2.0), (-0.2, 0.2)) == 1.0
     assert tau_scaling(J, 7, (0.5, 3.0), (-0.2, 0.2)) == 7.0
-    for bad in (0.0, -1.0, float("nan"), "auto", True):
+    for bad in (0.0, -1.0, float("nan"), "auto", True, "curvature"):
         with pytest.raises(InputError, match="tau_scale"):
             tau_scaling(J, bad, (0.5, 3.0), (-0.2, 0.2))
 

@@ -57,7 +57,7 @@ def _is_expression(v) -> bool:
 def _tau_scale(value):
     if is_tau_scale(value):
         return value
-    raise ValueError(f"must be 'range' or a positive number, got {quote(value)}")
+    raise ValueError(f"must be 'range', 'curvature' or a positive number, got {quote(value)}")
 
 
 def _ordered_pair(value):
@@ -108,7 +108,8 @@ def _time_law(value):
 Expressions = Annotated[Any, BeforeValidator(_expressions)]
 TimeLawValue = Annotated[Any, BeforeValidator(_time_law),
                          Field(json_schema_extra={"type": "number, expression of t, table or Bestel law"})]
-TauScale = Annotated[Any, BeforeValidator(_tau_scale), Field(json_schema_extra={"type": "'range' or number"})]
+TauScale = Annotated[Any, BeforeValidator(_tau_scale),
+                     Field(json_schema_extra={"type": "'range', 'curvature' or number"})]
 Bounds = Annotated[list[Number], AfterValidator(_ordered_pair)]
 
 
@@ -469,7 +470,8 @@ class Optimize(Section):
     """The optimizer of (xi, tau) and its stopping test."""
 
     KIND_KEY: ClassVar[str] = "method"
-    KINDS: ClassVar[dict] = {"bb": {"steps", "bb_step", "nonmonotone"}, "lbfgsb": {"tau_scale"}, "newton": {"max_cg"}}
+    KINDS: ClassVar[dict] = {"bb": {"steps", "bb_step", "nonmonotone"}, "lbfgsb": {"tau_scale"},
+                             "newton": {"max_cg", "tau_scale"}}
 
     method: Literal["bb", "lbfgsb", "newton"] = Field(
         "bb", description="the paper's Algorithm 1 (Barzilai-Borwein), L-BFGS-B, or projected Newton-CG")
@@ -485,7 +487,9 @@ class Optimize(Section):
     bb_step: Literal["bb1", "bb2", "abbmin"] = Field("bb1", description="bb: the step length rule")
     nonmonotone: Annotated[int, Field(ge=0)] = Field(
         0, description="bb: 0 = the paper's Algorithm 1, M > 0 = SPG's nonmonotone window")
-    tau_scale: TauScale = Field("range", description="lbfgsb: scaling of tau ('range' or a number)")
+    tau_scale: TauScale = Field(
+        "range", description="lbfgsb, newton: the scaling c of tau, 'range' (c = 1 without finite bounds), a number, "
+                             "or (newton) 'curvature': c^2 = |d^2J/dtau^2| at the start")
     max_cg: Count = Field(20, description="newton: Hessian-vector products per iteration")
     checkpoint_every: Optional[Count] = Field(
         None, description="adjoint memory: keep every k-th level state (recompute the others)")
@@ -499,6 +503,8 @@ class Optimize(Section):
     def _exclusive(self):
         if self.tau0 is not None and self.tau_starts is not None:
             raise ValueError("give tau0 or tau_starts, not both")
+        if self.method == "lbfgsb" and self.tau_scale == "curvature":
+            raise ValueError("tau_scale = 'curvature' applies to method newton ('range' or a number for lbfgsb)")
         if self.checkpoint_every is not None and self.checkpoint_snapshots is not None:
             raise ValueError("checkpoint_every and checkpoint_snapshots exclude each other (set one)")
         return self

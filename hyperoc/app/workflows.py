@@ -147,7 +147,7 @@ def optimize_single(cfg: Config, tau0: float, *, cache_dir=None, progress: bool 
         res = barzilai_borwein(J, m0, steps=o["steps"], bb_step=o["bb_step"], nonmonotone=o["nonmonotone"],
                                **kwargs)
     elif o["method"] == "newton":
-        res = newton_cg(J, m0, max_cg=o["max_cg"], **kwargs)
+        res = newton_cg(J, m0, max_cg=o["max_cg"], tau_scale=o["tau_scale"], **kwargs)
     else:
         res = lbfgsb(J, m0, tau_scale=o["tau_scale"], **kwargs)
     if bar is not None:

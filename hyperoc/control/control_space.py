@@ -32,7 +32,7 @@ import scipy.sparse.linalg as spla
 
 from ..dynamics.timegrid import trapezoid_weights
 
-__all__ = ["ControlSpace", "LumpedMetric", "control_space", "s_time_scale"]
+__all__ = ["ControlSpace", "LumpedMetric", "TauWeighted", "control_space", "s_time_scale"]
 
 
 def s_time_scale(alpha: float, beta: float, T: float) -> float:
@@ -175,8 +175,10 @@ class ControlSpace:
 
 class LumpedMetric:
     """The L2-in-time inner product of a `ControlSpace` with the spatial mass lumped: ``<a, b>_L =
-    sum_k w_k a.xi_k . (D b.xi_k) + a.tau b.tau``, w the trapezoid weights in s, D the lumped mass of
-    the control nodes (`ControlSpace.lumped_weights` of `ControlSpace.l2_in_time`).
+    c sum_k w_k a.xi_k . (D b.xi_k) + a.tau b.tau``, w the trapezoid weights in s, D the lumped mass of
+    the control nodes (`ControlSpace.lumped_weights` of `ControlSpace.l2_in_time`), c the space's weight
+    (the scale of the cost's Hessian with beta > 0, `control_space`; 1 otherwise), so that the xi-block of
+    J's Hessian has the same scale in both metrics.
 
     Why: with pointwise bounds on xi, the nodal clip is the projection onto the box in this
     metric, and it is not in the consistent-mass one of the control space (M^-1 couples
@@ -190,7 +192,7 @@ class LumpedMetric:
 
     def __init__(self, space: ControlSpace):
         self.space = space
-        self.weights = space.l2_in_time().lumped_weights  # (N+1, n_ctrl)
+        self.weights = space.weight * space.l2_in_time().lumped_weights  # (N+1, n_ctrl)
 
     def inner(self, a, b) -> float:
         return float(np.sum(a.xi * self.weights * b.xi) + a.tau * b.tau)
@@ -202,6 +204,33 @@ class LumpedMetric:
         """``G_L`` from the gradient g in the control space's metric (its Riesz representative there)."""
         d = self.space.dual(g)
         return type(g)(d.xi / self.weights, d.tau)
+
+
+class TauWeighted:
+    """A metric (`ControlSpace` or `LumpedMetric`) with its tau-part weighted: ``<a, b>_w = <a, b> + (w - 1)
+    a.tau b.tau``, the gradient's tau-part divided by w.
+
+    Why: J's Hessian in tau (units of J / s^2) and in xi have unrelated scales; where the metric's xi-block
+    is the cost's Hessian (`control_space` with beta > 0), ``w = |d^2 J / d tau^2|`` gives both blocks unit
+    scale, so that Newton-CG's residual, its stopping test and the projected gradient weigh tau and xi
+    alike instead of one of them alone (w = c^2 of L-BFGS-B's variable ``c tau``).
+    """
+
+    def __init__(self, metric, weight: float):
+        if not (np.isfinite(weight) and weight > 0):
+            raise ValueError(f"tau weight must be finite and positive, got {weight!r}")
+        self.base, self.weight = metric, float(weight)
+
+    def inner(self, a, b) -> float:
+        return self.base.inner(a, b) + (self.weight - 1.0) * a.tau * b.tau
+
+    def norm(self, a) -> float:
+        return float(np.sqrt(max(self.inner(a, a), 0.0)))
+
+    def gradient(self, g):
+        """The base metric's gradient with its tau-part divided by the weight."""
+        G = self.base.gradient(g)
+        return type(G)(G.xi, G.tau / self.weight)
 
 
 def control_space(transform, control, alpha: float, beta: float) -> ControlSpace:

@@ -9,7 +9,7 @@ from functools import cached_property
 import numpy as np
 
 from ...errors import InputError
-from ..control_space import ControlSpace
+from ..control_space import ControlSpace, TauWeighted
 from ..reduced import ControlPoint, ReducedFunctional
 from ..tau_scale import is_tau_scale
 
@@ -24,12 +24,14 @@ class BoxProblem:
 
     The optimizers step in `metric`, decided here once: with a bound on xi the lumped metric of J's
     control space (`hyperoc.control.control_space.LumpedMetric`: the nodal clip is the projection there,
-    so the fixed points of projected steps are the KKT points), else the space's own.
+    so the fixed points of projected steps are the KKT points), else the space's own; its tau-part is
+    ``tau_weight a.tau b.tau`` (`hyperoc.control.control_space.TauWeighted`; 1: the space's own).
     """
 
     J: ReducedFunctional
     tau_range: tuple[float, float]
     xi_bounds: tuple = (None, None)
+    tau_weight: float = 1.0
 
     def __post_init__(self):
         object.__setattr__(self, "xi_bounds", tuple(self.xi_bounds))
@@ -48,8 +50,10 @@ class BoxProblem:
 
     @cached_property
     def metric(self):
-        """`ControlSpace.metric` of J's control space: the lumped one when xi has a bound."""
-        return self.J.space.metric(bounded=self.bounded)
+        """`ControlSpace.metric` of J's control space (the lumped one when xi has a bound), its tau-part
+        weighted by `tau_weight`."""
+        metric = self.J.space.metric(bounded=self.bounded)
+        return metric if self.tau_weight == 1.0 else TauWeighted(metric, self.tau_weight)
 
     @cached_property
     def coordinates(self) -> ControlSpace:
@@ -78,7 +82,8 @@ class BoxProblem:
         return self.projected_norm(m, self.metric.gradient(g))
 
     def tau_scale(self, spec: float | str) -> float:
-        """The factor c of L-BFGS-B's variable ``c tau`` (the xi variables being scaled to the L2 geometry).
+        """The factor c of the scaled variable ``c tau``: L-BFGS-B's variable (the xi variables being scaled to
+        the L2 geometry), and Newton-CG's metric, which weighs tau by c^2 (`tau_weight`).
 
         ``"range"``: with finite bounds ``lo < xi < hi``, the admissible tau interval (length ``L_tau``)
         gets the length of the xi box's diagonal in L2(0,2; L2(omega)): ``c = (hi - lo) sqrt(|Q|) /
@@ -88,10 +93,12 @@ class BoxProblem:
         scipy's line search and L-BFGS's initial Hessian ``gamma I`` treat all variables alike (the
         ventricle example converges to gtol = 1e-4 in 50-57 iterations for c from 10 to 67, and not in
         120 with c = 1 or 0.1: ``python bench/bench_tau_scale.py``). c = 1 without finite bounds or with
-        tau fixed. A number: that factor (> 0); anything else is an `InputError`.
+        tau fixed. A number: that factor (> 0). ``"curvature"`` is measured by `newton_cg`, not here: an
+        `InputError`, as anything else is.
         """
-        if not is_tau_scale(spec):
-            raise InputError(f"tau_scale must be 'range' or a positive number, got {spec!r}")
+        if not is_tau_scale(spec) or spec == "curvature":
+            raise InputError(f"tau_scale must be 'range' or a positive number here, got {spec!r}"
+                             + (" ('curvature' is newton's)" if spec == "curvature" else ""))
         if spec != "range":
             return float(spec)
         lo, hi = self.xi_bounds

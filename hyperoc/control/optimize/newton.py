@@ -3,6 +3,8 @@ Hessian-vector products, CG preconditioned by the curvature pairs of the earlier
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from ...errors import SolverError
@@ -18,7 +20,7 @@ __all__ = ["newton_cg"]
 
 def newton_cg(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gtol: float = 1e-6,
               gtol_abs: float = 0.0, max_iter: int = 100, max_cg: int = 20, tau_margin: float | None = None,
-              fix_tau: bool = False,
+              fix_tau: bool = False, tau_scale: float | str = 1.0,
               armijo: float = 0.5, max_backtracks: int = 30, cache_dir=None, callback=None) -> OptimizationResult:
     """Projected truncated Newton-CG (the projected Newton method of Bertsekas, SIAM J. Control Optim.
     20, 1982, with CG stopped at nonconcavity as in Steihaug's method): second-order steps from
@@ -44,6 +46,13 @@ def newton_cg(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None),
     direction is the CG iterate plus p, and a full step along it accepted by the search is doubled while
     J keeps increasing and the projection still moves the trial point (not a step of the fallback along G).
 
+    The metric weighs tau by ``c^2`` (`BoxProblem.tau_weight`), c from ``tau_scale``: a number,
+    ``"range"`` (`BoxProblem.tau_scale`), or ``"curvature"``: ``c^2 = |d^2 J / d tau^2|`` at the start,
+    one forward difference of the gradient along tau (`hyperoc.control.control_space.TauWeighted` says
+    why). Where the metric's xi-block is the cost's Hessian (an H^1-in-time cost, beta > 0), that gives
+    both blocks unit scale; with c = 1 and tau's curvature ~1e9 larger (a cardiac problem in SI units),
+    the CG residual is tau's alone, CG stops after one product with a step in tau only, and xi barely moves.
+
     Hessian-vector products are forward differences of the exact gradient, ``H v ~ (G(m + h v) - G(m)) / h``
     with ``h = sqrt(eps_mach) (1 + |m|_inf) / |v|_inf`` (relative error ~1e-8, which limits the local
     rate to linear with that factor); each costs one state and one adjoint solve, and is not cached
@@ -54,11 +63,15 @@ def newton_cg(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None),
     Hessian-vector products, the iterations where CG met nonconcavity and the gradient steps taken where the
     Newton direction's search failed.
     """
-    run = Run(BoxProblem.around(J, m0.tau, xi_bounds=xi_bounds, tau_margin=tau_margin, fix_tau=fix_tau),
-              cache_dir, callback)
+    box = BoxProblem.around(J, m0.tau, xi_bounds=xi_bounds, tau_margin=tau_margin, fix_tau=fix_tau)
+    if tau_scale != "curvature":
+        box = replace(box, tau_weight=box.tau_scale(tau_scale) ** 2)
+    run = Run(box, cache_dir, callback)
     search = Backtracking(run, armijo, max_backtracks)
     counts = {"hessian_products": 0, "nonconcave_iterations": 0, "gradient_steps": 0}
     m, current, measure = run.start(m0)
+    if tau_scale == "curvature":
+        current, measure = run.rescale(m, current, replace(box, tau_weight=_tau_curvature(run, m, current, counts)))
     target, preconditioner = max(gtol * measure, gtol_abs), CurvaturePairs(run.box.metric)
     first, termination = measure, Termination.MAX_ITERATIONS
     for k in range(1, max_iter + 1):
@@ -152,6 +165,19 @@ def _hessian_product(box: BoxProblem, m: ControlPoint, G: ControlPoint, v: Contr
     except SolverError:
         return None
     return (box.metric.gradient(g) - G) * (-1.0 / h)
+
+
+def _tau_curvature(run: Run, m: ControlPoint, current, counts: dict) -> float:
+    """``|d^2 J / d tau^2|`` at m (``current`` its evaluation, in a metric of tau weight 1) by a forward
+    difference of the gradient (through the run's cache); 1.0 where tau is fixed, the difference point
+    fails or the curvature is not a positive finite number."""
+    if run.box.tau_range[0] == run.box.tau_range[1]:
+        return 1.0
+    h = np.sqrt(np.finfo(float).eps) * (1.0 + abs(m.tau))
+    counts["hessian_products"] += 1
+    shifted = run.try_evaluate(ControlPoint(m.xi, m.tau + h))
+    curvature = abs(shifted.G.tau - current.G.tau) / h if shifted is not None else 0.0
+    return float(curvature) if np.isfinite(curvature) and curvature > 0 else 1.0
 
 
 def _extend(run: Run, m: ControlPoint, d: ControlPoint, step: tuple, max_doublings: int = 20) -> tuple:

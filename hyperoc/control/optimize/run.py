@@ -57,6 +57,15 @@ class Run:
         self.record(m, first.value, measure)
         return m, first, measure
 
+    def rescale(self, m: ControlPoint, evaluation: Evaluation, box: BoxProblem) -> tuple[Evaluation, float]:
+        """Go on in ``box`` (the same problem in another metric) from the start m: ``(evaluation, measure)``
+        at m in its metric, the recorded start's measure replaced."""
+        self.box = box
+        evaluation = Evaluation(evaluation.value, evaluation.g, box.metric.gradient(evaluation.g))
+        measure = box.projected_norm(m, evaluation.G)
+        self.history["grad_norm"][-1] = float(measure)
+        return evaluation, measure
+
     def record(self, m: ControlPoint, value: float, measure: float, step: float = 0.0) -> None:
         """Append an iterate to the histories (``measure``: the stopping test's, ``step``: the step length)."""
         for name, x in (("objective", value), ("grad_norm", measure), ("tau", m.tau), ("step", step)):
