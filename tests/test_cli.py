@@ -212,6 +212,7 @@ def test_config_sliding_gamma_d_and_checkpointing(tmp_path):
     reaches the reduced functional."""
     from hyperoc.app.config import load_config
     from hyperoc.app.workflows import build_reduced
+    from hyperoc.control.revolve import EveryK
 
     text = SMALL_1D.replace('kind = "interval"\nn = 20', 'kind = "box"\nnx = 2\ndirichlet = "bottom"\nfixed_components = [1]')
     text = text.replace("lower = [0.75], upper = [1.0]", "lower = [0.0, 0.0, 0.5], upper = [1.0, 1.0, 1.0]")
@@ -221,7 +222,7 @@ def test_config_sliding_gamma_d_and_checkpointing(tmp_path):
     assert len(model.pinned_dofs) == 3
     clamped = load_config(_write(tmp_path, text.replace("fixed_components = [1]\n", ""), "clamped.toml")).model()
     assert model.n == clamped.n + 2 * 9 - 3  # 9 nodes on y = 0: x and z free, minus the three pins
-    assert build_reduced(cfg, 1.0).checkpoint_every == 5
+    assert build_reduced(cfg, 1.0).schedule == EveryK(5)
 
 
 @pytest.mark.parametrize("mesh, cells", [('kind = "interval"\nn = 20', 20), ('kind = "rectangle"\nnx = 2', 8),
