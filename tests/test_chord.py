@@ -101,9 +101,9 @@ def _linear_chord(rate, rtol, u_error=1.0, p_error=0.0, iterations=60):
 
 def _chord_decisions(rows, rtol):
     """``(settled, rate)`` of `chord_stopping_test` (NumPy) at every iteration of ``rows``."""
-    from hyperoc.solvers.newton import _small, chord_stopping_test
+    from hyperoc.solvers.newton import chord_stopping_test, small_increment
 
-    small = lambda a, b, rt, at: _small(a, b, None, rt, at, inf_norm=lambda v: np.max(np.abs(v)))
+    small = lambda a, b, rt, at: small_increment(a, b, None, rt, at, inf_norm=lambda v: np.max(np.abs(v)))
     previous, out = np.inf, []
     for u, du, p, dp, *_ in rows:
         increment = np.max(np.abs(du))
@@ -212,7 +212,7 @@ def test_the_chord_stopping_test_takes_the_same_decisions_on_numpy_and_jax():
     and p settled, and at the round-off floor when the contraction stalls."""
     import jax.numpy as jnp
 
-    from hyperoc.solvers.newton import _small, chord_stopping_test
+    from hyperoc.solvers.newton import chord_stopping_test, small_increment
 
     rtol, atol = 1e-11, 1e-15
     u = np.ones(4)
@@ -228,7 +228,7 @@ def test_the_chord_stopping_test_takes_the_same_decisions_on_numpy_and_jax():
     for du, p, dp, inc, prev, expected in cases:
         decisions = []
         for xp in (np, jnp):
-            small = lambda a, b, rt, at, xp=xp: _small(xp.asarray(a), xp.asarray(b), None, rt, at)
+            small = lambda a, b, rt, at, xp=xp: small_increment(xp.asarray(a), xp.asarray(b), None, rt, at)
             settled, _ = chord_stopping_test(xp.asarray(u), xp.asarray(du), xp.asarray(p), xp.asarray(dp),
                                              xp.asarray(inc), xp.asarray(prev), small, rtol=rtol, atol=atol, xp=xp)
             decisions.append(bool(settled))

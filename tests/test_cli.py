@@ -45,7 +45,7 @@ def test_simulate_figures_name_the_run_and_carry_units(tmp_path, monkeypatch):
     import hyperoc.app.plotting
 
     figures = []
-    monkeypatch.setattr(hyperoc.app.plotting, "_save", lambda fig, path: figures.append((Path(path).name, fig)) or path)
+    monkeypatch.setattr(hyperoc.app.plotting, "save_figure", lambda fig, path: figures.append((Path(path).name, fig)) or path)
     units = '[output]\nunits = { time = "ms", length = "mm", pressure = "kPa", control = "kPa/mm" }\n'
     cfg = _write(tmp_path, SMALL_1D + units, "bar-run.toml")
     assert main(["simulate", str(cfg), "--out", str(tmp_path / "out"), "--no-progress", "--set", "dynamics.dt=0.1"]) == 0

@@ -240,7 +240,7 @@ class Config:
             if d.get("pressure") is not None:
                 terms.append(DynamicPressure(model, d["pressure"]["boundary"], time_law(d["pressure"]["law"])))
             if d.get("activation") is not None:
-                if model._frames is None:
+                if model.material_frames is None:
                     raise InputError("activation needs fibres: add [fibres] kind = 'rule_based'")
                 terms.append(PrescribedTension(model, time_law(d["activation"]["law"])))
         if self["material"]["viscosity"] > 0:

@@ -8,10 +8,10 @@ The unknown is ``x = (owned values (m_o,), q)`` with q the multiplier of the vol
     [ K     col ] [du]   [ -r_u ]
     [ row^T  0  ] [dq] = [ -r_c ]
 
-as `hyperoc.solvers.linsolve._eliminate` does (``K a = -r_u``, ``K b = col`` against one factorization),
+as `hyperoc.solvers.linsolve.eliminate_border` does (``K a = -r_u``, ``K b = col`` against one factorization),
 unconstrained ``K du = -r_u``. Full Newton (``kept=None``) factors K at every iteration, takes full steps
 and stops when ``|du_b|_inf <= rtol |u_b + du_b|_inf + atol`` on each block b (displacements, then
-Taylor-Hood pressures: `hyperoc.solvers.newton._small`). Chord Newton (a `KeptJacobian`) is the serial
+Taylor-Hood pressures: `hyperoc.solvers.newton.small_increment`). Chord Newton (a `KeptJacobian`) is the serial
 ``newton(..., chord=True)`` (`hyperoc.solvers.newton`): it solves with the Jacobian of an earlier
 iterate, of this solve or of an earlier one, takes the step if it decreases ``|r|^2`` (sufficient
 decrease 1e-4), refreshes the Jacobian after a rejected step or when the contraction rate exceeds
@@ -26,8 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..solvers.linsolve import _eliminate
-from ..solvers.newton import CHORD_RATE, NewtonStatus, _small, chord_stopping_test
+from ..solvers.linsolve import eliminate_border
+from ..solvers.newton import CHORD_RATE, NewtonStatus, chord_stopping_test, small_increment
 from .layout import Layout
 
 __all__ = ["KeptJacobian", "newton"]
@@ -75,7 +75,7 @@ def newton(residual, jacobian, layout: Layout, x0: np.ndarray, *, rtol: float, a
             return x, it, NewtonStatus.NON_FINITE
         increment = layout.inf_norm(du) if solved else np.inf
         chord = kept is not None
-        small = lambda u, v, rt, at: bool(_small(u, v, layout.n_u, rt, at, inf_norm=layout.inf_norm))
+        small = lambda u, v, rt, at: bool(small_increment(u, v, layout.n_u, rt, at, inf_norm=layout.inf_norm))
         if chord:
             p, dp = (x[m_o], dx[m_o]) if constrained else (0.0, 0.0)
             settled, rate = chord_stopping_test(x[:m_o], du, p, dp, increment, previous, small, rtol=rtol,
@@ -108,7 +108,7 @@ def _fresh_step(jacobian, layout: Layout, xl_q, r, constrained: bool, kept: Kept
     ab = layout.solve(-r[:m_o], col)
     if kept is not None:
         kept.b, kept.row = ab[:, 1].copy(), row
-    du, dq = _eliminate(ab, row, -r[m_o], dot=layout.dot)
+    du, dq = eliminate_border(ab, row, -r[m_o], dot=layout.dot)
     return np.append(du, dq)
 
 
@@ -118,5 +118,5 @@ def _kept_step(layout: Layout, r, constrained: bool, kept: KeptJacobian) -> np.n
     a = layout.solve(-r[:m_o])
     if not constrained:
         return a[:, 0]
-    du, dq = _eliminate(np.column_stack([a[:, 0], kept.b]), kept.row, -r[m_o], dot=layout.dot)
+    du, dq = eliminate_border(np.column_stack([a[:, 0], kept.b]), kept.row, -r[m_o], dot=layout.dot)
     return np.append(du, dq)

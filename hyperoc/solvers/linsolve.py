@@ -35,7 +35,7 @@ from ..fem.assembly import dump_index
 __all__ = ["DenseSolver", "TridiagonalSolver", "SparseSolver", "make_solver", "nested_dissection"]
 
 
-def _eliminate(ab, row, r_c, dot=None, corner=0.0):
+def eliminate_border(ab, row, r_c, dot=None, corner=0.0):
     """The bordered solution ``(x, q)`` from ``a = K^-1 r_u`` and ``b = K^-1 col``, the columns of ab
     (NumPy or JAX arrays): ``q = (row . a - r_c) / (row . b - corner)``, ``x = a - b q``. ``dot(u, v)``:
     the inner product (default ``u @ v``; a distributed solve passes the sum over the ranks of their parts')."""
@@ -46,7 +46,7 @@ def _eliminate(ab, row, r_c, dot=None, corner=0.0):
 
 
 def _schur(solve2, col, row, r_u, r_c, corner):
-    return _eliminate(solve2(jnp.stack([r_u, col], axis=1)), row, r_c, corner=corner)
+    return eliminate_border(solve2(jnp.stack([r_u, col], axis=1)), row, r_c, corner=corner)
 
 
 class DenseSolver:
@@ -522,8 +522,8 @@ def _unpermuted(ab, q):
 
 
 def _bordered(ab, row, r_c, corner=0.0) -> np.ndarray:
-    """`_eliminate` on the host, as one array ``(x, q)`` (n + 1,)."""
-    x, q = _eliminate(ab, np.asarray(row, dtype=np.float64), float(r_c), corner=float(corner))
+    """`eliminate_border` on the host, as one array ``(x, q)`` (n + 1,)."""
+    x, q = eliminate_border(ab, np.asarray(row, dtype=np.float64), float(r_c), corner=float(corner))
     return np.concatenate([x, [q]])
 
 

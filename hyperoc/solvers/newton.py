@@ -150,7 +150,7 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
         solved = jnp.all(jnp.isfinite(dx))
         # An increment below the tolerance is taken whole: its merit is at round-off level and
         # backtracking on it would only stall.
-        converged = solved & _small(x[:-1], du, n_u, rtol, atol)
+        converged = solved & small_increment(x[:-1], du, n_u, rtol, atol)
         r_full = residual(x + dx)
         if line_search:
             alpha, r1 = _backtrack(residual, x, dx, _merit(r), r_full, ~(converged | ~solved))
@@ -190,8 +190,8 @@ def _chord_newton(residual, jacobian_parts, solver, x0, *, rtol, atol, max_iter,
         m0 = _merit(r)
         solved = jnp.all(jnp.isfinite(dx))
         increment = jnp.where(solved, jnp.max(jnp.abs(du)), jnp.inf)
-        settled, rate = chord_stopping_test(x[:-1], du, x[-1], dp, increment, previous,
-                                            lambda u, v, rt, at: _small(u, v, n_u, rt, at), rtol=rtol, atol=atol)
+        small = lambda u, v, rt, at: small_increment(u, v, n_u, rt, at)
+        settled, rate = chord_stopping_test(x[:-1], du, x[-1], dp, increment, previous, small, rtol=rtol, atol=atol)
         converged = solved & settled
         r_full = residual(x + dx)
         # A fresh (full Newton) step backtracks (with ``line_search``); a chord step is taken whole or rejected.
@@ -227,7 +227,7 @@ def chord_stopping_test(u, du, p, dp, increment, previous, small, *, rtol, atol,
 
     ``u, du``: the iterate's displacements and their increment; ``p, dp``: its multiplier and increment
     (0 and 0 unconstrained); ``increment = |du|_inf`` and ``previous``, the last accepted one (inf if
-    none); ``small(u, du, rtol, atol)``: the block test of `_small`. A linearly converging iteration
+    none); ``small(u, du, rtol, atol)``: the block test of `small_increment`. A linearly converging iteration
     leaves an error of about ``left |dx|`` after the update dx, ``left = rate / (1 - rate)``,
     ``rate = increment / previous`` (1 while the rate is unknown or above `CHORD_RATE`). Settled: what
     is left of u meets the tolerances scaled by `CHORD_MARGIN`, and what is left of p meets
@@ -285,7 +285,7 @@ def _blocks(n_u):
     return [slice(None)] if n_u is None else [slice(None, n_u), slice(n_u, None)]
 
 
-def _small(u, du, n_u, rtol, atol, inf_norm=None):
+def small_increment(u, du, n_u, rtol, atol, inf_norm=None):
     """Whether ``|du_b|_inf <= rtol |u_b + du_b|_inf + atol`` on every block b (`_blocks`).
     ``inf_norm(v)``: the max norm (default ``max |v|``; a distributed solve passes the maximum over
     the ranks of their parts')."""
