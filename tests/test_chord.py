@@ -233,3 +233,39 @@ def test_the_chord_stopping_test_takes_the_same_decisions_on_numpy_and_jax():
                                              xp.asarray(inc), xp.asarray(prev), small, rtol=rtol, atol=atol, xp=xp)
             decisions.append(bool(settled))
         assert decisions == [expected, expected], (du[0], p, dp, inc, prev)
+
+
+def test_the_chord_decisions_are_the_same_on_numpy_and_traced_jax():
+    """`chord_counts`, `chord_accepts` and `chord_next` are the serial (traced) and distributed (NumPy) loops'
+    decisions after the stopping test: on one sequence of iterations both array libraries take the same
+    ones, and they are the policy's: a failed kept solve is no iteration and asks for a refresh; a fresh
+    step is taken even without decrease; a chord step is taken if it decreases ``|r|^2``, else rejected
+    and refreshed; a rate above `CHORD_RATE` refreshes; after a rejection the rate is unknown."""
+    import jax
+    import jax.numpy as jnp
+
+    from hyperoc.solvers.newton import chord_accepts, chord_counts, chord_next
+
+    sequence = [
+        # (refresh, solved, converged, decreased, increment, previous)
+        #     -> (counted, accepted, refresh next, previous next)
+        ((False, False, False, False, np.inf, np.inf), (False, False, True, np.inf)),  # no factorization yet
+        ((True, True, False, False, 1e-2, np.inf), (True, True, False, 1e-2)),  # fresh: taken, rate unknown
+        ((False, True, False, True, 5e-4, 1e-2), (True, True, False, 5e-4)),  # rate 0.05: keep
+        ((False, True, False, True, 2.5e-4, 5e-4), (True, True, True, 2.5e-4)),  # rate 0.5 > CHORD_RATE: refresh
+        ((False, True, False, False, 1e-4, 2.5e-4), (True, False, True, np.inf)),  # no decrease: rejected
+        ((False, True, True, False, 1e-12, 1e-10), (True, True, False, 1e-12)),  # converged: taken
+    ]
+
+    def decide(xp, refresh, solved, converged, decreased, increment, previous):
+        rate = increment / previous
+        accepted = chord_accepts(solved, converged, decreased, refresh, xp=xp)
+        return (chord_counts(refresh, solved, xp=xp), accepted, *chord_next(accepted, rate, increment, xp=xp))
+
+    traced = jax.jit(lambda *args: decide(jnp, *args))
+    for inputs, expected in sequence:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            numpy = decide(np, *inputs)
+        jax_ = traced(*(jnp.asarray(v) for v in inputs))
+        as_python = lambda d: (bool(d[0]), bool(d[1]), bool(d[2]), float(d[3]))
+        assert as_python(numpy) == as_python(jax_) == expected, (inputs, numpy, jax_)

@@ -15,9 +15,11 @@ Taylor-Hood pressures: `hyperoc.solvers.newton.small_increment`). Chord Newton (
 ``newton(..., chord=True)`` (`hyperoc.solvers.newton`): it solves with the Jacobian of an earlier
 iterate, of this solve or of an earlier one, takes the step if it decreases ``|r|^2`` (sufficient
 decrease 1e-4), refreshes the Jacobian after a rejected step or when the contraction rate exceeds
-`CHORD_RATE`, and stops by the serial policy, `hyperoc.solvers.newton.chord_stopping_test` (the error left after the
-update, of u and of the multiplier). Every rank makes the same sequence of collective calls: the
-decisions are taken on reduced values, equal on all ranks.
+`hyperoc.solvers.newton.CHORD_RATE`, and stops when the error left after the update, of u and of the
+multiplier, is small. Its decisions are the serial loop's pure policy functions
+(`hyperoc.solvers.newton.chord_stopping_test`, ``chord_accepts``, ``chord_next``, ``chord_counts``) on
+NumPy values. Every rank makes the same sequence of collective calls: the decisions are taken on reduced
+values, equal on all ranks.
 """
 
 from __future__ import annotations
@@ -27,7 +29,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..solvers.linsolve import eliminate_border
-from ..solvers.newton import CHORD_RATE, NewtonStatus, chord_stopping_test, small_increment
+from ..solvers.newton import (
+    NewtonStatus,
+    chord_accepts,
+    chord_counts,
+    chord_next,
+    chord_stopping_test,
+    small_increment,
+    sufficient_decrease,
+)
 from .layout import Layout
 
 __all__ = ["KeptJacobian", "newton"]
@@ -70,7 +80,7 @@ def newton(residual, jacobian, layout: Layout, x0: np.ndarray, *, rtol: float, a
             dx = _kept_step(layout, r, constrained, kept)
         du = dx[:m_o]
         solved = layout.all_finite(dx)
-        it += 1 if refresh or solved else 0  # a kept solve that failed only asks for a refresh
+        it += 1 if chord_counts(refresh, solved, xp=np) else 0
         if refresh and not solved:
             return x, it, NewtonStatus.NON_FINITE
         increment = layout.inf_norm(du) if solved else np.inf
@@ -86,13 +96,14 @@ def newton(residual, jacobian, layout: Layout, x0: np.ndarray, *, rtol: float, a
         if converged:
             return x + dx, it, NewtonStatus.CONVERGED
         r1 = residual(*at(x + dx)) if solved else None
-        accepted = solved and (refresh or merit(r1) <= (1 - 1e-4) * merit(r))
+        decreased = solved and bool(sufficient_decrease(merit(r1), merit(r)))  # a chord step is taken whole
+        accepted = bool(chord_accepts(solved, converged, decreased, refresh, xp=np))
         if accepted:
             x, r = x + dx, r1
             if not layout.all_finite(r):
                 return x, it, NewtonStatus.NON_FINITE
-        previous = increment if accepted else np.inf
-        refresh = not chord or not accepted or rate > CHORD_RATE
+        refresh_next, previous = chord_next(accepted, rate, increment, xp=np)
+        refresh, previous = not chord or bool(refresh_next), float(previous)
     return x, max_iter, NewtonStatus.MAX_ITERATIONS
 
 
