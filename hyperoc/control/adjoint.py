@@ -153,7 +153,7 @@ class Adjoint:
         rhs = vjp_split((lam0 + v_y0n, jnp.zeros((), x.dtype)))[0] + n_x
         w_u, w_p = st.solver.solve(blocks, row, col, rhs[:-1], rhs[-1], corner)  # transpose: col <-> row
         w = jnp.concatenate([w_u, w_p[None]])
-        res = lambda y0, y1, s, xi0, xi1, dt, t0: st.residual(x, y0, y1, s, xi0, xi1, f0, f1, dt, V0, t0)
+        res = lambda y0, y1, s, xi0, xi1, dt, t0: st.residual(x, (y0, y1, s), (xi0, xi1), (f0, f1), dt, V0, t0)
         _, vjp_r = jax.vjp(res, y0, y1, s_prev, xi0, xi1, dt, t0)
         r_y0, r_y1, r_s, r_xi0, r_xi1, r_dt, r_t0 = vjp_r(w)
         return (v_y0 - r_y0 + n_y0, v_y1 - r_y1, n_s - r_s), (-r_xi0, -r_xi1, v_dt - r_dt + n_dt, -r_t0)

@@ -96,7 +96,7 @@ class DistributedStepper(TimeStepper):
 
         def residual(yl0, yl1, dt, t0, x):
             """The element rows (m,) and the local volume of ``x = (y0' (m,), p')``, the step from level t0."""
-            return st.residual(x, yl0, yl1, 0.0, None, None, zero, zero, dt, 0.0, t0)
+            return st.residual(x, (yl0, yl1, 0.0), (None, None), (zero, zero), dt, 0.0, t0)
 
         def residual_vjp(yl0, yl1, dt, t0, x, w):
             return jax.vjp(lambda a, b, c, s: residual(a, b, c, s, x), yl0, yl1, dt, t0)[1](w)
