@@ -367,7 +367,7 @@ class Config:
 
     def control_values(self, control, space, t: np.ndarray) -> np.ndarray | None:
         """`prescribed_control` for a `hyperoc.mechanics.controls.ControlData` on ``space``."""
-        from .expr import expression_field, parse_expression
+        from ..expr import expression_field, parse_expression
 
         c = self["control"]
         if "file" in c:
