@@ -128,7 +128,8 @@ class _Solves:
 
 
 class ReducedFunctional:
-    """``J(m)`` and its exact gradient for a model, a time transform and an objective (maximized).
+    """``J(m)`` and its exact gradient for a model, a time transform and an objective (maximized). The paper's
+    optimize-then-discretize gradient is `hyperoc.control.continuous_adjoint.ContinuousReducedFunctional`'s.
 
     Parameters
     ----------
@@ -158,8 +159,6 @@ class ReducedFunctional:
         used when it is given); e.g. `hyperoc.distributed.dynamics.DistributedAdjoint` to solve on MPI ranks.
     checkpoint_every, checkpoint_snapshots : deprecated spellings of ``schedule=EveryK(k)`` and
         ``schedule=Binomial(s)``.
-
-    The paper's optimize-then-discretize gradient is `hyperoc.control.continuous_adjoint.ContinuousReducedFunctional`.
     """
 
     def __init__(self, model: StateModel, transform: TimeTransform, objective: Objective, *,
