@@ -25,6 +25,7 @@ values, equal on all ranks.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -38,7 +39,9 @@ from ..solvers.newton import (
     small_increment,
     sufficient_decrease,
 )
-from .layout import Layout
+
+if TYPE_CHECKING:  # the loop needs only the layout's methods; importing it needs PETSc
+    from .layout import Layout
 
 __all__ = ["KeptJacobian", "newton"]
 
