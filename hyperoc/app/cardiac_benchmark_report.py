@@ -1,4 +1,4 @@
-"""The files of a cardiac benchmark run (`hyperoc.cardiac.benchmark.run_benchmark`) and their figures.
+"""The files of a cardiac benchmark run (`hyperoc.app.cardiac_benchmark.run_benchmark`) and their figures.
 
 ``OUT/curves.npz``: the record's arrays at every time level (``t`` s; ``p0``, ``p1`` (L, 3) m; ``volume`` m^3;
 ``pressure``, ``tension`` Pa). ``OUT/benchmark.json``: the same curves at the codes' sampling times
@@ -14,10 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..app.plotting import axis_label, new_figure, save_figure
+from ..cardiac.benchmark import resampled, sample_times
+from ..cardiac.benchmark_curves import curve_band, reference_curves
 from ..io import read_json, write_json, write_npz
-from .benchmark import resampled, sample_times
-from .benchmark_curves import curve_band, reference_curves
+from .plotting import axis_label, new_figure, save_figure
 
 __all__ = ["CURVES", "write_benchmark_outputs", "read_benchmark_record", "sampled_record", "plot_displacements",
            "plot_volume_and_loads"]
