@@ -1,7 +1,8 @@
 """One gradient evaluation with and without a checkpointed adjoint: seconds, peak memory, step evaluations.
 
-Variants: store everything (None), every k-th level state (an int k, ``checkpoint_every = k``), the
-binomial (revolve) schedule with s snapshots (``"s<s>"``, ``checkpoint_snapshots = s``).
+Variants: store everything (None, `StoreAll`), every k-th level state (an int k, `EveryK`,
+``checkpoint_every = k``), the binomial (revolve) schedule with s snapshots (``"s<s>"``, `Binomial`,
+``checkpoint_snapshots = s``).
 
 Each variant runs in a fresh subprocess (JAX buffers are invisible to tracemalloc), which reports
 the process's peak resident set (``ru_maxrss``) at the end, the seconds of a first gradient
@@ -15,7 +16,7 @@ step evaluations of a gradient: N, 2 N (each segment recomputed once), ``t(N, s)
 (`hyperoc.control.revolve.minimal_advances`; `tests/test_revolve.py` counts them).
 Ratios are against the store-everything run of the same case, in this same script. On a shared
 machine the load drifts between processes, so the time ratios are also measured in one process
-alternating the variants (same compiled code, ``J.checkpoint_every`` / ``J.checkpoint_snapshots``
+alternating the variants (same compiled code, ``J.schedule``
 switched; best of three rounds).
 
 Cases:
@@ -90,10 +91,13 @@ def build_lv(h: float):
     return model, transform, objective, "lu", s["tau"], shape
 
 
-def checkpointing(k) -> dict:
-    """ReducedFunctional keywords of a variant: None, an int k (every k-th level) or "s<s>" (s snapshots)."""
-    snapshots = isinstance(k, str)
-    return {"checkpoint_every": None if snapshots else k, "checkpoint_snapshots": int(k[1:]) if snapshots else None}
+def checkpointing(k):
+    """The schedule of a variant: None (`StoreAll`), an int k (`EveryK`) or "s<s>" (`Binomial` with s snapshots)."""
+    from hyperoc.control.revolve import Binomial, EveryK, StoreAll
+
+    if isinstance(k, str):
+        return Binomial(int(k[1:]))
+    return StoreAll() if k is None else EveryK(k)
 
 
 def parse_variant(text: str):
@@ -105,9 +109,8 @@ def step_evaluations(k, N: int) -> int:
     """Forward step evaluations of one gradient (the forward pass included): N, 2 N, ``t(N, s) + 1``."""
     from hyperoc.control.revolve import minimal_advances
 
-    kw = checkpointing(k)
-    if kw["checkpoint_snapshots"]:
-        return minimal_advances(N, kw["checkpoint_snapshots"]) + 1
+    if isinstance(k, str):
+        return minimal_advances(N, int(k[1:])) + 1
     return N if k is None else 2 * N
 
 
@@ -116,7 +119,7 @@ def child(case: str, size: float, k) -> dict:
     import hyperoc as ho
 
     model, transform, objective, solver, tau, shape = build_1d(int(size)) if case == "1d" else build_lv(size)
-    J = ho.ReducedFunctional(model, transform, objective, solver=solver, **checkpointing(k))
+    J = ho.ReducedFunctional(model, transform, objective, solver=solver, schedule=checkpointing(k))
     xi = shape * np.ones((1, model.control.size))
     times = []
     for scale in (1.0, 1.01, 1.02, 1.03):  # a new point each time: the state cache is not hit
@@ -125,7 +128,7 @@ def child(case: str, size: float, k) -> dict:
         times.append(time.perf_counter() - t0)
     N, n = J.N, model.n
     stored = N + 1 if k is None else J.record(ho.ControlPoint(1.03 * xi, tau)).stored_states
-    segment = 2 * (min(J.checkpoint_every, N) + 1) * n * 8 if J.checkpoint_every else 0
+    segment = 2 * (min(k, N) + 1) * n * 8 if isinstance(k, int) else 0
     return {"case": case, "size": size, "k": k, "dofs": n, "steps": N, "first_s": times[0],
             "gradient_s": min(times[1:]),
             "stored_bytes": 2 * stored * n * 8, "segment_bytes": segment, "step_evaluations": step_evaluations(k, N),
@@ -147,9 +150,7 @@ def interleaved_child(case: str, size: float, ks: list) -> dict:
     best = {str(k): math.inf for k in variants}
     for r in range(4):  # round 0 compiles
         for i, k in enumerate(variants):
-            J.checkpoint_every = J.checkpoint_snapshots = None
-            for name, value in checkpointing(k).items():
-                setattr(J, name, value)
+            J.schedule = checkpointing(k)
             m = ho.ControlPoint((1 + 1e-3 * (r * len(variants) + i)) * xi, tau)  # new point: no cache hit
             t0 = time.perf_counter()
             J.value_and_gradient(m)

@@ -262,7 +262,7 @@ def _steady(comm, W, w, load, R, K, bc, repeat: int) -> dict:
 
 
 def _solve(comm, W, w, load, R, K, bc, clock):
-    """Load stepping (`hyperoc.dynamics.statics._step_load`'s: halve a failed increment, grow back after a
+    """Load stepping (`hyperoc.dynamics.statics.step_load`'s: halve a failed increment, grow back after a
     success) with full Newton steps; ``(Newton iterations per accepted increment, rejected iterations)``."""
     from mpi4py import MPI
 

@@ -51,7 +51,7 @@ class HessianTangentModel(ho.StateModel):
         def psi(G, frame):
             return a * self.material.energy_of_F(G, frame) + b * det(G)
 
-        return self._pointwise(jax.hessian(psi), F)  # (nc, nq, d, d, d, d)
+        return self.pointwise(jax.hessian(psi), F)  # (nc, nq, d, d, d, d)
 
     def contract(self, A):
         Ke = jnp.einsum("cq,cqaj,cqijkl,cqbl->caibk", self._w, self._dN, A, self._dN)
@@ -69,7 +69,7 @@ def new_pointwise(model, u):
     I, J = _VOIGT[model.dim][:2]
     F = model.deformation_gradient(u)
     e = (0.5 * (jnp.einsum("cqkI,cqkJ->cqIJ", F, F) - jnp.eye(model.dim)))[..., I, J]
-    return model._pointwise(model._voigt_derivatives, e)
+    return model.pointwise(model._voigt_derivatives, e)
 
 
 def shell_frames(x):

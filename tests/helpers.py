@@ -29,6 +29,7 @@ from hyperoc import (
     interval,
 )
 from hyperoc.control.objectives import Terminal
+from hyperoc.control.revolve import StoreAll
 from hyperoc.control.verification import random_directions
 
 
@@ -73,10 +74,9 @@ def checkpointing_problem(kind: str) -> ReducedFunctional:
     """The reduced functionals on which `tests/test_checkpointed_adjoint.py` and `tests/test_revolve.py`
     compare checkpointed and stored adjoints (``"traced-1d"``: 7 steps of the bar with 20 cells, an
     objective reading y0(tau) and y1(T); ``"sparse-3d"``: 7 steps of a clamped unit cube), with
-    checkpointing switched off."""
+    checkpointing switched off (`StoreAll`)."""
     J = _checkpointing_problem(kind)
-    J.checkpoint_every = None
-    J.checkpoint_snapshots = None
+    J.schedule = StoreAll()
     return J
 
 

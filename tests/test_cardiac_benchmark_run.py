@@ -24,9 +24,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hyperoc.app.cardiac_benchmark import benchmark_config
 from hyperoc.app.cli import main
 from hyperoc.app.config import parse_config, set_entries
-from hyperoc.cardiac.benchmark import benchmark_config, benchmark_curves, compare_with_codes, resampled, sample_times
+from hyperoc.cardiac.benchmark import benchmark_curves, compare_with_codes, resampled, sample_times
 from hyperoc.cardiac.benchmark_curves import reference_curves
 
 #: The fine run's record of step 1 (`hyperoc benchmark cardiac-elastodynamics --step 1 --mesh reference`).

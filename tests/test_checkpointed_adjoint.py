@@ -23,6 +23,7 @@ import pytest
 from helpers import bar, checkpointing_problem, control_point
 from hyperoc import Objective, PressureAt, ReducedFunctional, TimeTransform
 from hyperoc.control.objectives import Running
+from hyperoc.control.revolve import EveryK, StoreAll
 from hyperoc.errors import InputError
 
 RTOL = 5e-13
@@ -37,11 +38,11 @@ class _WholeTrajectory(Running):
 
 
 def _assert_same(J, m, ks):
-    J.checkpoint_every = None
+    J.schedule = StoreAll()
     value, grad = J.value_and_gradient(m)
     scale = sum(abs(v) for v in J.objective.parts(J.trajectory(J.state(m))).values())
     for k in ks:
-        J.checkpoint_every = k
+        J.schedule = EveryK(k)
         vk, gk = J.value_and_gradient(m)
         ck = J.record(m)
         assert set(ck.levels) == {*range(0, J.N, k), *J.objective_levels}
@@ -71,12 +72,12 @@ def test_python_loop_3d_sparse():
 
 def test_whole_trajectory_objective_is_refused():
     J = ReducedFunctional(bar(8), TimeTransform.for_step(1.0, 0.25, 0.5),
-                          Objective(running=(_WholeTrajectory(),), at_tau=PressureAt()), checkpoint_every=2)
+                          Objective(running=(_WholeTrajectory(),), at_tau=PressureAt()), schedule=EveryK(2))
     with pytest.raises(InputError, match="whole arrays"):
         J(J.zero(0.5))
     for bad in (0, 1.5, True):
         with pytest.raises(InputError, match="checkpoint_every"):
-            J.checkpoint_every = bad
+            EveryK(bad)
 
 
 def test_state_after_the_gradient_reuses_its_forward_solve():
@@ -92,7 +93,7 @@ def test_state_after_the_gradient_reuses_its_forward_solve():
     fresh = J.stepper.run(J.transform.grid(m.tau), m.xi, diagnose=False)
     for name in ("t", "y0", "y1", "p_steps", "pressure", "volume", "newton_iterations", "min_det_F", "max_grad", "xi"):
         assert np.array_equal(getattr(sol, name), getattr(fresh, name)), name
-    J.checkpoint_every = 3
+    J.schedule = EveryK(3)
     other = control_point(J, 0.75, 0.04, seed=12)
     J.value_and_gradient(other)
     J.state(other)

@@ -101,9 +101,9 @@ def _linear_chord(rate, rtol, u_error=1.0, p_error=0.0, iterations=60):
 
 def _chord_decisions(rows, rtol):
     """``(settled, rate)`` of `chord_stopping_test` (NumPy) at every iteration of ``rows``."""
-    from hyperoc.solvers.newton import _small, chord_stopping_test
+    from hyperoc.solvers.newton import chord_stopping_test, small_increment
 
-    small = lambda a, b, rt, at: _small(a, b, None, rt, at, inf_norm=lambda v: np.max(np.abs(v)))
+    small = lambda a, b, rt, at: small_increment(a, b, None, rt, at, inf_norm=lambda v: np.max(np.abs(v)))
     previous, out = np.inf, []
     for u, du, p, dp, *_ in rows:
         increment = np.max(np.abs(du))
@@ -212,7 +212,7 @@ def test_the_chord_stopping_test_takes_the_same_decisions_on_numpy_and_jax():
     and p settled, and at the round-off floor when the contraction stalls."""
     import jax.numpy as jnp
 
-    from hyperoc.solvers.newton import _small, chord_stopping_test
+    from hyperoc.solvers.newton import chord_stopping_test, small_increment
 
     rtol, atol = 1e-11, 1e-15
     u = np.ones(4)
@@ -228,8 +228,139 @@ def test_the_chord_stopping_test_takes_the_same_decisions_on_numpy_and_jax():
     for du, p, dp, inc, prev, expected in cases:
         decisions = []
         for xp in (np, jnp):
-            small = lambda a, b, rt, at, xp=xp: _small(xp.asarray(a), xp.asarray(b), None, rt, at)
+            small = lambda a, b, rt, at, xp=xp: small_increment(xp.asarray(a), xp.asarray(b), None, rt, at)
             settled, _ = chord_stopping_test(xp.asarray(u), xp.asarray(du), xp.asarray(p), xp.asarray(dp),
                                              xp.asarray(inc), xp.asarray(prev), small, rtol=rtol, atol=atol, xp=xp)
             decisions.append(bool(settled))
         assert decisions == [expected, expected], (du[0], p, dp, inc, prev)
+
+
+def test_the_chord_decisions_are_the_same_on_numpy_and_traced_jax():
+    """`chord_counts`, `chord_accepts` and `chord_next` are the serial (traced) and distributed (NumPy) loops'
+    decisions after the stopping test: on one sequence of iterations both array libraries take the same
+    ones, and they are the policy's: a failed kept solve is no iteration and asks for a refresh; a fresh
+    step is taken even without decrease; a chord step is taken if it decreases ``|r|^2``, else rejected
+    and refreshed; a rate above `CHORD_RATE` refreshes; after a rejection the rate is unknown."""
+    import jax
+    import jax.numpy as jnp
+
+    from hyperoc.solvers.newton import chord_accepts, chord_counts, chord_next
+
+    sequence = [
+        # (refresh, solved, converged, decreased, increment, previous)
+        #     -> (counted, accepted, refresh next, previous next)
+        ((False, False, False, False, np.inf, np.inf), (False, False, True, np.inf)),  # no factorization yet
+        ((True, True, False, False, 1e-2, np.inf), (True, True, False, 1e-2)),  # fresh: taken, rate unknown
+        ((False, True, False, True, 5e-4, 1e-2), (True, True, False, 5e-4)),  # rate 0.05: keep
+        ((False, True, False, True, 2.5e-4, 5e-4), (True, True, True, 2.5e-4)),  # rate 0.5 > CHORD_RATE: refresh
+        ((False, True, False, False, 1e-4, 2.5e-4), (True, False, True, np.inf)),  # no decrease: rejected
+        ((False, True, True, False, 1e-12, 1e-10), (True, True, False, 1e-12)),  # converged: taken
+    ]
+
+    def decide(xp, refresh, solved, converged, decreased, increment, previous):
+        rate = increment / previous
+        accepted = chord_accepts(solved, converged, decreased, refresh, xp=xp)
+        return (chord_counts(refresh, solved, xp=xp), accepted, *chord_next(accepted, rate, increment, xp=xp))
+
+    traced = jax.jit(lambda *args: decide(jnp, *args))
+    for inputs, expected in sequence:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            numpy = decide(np, *inputs)
+        jax_ = traced(*(jnp.asarray(v) for v in inputs))
+        as_python = lambda d: (bool(d[0]), bool(d[1]), bool(d[2]), float(d[3]))
+        assert as_python(numpy) == as_python(jax_) == expected, (inputs, numpy, jax_)
+
+
+class _DenseLayout:
+    """One rank's `hyperoc.distributed.layout.Layout` as the distributed Newton uses it, on dense NumPy arrays
+    (the "element blocks" are the whole K)."""
+
+    n_u = None
+
+    def __init__(self, n):
+        self.owned_size, self.factorizations, self._K = n, 0, None
+
+    def local_of_owned(self, x):
+        return x
+
+    def dot(self, a, b):
+        return float(a @ b)
+
+    def inf_norm(self, v):
+        return float(np.max(np.abs(v)))
+
+    def all_finite(self, v):
+        return bool(np.all(np.isfinite(v)))
+
+    def factor(self, K):
+        self._K, self.factorizations = np.array(K), self.factorizations + 1
+
+    def solve(self, *columns):
+        return np.linalg.solve(self._K, np.column_stack(columns))
+
+
+class _DenseChordSolver:
+    """`SparseSolver.refresh_solve` / `kept_solve` (traced, through host callbacks) on a dense K."""
+
+    def __init__(self, n):
+        self.n, self.kept, self.factorizations = n, None, 0
+
+    def _refresh(self, K, col, row, r_u, r_c):
+        K, col = np.asarray(K), np.asarray(col)
+        self.kept, self.factorizations = (K, np.linalg.solve(K, col), np.asarray(row)), self.factorizations + 1
+        return self._kept_solve(r_u, r_c)
+
+    def _kept_solve(self, r_u, r_c):
+        from hyperoc.solvers.linsolve import eliminate_border
+
+        if self.kept is None:  # no factorization yet: NaN asks the loop for a refresh
+            return np.full(self.n + 1, np.nan)
+        K, b, row = self.kept
+        du, dp = eliminate_border(np.column_stack([np.linalg.solve(K, np.asarray(r_u)), b]), row, float(r_c))
+        return np.append(du, dp)
+
+    def _callback(self, fn, *args):
+        import jax
+        import jax.numpy as jnp
+
+        out = jax.pure_callback(fn, jax.ShapeDtypeStruct((self.n + 1,), jnp.float64), *args)
+        return out[:-1], out[-1]
+
+    def refresh_solve(self, K, col, row, r_u, r_c):
+        return self._callback(self._refresh, K, col, row, r_u, r_c)
+
+    def kept_solve(self, r_u, r_c):
+        return self._callback(self._kept_solve, r_u, r_c)
+
+
+@pytest.mark.parametrize("stiffening", [0.1, 2.0, 30.0])
+def test_the_serial_and_distributed_chord_loops_take_the_same_decisions(stiffening):
+    """The serial chord Newton (traced, `hyperoc.solvers.newton.newton` with ``chord=True``) and the distributed
+    one (NumPy, `hyperoc.distributed.newton.newton` with a `KeptJacobian`, here on one rank's dense layout) on
+    the same bordered problem ``A u + c u^3 - b + p g = 0``, ``g . u = 0.1`` from the same start: the same
+    iterations and factorizations (the decisions: refresh, acceptance, stop) and the same solution to the
+    tolerance. Stiffer cubic terms (c) contract more slowly, so the chord iteration refreshes and rejects."""
+    import jax.numpy as jnp
+
+    from hyperoc.distributed.newton import KeptJacobian
+    from hyperoc.distributed.newton import newton as distributed_newton
+    from hyperoc.solvers.newton import newton
+
+    n, rng = 6, np.random.default_rng(0)
+    A = 3 * np.eye(n) + 0.3 * rng.standard_normal((n, n))
+    A, b, g = A + A.T, rng.standard_normal(n), np.ones(n) / n
+    rows = lambda xp, u, p: xp.concatenate([A @ u + stiffening * u**3 - b + p * g, xp.atleast_1d(g @ u - 0.1)])
+    tangent = lambda xp, u: (A + xp.diag(3 * stiffening * u**2), g, g)
+    x0, rtol = np.append(2.0 * np.ones(n), 0.5), 1e-12
+
+    solver = _DenseChordSolver(n)
+    x_serial, it_serial, status_serial = newton(lambda x: rows(jnp, x[:-1], x[-1]), lambda x: tangent(jnp, x[:-1]),
+                                                solver, jnp.asarray(x0), rtol=rtol, atol=0.0, max_iter=50,
+                                                line_search=False, chord=True)
+    layout = _DenseLayout(n)
+    x_dist, it_dist, status_dist = distributed_newton(lambda u, p: rows(np, u, p), lambda u, p: tangent(np, u), layout,
+                                                      x0, rtol=rtol, atol=0.0, max_iter=50, kept=KeptJacobian())
+    assert int(status_serial) == int(status_dist) == 0
+    assert (int(it_serial), solver.factorizations) == (it_dist, layout.factorizations)
+    assert layout.factorizations > 1  # the sequence refreshes: a decision the two loops take alike
+    np.testing.assert_allclose(np.asarray(x_serial), x_dist, rtol=0.0, atol=1e-10 * np.abs(x_dist).max())

@@ -45,7 +45,7 @@ def test_simulate_figures_name_the_run_and_carry_units(tmp_path, monkeypatch):
     import hyperoc.app.plotting
 
     figures = []
-    monkeypatch.setattr(hyperoc.app.plotting, "_save", lambda fig, path: figures.append((Path(path).name, fig)) or path)
+    monkeypatch.setattr(hyperoc.app.plotting, "save_figure", lambda fig, path: figures.append((Path(path).name, fig)) or path)
     units = '[output]\nunits = { time = "ms", length = "mm", pressure = "kPa", control = "kPa/mm" }\n'
     cfg = _write(tmp_path, SMALL_1D + units, "bar-run.toml")
     assert main(["simulate", str(cfg), "--out", str(tmp_path / "out"), "--no-progress", "--set", "dynamics.dt=0.1"]) == 0
@@ -213,6 +213,7 @@ def test_config_sliding_gamma_d_and_checkpointing(tmp_path):
     reaches the reduced functional."""
     from hyperoc.app.config import load_config
     from hyperoc.app.workflows import build_reduced
+    from hyperoc.control.revolve import EveryK
 
     text = SMALL_1D.replace('kind = "interval"\nn = 20', 'kind = "box"\nnx = 2\ndirichlet = "bottom"\nfixed_components = [1]')
     text = text.replace("lower = [0.75], upper = [1.0]", "lower = [0.0, 0.0, 0.5], upper = [1.0, 1.0, 1.0]")
@@ -222,7 +223,7 @@ def test_config_sliding_gamma_d_and_checkpointing(tmp_path):
     assert len(model.pinned_dofs) == 3
     clamped = load_config(_write(tmp_path, text.replace("fixed_components = [1]\n", ""), "clamped.toml")).model()
     assert model.n == clamped.n + 2 * 9 - 3  # 9 nodes on y = 0: x and z free, minus the three pins
-    assert build_reduced(cfg, 1.0).checkpoint_every == 5
+    assert build_reduced(cfg, 1.0).schedule == EveryK(5)
 
 
 @pytest.mark.parametrize("mesh, cells", [('kind = "interval"\nn = 20', 20), ('kind = "rectangle"\nnx = 2', 8),

@@ -105,10 +105,10 @@ def test_objective_config_builds_the_rate_cost():
 
 def test_continuous_gradient_refuses_the_rate_cost():
     J = vibrating_bar(0.1, 0.1, beta=1.0)
-    from hyperoc.control.reduced import ReducedFunctional
+    from hyperoc.control.continuous_adjoint import ContinuousReducedFunctional
 
     with pytest.raises(InputError, match="continuous"):
-        ReducedFunctional(J.model, J.transform, J.objective, gradient="continuous")
+        ContinuousReducedFunctional(J.model, J.transform, J.objective)
 
 
 @pytest.fixture(scope="module")

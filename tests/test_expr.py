@@ -4,8 +4,8 @@ import builtins
 import numpy as np
 import pytest
 
-from hyperoc.app.expr import Expression, expression_field, parse_expression
 from hyperoc.errors import InputError
+from hyperoc.expr import Expression, expression_field, parse_expression
 
 X = np.linspace(-1.0, 2.0, 7)
 T = np.array([[0.0], [0.3], [1.0]])

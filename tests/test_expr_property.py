@@ -6,8 +6,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hyperoc.app.expr import parse_expression
 from hyperoc.errors import InputError
+from hyperoc.expr import parse_expression
 
 POINTS = {"x": np.linspace(-2.0, 2.0, 9), "y": np.linspace(0.0, 1.0, 9), "z": np.zeros(9),
           "r": np.linspace(0.0, 3.0, 9), "t": np.float64(0.7)}

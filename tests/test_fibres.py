@@ -202,7 +202,7 @@ def test_state_model_with_fibre_frames_on_the_ventricle(ventricle, vent_fibres, 
     """Base fixed: vol(0) = |Omega|, R(0) = 0 (stress-free reference), R and Pi finite and Pi > 0 at a
     small random displacement (0.05 mm against 4 mm cells), symmetric finite element tangents."""
     model = ho.StateModel(ventricle, material, frames=vent_fibres)
-    assert model._frames.shape == model.quad.x.shape[:2] + (3, 3)
+    assert model.material_frames.shape == model.quad.x.shape[:2] + (3, 3)
     fns = model.jitted
     zero = np.zeros(model.n)
     u = 0.05 * np.random.default_rng(0).standard_normal(model.n)

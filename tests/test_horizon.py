@@ -24,6 +24,7 @@ from hyperoc.control.objectives import (
     Trajectory,
 )
 from hyperoc.control.reduced import ControlPoint, ReducedFunctional
+from hyperoc.control.revolve import Binomial, EveryK
 from hyperoc.dynamics.stepper import TimeStepper
 from hyperoc.dynamics.timegrid import TimeTransform
 from hyperoc.errors import SolverError
@@ -77,7 +78,7 @@ def _functional(at_tau, horizon, **kwargs):
 
 @pytest.mark.parametrize("at_tau, checkpoints", [
     (PressureAt(), {}), (PressureRise(0.3), {}), (PressureMean(0.3), {}),
-    (PressureRise(0.3), {"checkpoint_every": 4}), (PressureAt(), {"checkpoint_snapshots": 3})],
+    (PressureRise(0.3), {"schedule": EveryK(4)}), (PressureAt(), {"schedule": Binomial(3)})],
     ids=["at-stored", "rise-stored", "mean-stored", "rise-every-4", "at-binomial-3"])
 def test_value_and_gradient_equal_those_of_the_whole_solve(at_tau, checkpoints):
     """Same compiled step, same inputs: equal to round-off (bitwise in practice)."""

@@ -276,7 +276,7 @@ MM_MS = Units(time="ms", length="mm", pressure="kPa", control="kPa/mm")
 def _figures(monkeypatch) -> list:
     """The Figures the plotting functions save, in order (nothing is written)."""
     saved = []
-    monkeypatch.setattr(hyperoc.app.plotting, "_save", lambda fig, path: saved.append(fig) or Path(path))
+    monkeypatch.setattr(hyperoc.app.plotting, "save_figure", lambda fig, path: saved.append(fig) or Path(path))
     return saved
 
 

@@ -42,7 +42,7 @@ def test_beam_setup_is_land_problem_1():
     model, fol = beam_problem(1, bulk_modulus=BULK_MODULUS)
     mat = model.material
     assert (mat.C, mat.bf, mat.bt, mat.bfs, mat.bulk_modulus) == (2.0, 8.0, 2.0, 4.0, BULK_MODULUS)
-    fibres = np.unique(np.asarray(model._frames)[..., 0, :].reshape(-1, 3), axis=0)  # frame row 0 = f
+    fibres = np.unique(np.asarray(model.material_frames)[..., 0, :].reshape(-1, 3), axis=0)  # frame row 0 = f
     np.testing.assert_array_equal(fibres, [[1.0, 0.0, 0.0]])
     clamped = np.setdiff1d(np.arange(model.space.num_dofs), model.free) // 3
     assert np.all(model.space.nodes[clamped, 0] == 0.0)

@@ -196,7 +196,7 @@ def test_factorizations_live_and_die_on_the_solver_thread(model, monkeypatch):
     import threading
     import weakref
 
-    import hyperoc.solvers.linsolve as linsolve
+    import hyperoc.solvers.backends as backends
 
     built, freed = [], []
 
@@ -209,8 +209,8 @@ def test_factorizations_live_and_die_on_the_solver_thread(model, monkeypatch):
         def __getattr__(self, name):
             return getattr(self._lu, name)
 
-    real = linsolve.spla.splu
-    monkeypatch.setattr(linsolve.spla, "splu", lambda *a, **k: TracedLU(real(*a, **k)))
+    real = backends.spla.splu
+    monkeypatch.setattr(backends.spla, "splu", lambda *a, **k: TracedLU(real(*a, **k)))
     solver = SparseSolver(model, "lu_reuse", reuse_max_iter=0)  # no refinement: each call refreshes
     col, row, r_u, r_c = bordered_rhs(model)
     for seed in (0, 1, 2):
@@ -264,9 +264,9 @@ def test_first_call_fallback_with_minimum_degree_keeps_the_minimum_degree_orderi
     solver = solve_within_forward_error_bound(model, SparseSolver(model, "lu", ordering="mmd"), blocks)
     assert solver.stats["pivoting_fallbacks"] == 1
     K = model.pattern.matrix(blocks).tocsc()
-    expected = spla.splu(K, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=solver.fallback_thresh,
+    expected = spla.splu(K, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=solver.backend.fallback_thresh,
                          options={"SymmetricMode": True}).nnz
-    natural = spla.splu(K, permc_spec="NATURAL", diag_pivot_thresh=solver.fallback_thresh,
+    natural = spla.splu(K, permc_spec="NATURAL", diag_pivot_thresh=solver.backend.fallback_thresh,
                         options={"SymmetricMode": True}).nnz
     print(f"\nfill of the fallback: {solver.stats['fill']}, minimum degree {expected}, original numbering {natural}")
     assert solver.stats["fill"] == expected < natural

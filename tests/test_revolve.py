@@ -1,4 +1,4 @@
-"""Binomial checkpointing (`hyperoc.control.revolve`, ``ReducedFunctional(..., checkpoint_snapshots=s)``).
+"""Binomial checkpointing (`hyperoc.control.revolve`, ``ReducedFunctional(..., schedule=Binomial(s))``).
 
 (a) The schedule, run on an abstract machine that tracks levels only: every step is reversed exactly
 once, in the order N-1, ..., 0, each from the state at its level and the state of the level above;
@@ -34,7 +34,20 @@ from hyperoc import Objective, PressureAt, ReducedFunctional, TimeTransform
 from hyperoc.app.cli import main
 from hyperoc.app.config import parse_config
 from hyperoc.app.workflows import build_reduced
-from hyperoc.control.revolve import Advance, Free, Restore, Reverse, Store, minimal_advances, repetitions, schedule
+from hyperoc.control.continuous_adjoint import ContinuousReducedFunctional
+from hyperoc.control.revolve import (
+    Advance,
+    Binomial,
+    EveryK,
+    Free,
+    Restore,
+    Reverse,
+    Store,
+    checkpoint_schedule,
+    minimal_advances,
+    repetitions,
+    schedule,
+)
 from hyperoc.errors import InputError
 
 RTOL = 1e-12
@@ -127,7 +140,7 @@ def _assert_same(J, m, snapshots, exact_between_s):
     calls = _counting_steps(J)
     grads = []
     for s in snapshots:
-        J.checkpoint_snapshots = s
+        J.schedule = Binomial(s)
         calls.clear()
         vs, gs = J.value_and_gradient(m)
         assert calls["steps"] == minimal_advances(J.N, s) + 1, (s, calls)
@@ -160,16 +173,20 @@ def test_python_loop_3d_sparse():
 
 def test_bad_snapshots_are_refused(tmp_path):
     model = bar(8)
-    J = ReducedFunctional(model, TimeTransform.for_step(1.0, 0.25, 0.5), Objective(at_tau=PressureAt()))
     for bad in (0, -3, 1.5, True, "4"):
         with pytest.raises(InputError, match="checkpoint_snapshots"):
-            J.checkpoint_snapshots = bad
-    J.checkpoint_every = 2
+            Binomial(bad)
     with pytest.raises(InputError, match="exclude each other"):
-        J.checkpoint_snapshots = 3
+        checkpoint_schedule(2, 3)
+    with pytest.warns(DeprecationWarning, match="schedule=EveryK"):
+        old = ReducedFunctional(model, TimeTransform.for_step(1.0, 0.25, 0.5), Objective(at_tau=PressureAt()),
+                                checkpoint_snapshots=3)
+    assert old.schedule == Binomial(3) and old.checkpointed
+    with pytest.raises(InputError, match="schedule must be"):
+        ReducedFunctional(model, TimeTransform.for_step(1.0, 0.25, 0.5), Objective(at_tau=PressureAt()), schedule=3)
     with pytest.raises(InputError, match="exact gradient"):
-        ReducedFunctional(model, TimeTransform.for_step(1.0, 0.25, 0.5), Objective(at_tau=PressureAt()),
-                          gradient="continuous", checkpoint_snapshots=3)
+        ContinuousReducedFunctional(model, TimeTransform.for_step(1.0, 0.25, 0.5), Objective(at_tau=PressureAt()),
+                                    schedule=Binomial(3))
     assert parse_config({"optimize": {"checkpoint_snapshots": 4}})["optimize"]["checkpoint_snapshots"] == 4
     for bad in ({"checkpoint_snapshots": 0}, {"checkpoint_snapshots": 2.5}, {"checkpoint_snapshots": True},
                 {"checkpoint_snapshots": 3, "checkpoint_every": 2}):
@@ -183,7 +200,6 @@ def test_bad_snapshots_are_refused(tmp_path):
 def test_config_keys_reach_the_reduced_functional():
     """``[optimize] checkpoint_snapshots`` / ``checkpoint_every`` are passed on by `build_reduced`."""
     base = {"mesh": {"kind": "interval", "n": 8}, "dynamics": {"T": 1.0, "dt": 0.25}, "optimize": {"tau0": 0.5}}
-    for key, value in (("checkpoint_snapshots", 3), ("checkpoint_every", 2)):
+    for key, value, expected in (("checkpoint_snapshots", 3, Binomial(3)), ("checkpoint_every", 2, EveryK(2))):
         cfg = parse_config({**base, "optimize": {"tau0": 0.5, key: value}})
-        J = build_reduced(cfg, 0.5)
-        assert getattr(J, key) == value
+        assert build_reduced(cfg, 0.5).schedule == expected

@@ -9,8 +9,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from hyperoc.app.cardiac_benchmark import benchmark_config
 from hyperoc.app.config import parse_config, set_entries
-from hyperoc.cardiac.benchmark import benchmark_config
 from hyperoc.dynamics.laws import ExpressionLaw, bestel_pressure
 from hyperoc.dynamics.statics import solve_static, spring_force
 from hyperoc.dynamics.stepper import TimeStepper

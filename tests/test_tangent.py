@@ -48,7 +48,7 @@ def reference_blocks(model, u, a, b):
 
     k = ue.shape[1] * d
     hess = lambda ue, dN, w, fr: jax.hessian(energy)(ue, dN, w, fr).reshape(k, k)
-    return jax.vmap(hess)(ue, model._dN, model._w, model._frames)
+    return jax.vmap(hess)(ue, model._dN, model._w, model.material_frames)
 
 
 def _frames(*rows):

@@ -311,15 +311,15 @@ def _benchmark(args) -> None:
     _refuse_checkpointed(out, args.resume, "--resume")
     if args.end_time is not None and not 0.0 < args.end_time <= 1.0:
         raise InputError(f"--end-time must lie in (0, 1] s, got {args.end_time}")
-    from ..cardiac.benchmark import benchmark_config
+    from .cardiac_benchmark import benchmark_config
 
     cfg = benchmark_config(args.step, degree=args.degree, mesh=args.mesh, T=args.end_time)
     from .workflows import check_run
 
     model = check_run(cfg, "simulate")
     _start_compiler()
-    from ..cardiac.benchmark import run_benchmark
-    from ..cardiac.benchmark_report import write_benchmark_outputs
+    from .cardiac_benchmark import run_benchmark
+    from .cardiac_benchmark_report import write_benchmark_outputs
 
     progress = _progress(args)
     record = run_benchmark(args.step, out, degree=args.degree, mesh=args.mesh, T=args.end_time, progress=progress,

@@ -240,7 +240,7 @@ class Config:
             if d.get("pressure") is not None:
                 terms.append(DynamicPressure(model, d["pressure"]["boundary"], time_law(d["pressure"]["law"])))
             if d.get("activation") is not None:
-                if model._frames is None:
+                if model.material_frames is None:
                     raise InputError("activation needs fibres: add [fibres] kind = 'rule_based'")
                 terms.append(PrescribedTension(model, time_law(d["activation"]["law"])))
         if self["material"]["viscosity"] > 0:
@@ -367,7 +367,7 @@ class Config:
 
     def control_values(self, control, space, t: np.ndarray) -> np.ndarray | None:
         """`prescribed_control` for a `hyperoc.mechanics.controls.ControlData` on ``space``."""
-        from .expr import expression_field, parse_expression
+        from ..expr import expression_field, parse_expression
 
         c = self["control"]
         if "file" in c:

@@ -63,6 +63,7 @@ def reduced_functional(args):
     """``(J, m, comm, cfg)``: the config's `ReducedFunctional` (distributed unless ``--serial``), the point,
     the communicator (None serial) and the config."""
     from ..control.reduced import ControlPoint, ReducedFunctional
+    from ..control.revolve import checkpoint_schedule
     from .config import load_config
 
     cfg = load_config(args.config, args.set)
@@ -73,7 +74,8 @@ def reduced_functional(args):
     if cfg["dynamics"]["constraint"] != "tissue_volume":
         raise InputError(f"the distributed gradient does not yet take [dynamics] constraint = "
                          f"{cfg['dynamics']['constraint']!r} (only 'tissue_volume')")
-    comm, options = None, {"checkpoint_snapshots": args.snapshots, "horizon": cfg["optimize"]["horizon"]}
+    comm, options = None, {"schedule": checkpoint_schedule(snapshots=args.snapshots),
+                           "horizon": cfg["optimize"]["horizon"]}
     if args.serial:
         from ..control.adjoint import Adjoint
         from ..dynamics.stepper import TimeStepper

@@ -166,7 +166,7 @@ def _optimized(cfg: Config, starts: list | None, cache_dir: Path, progress: bool
     ``starts`` with tau free, keeping the best end point. ``scale``: the projected gradient of the zero control
     at the start's tau, to which the stopping test is relative (`cold_stationarity`); ``ends``: each start's
     tau0, end point, J, iterations and relative projected gradient."""
-    from ..control.optimize import _tau_range
+    from ..control.optimize import BoxProblem
     from ..control.reduced import ControlPoint
     from .workflows import build_reduced, optimize_single
 
@@ -176,8 +176,8 @@ def _optimized(cfg: Config, starts: list | None, cache_dir: Path, progress: bool
         return J, res, res.history["grad_norm"][0], []
     J, ends = build_reduced(cfg, starts[0].tau), []
     for start in starts:
-        scale = cold_stationarity(J, start.tau, _tau_range(J, o.get("tau_margin"), False, start.tau),
-                                  cfg.xi_bounds())
+        tau_range = BoxProblem.around(J, start.tau, tau_margin=o.get("tau_margin")).tau_range
+        scale = cold_stationarity(J, start.tau, tau_range, cfg.xi_bounds())
         _, res = optimize_single(cfg, start.tau, J=J, progress=progress, gradient_scale=scale,
                                  start=ControlPoint(start.on(J, start.tau), start.tau))
         ends.append((res, scale, start.tau))

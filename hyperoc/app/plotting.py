@@ -77,7 +77,8 @@ def axis_label(name: str, unit: str = "-") -> str:
     return f"{name} [{unit}]"
 
 
-def _new_figure(width: float, height: float, layout: str | None = "constrained") -> Figure:
+def new_figure(width: float, height: float, layout: str | None = "constrained") -> Figure:
+    """A Matplotlib figure of ``width`` x ``height`` inches on the Agg canvas (no GUI backend, thread-safe)."""
     fig = Figure(figsize=(width, height), layout=layout)
     FigureCanvasAgg(fig)
     return fig
@@ -89,7 +90,8 @@ def _fitted(title: str, fig: Figure) -> str:
     return textwrap.fill(title, width=max(20, int(fig.get_figwidth() * 72 / 6.8)))
 
 
-def _save(fig: Figure, path) -> Path:
+def save_figure(fig: Figure, path) -> Path:
+    """``fig`` as a PNG at ``path``, written atomically (a reader never sees half a file); returns the path."""
     buffer = BytesIO()
     fig.savefig(buffer, format="png", dpi=_DPI)
     return atomic_write_bytes(path, buffer.getvalue())
@@ -148,7 +150,7 @@ def plot_pressure(path, t, p, *, tau=None, eps=None, volume=None, cavity=None, t
     t = _as_1d("t", t)
     p = _as_1d("p", p, len(t))
     panels = 1 + (volume is not None) + (cavity is not None)
-    fig = _new_figure(6.4, 3.2 * panels)
+    fig = new_figure(6.4, 3.2 * panels)
     axes = fig.subplots(panels, 1, sharex=True, squeeze=False)[:, 0]
     axes[0].plot(t, p, color="C0", label="p(t)")
     axes[0].set_ylabel(axis_label("pressure p", units.pressure))
@@ -169,7 +171,7 @@ def plot_pressure(path, t, p, *, tau=None, eps=None, volume=None, cavity=None, t
     axes[-1].set_xlabel(axis_label("time t", units.time))
     if title:
         fig.suptitle(_fitted(title, fig))
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def _draw_marks(ax, marks) -> None:
@@ -215,7 +217,7 @@ def plot_control_spacetime(path, t, x, xi, *, xlabel="x", tau=None, title=None, 
     xi = _as_spacetime("xi", xi, len(t), len(x))
     bound = float(np.nanmax(np.abs(xi))) if np.isfinite(xi).any() else 0.0
     bound = bound if bound > 0 else 1.0
-    fig = _new_figure(6.4, 4.8)
+    fig = new_figure(6.4, 4.8)
     ax = fig.subplots()
     mesh = ax.pcolormesh(x, t, xi, shading="nearest", cmap="RdBu_r", vmin=-bound, vmax=bound)
     fig.colorbar(mesh, ax=ax, label=axis_label("control xi", units.control))
@@ -225,7 +227,7 @@ def plot_control_spacetime(path, t, x, xi, *, xlabel="x", tau=None, title=None, 
     ax.set_ylabel(axis_label("time t", units.time))
     if title:
         ax.set_title(_fitted(title, fig))
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def _nearest_levels(t: np.ndarray, times) -> np.ndarray:
@@ -276,7 +278,7 @@ def plot_snapshots(path, x, t, values, times, *, ylabel, title=None, ncols: int 
     # A fixed layout: the constrained solver costs seconds on 16 panels and shared axes need none.
     # Margins in inches, so that labels and titles fit a single row as well as four.
     width, height = 2.6 * ncols, 2.2 * nrows
-    fig = _new_figure(width, height, layout=None)
+    fig = new_figure(width, height, layout=None)
     title = _fitted(title, fig) if title else ""
     lines = title.count("\n") + 1 if title else 0
     fig.subplots_adjust(left=0.8 / width, right=1 - 0.15 / width, bottom=0.5 / height,
@@ -300,7 +302,7 @@ def plot_snapshots(path, x, t, values, times, *, ylabel, title=None, ncols: int 
             ax.xaxis.set_tick_params(labelbottom=True)
     if title:
         fig.suptitle(title)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_history(path, histories: dict, *, logy_keys=("grad_norm",), title=None) -> Path:
@@ -323,7 +325,7 @@ def plot_history(path, histories: dict, *, logy_keys=("grad_norm",), title=None)
     """
     if not histories:
         raise ValueError("plot_history: no histories given")
-    fig = _new_figure(6.4, 2.2 * len(histories))
+    fig = new_figure(6.4, 2.2 * len(histories))
     axes = fig.subplots(len(histories), 1, sharex=True, squeeze=False)[:, 0]
     for ax, (key, values) in zip(axes, histories.items()):
         values = _as_1d(key, values)
@@ -336,7 +338,7 @@ def plot_history(path, histories: dict, *, logy_keys=("grad_norm",), title=None)
     axes[-1].xaxis.set_major_locator(MaxNLocator(integer=True))
     if title:
         fig.suptitle(_fitted(title, fig))
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_value_profile(path, tau, value, converged, *, marks=(), title=None) -> Path:
@@ -344,7 +346,7 @@ def plot_value_profile(path, tau, value, converged, *, marks=(), title=None) -> 
     hollow; ``marks`` ``[(t, label), ...]`` as dotted vertical lines (e.g. the paper's tau and tau*)."""
     tau, value = _as_1d("tau", tau), _as_1d("J*", value, np.size(tau))
     ok = np.asarray(converged, dtype=bool)
-    fig = _new_figure(6.4, 3.6)
+    fig = new_figure(6.4, 3.6)
     ax = fig.subplots()
     ax.plot(tau, value, color="C0", lw=1)
     ax.plot(tau[ok], value[ok], "o", color="C0", ms=4, label="converged (KKT)")
@@ -357,7 +359,7 @@ def plot_value_profile(path, tau, value, converged, *, marks=(), title=None) -> 
     ax.legend(fontsize="small")
     if title:
         ax.set_title(_fitted(title, fig))
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_pressure_comparison(path, pressures: dict, rises: dict, *, tau=None, eps=None, title=None,
@@ -385,7 +387,7 @@ def plot_pressure_comparison(path, pressures: dict, rises: dict, *, tau=None, ep
     Path
     """
     units = units or Units()
-    fig = _new_figure(6.4, 6.4)
+    fig = new_figure(6.4, 6.4)
     top, bottom = fig.subplots(2, 1, sharex=True)
     for k, (label, (t, p)) in enumerate(pressures.items()):
         top.plot(_as_1d("t", t), _as_1d("p", p, np.size(t)), color=f"C{k}", label=label)
@@ -402,7 +404,7 @@ def plot_pressure_comparison(path, pressures: dict, rises: dict, *, tau=None, ep
     top.legend(loc="best", fontsize="small")
     if title:
         fig.suptitle(_fitted(title, fig))
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_pv_loops(path, loops: dict, *, title=None, units=None) -> Path:
@@ -425,7 +427,7 @@ def plot_pv_loops(path, loops: dict, *, title=None, units=None) -> Path:
     Path
     """
     units = units or Units()
-    fig = _new_figure(6.4, 4.8)
+    fig = new_figure(6.4, 4.8)
     ax = fig.subplots()
     for k, (label, (v, p)) in enumerate(loops.items()):
         v = _as_1d("volume", v)
@@ -438,4 +440,4 @@ def plot_pv_loops(path, loops: dict, *, title=None, units=None) -> Path:
     ax.legend(loc="best", fontsize="small")
     if title:
         fig.suptitle(_fitted(title, fig))
-    return _save(fig, path)
+    return save_figure(fig, path)

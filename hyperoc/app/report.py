@@ -115,7 +115,7 @@ def _stress_and_fibre_strain(sol: StateSolution, levels: np.ndarray, active: np.
 
     def fields(u, P_a):
         F = model.deformation_gradient(u)
-        P = model._pointwise(first_piola, F) + P_a[:, None]  # the law at the model's own material frames
+        P = model.pointwise(first_piola, F) + P_a[:, None]  # the law at the model's own material frames
         sigma = jnp.einsum("cqij,cqkj->cqik", P, F) / det(F)[..., None, None]
         E = 0.5 * (jnp.einsum("cqki,cqkj->cqij", F, F) - jnp.eye(model.dim))
         E_ff = jnp.zeros(F.shape[:2]) if fibre is None else jnp.einsum("cqi,cqij,cqj->cq", fibre, E, fibre)

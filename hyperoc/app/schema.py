@@ -24,7 +24,7 @@ from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Fie
 
 from ..control.tau_scale import is_tau_scale
 from ..errors import InputError, quote
-from .expr import parse_expression
+from ..expr import parse_expression
 
 __all__ = ["SECTIONS", "ConfigSchema", "validate_sections", "reference_markdown", "quote"]
 
@@ -38,7 +38,7 @@ Numbers = Annotated[list[Number], Field(min_length=1)]
 
 def _expressions(value):
     """A control value: an expression string, a number, or a non-empty list of them (one per
-    component); every string is parsed here (`hyperoc.app.expr.parse_expression`), so a syntax error
+    component); every string is parsed here (`hyperoc.expr.parse_expression`), so a syntax error
     is reported with the other config errors."""
     items = value if isinstance(value, list) else [value]
     if not items or not all(_is_expression(v) for v in items):

@@ -13,8 +13,10 @@ from pathlib import Path
 import numpy as np
 
 from ..control.adjoint import Adjoint
+from ..control.continuous_adjoint import ContinuousReducedFunctional
 from ..control.optimize import EvaluationCache, OptimizationResult, barzilai_borwein, lbfgsb, newton_cg
 from ..control.reduced import ControlPoint, ReducedFunctional
+from ..control.revolve import checkpoint_schedule
 from ..control.verification import random_directions, taylor_test
 from ..dynamics.stepper import detect_regimes
 from ..errors import InputError, SolverError
@@ -100,10 +102,10 @@ def build_reduced(cfg: Config, tau0: float, model=None) -> ReducedFunctional:
     if cfg["dynamics"]["constraint"] == "none":
         raise InputError("config: [objective] reads the pressure, the multiplier of [dynamics] constraint = "
                          "'tissue_volume' or 'cavity_volume'; with constraint = 'none' there is none")
-    return ReducedFunctional(model, cfg.transform(tau0), cfg.objective(), adjoint=Adjoint(cfg.stepper(model)),
-                             gradient=o["gradient"],
-                             checkpoint_every=o.get("checkpoint_every"),
-                             checkpoint_snapshots=o.get("checkpoint_snapshots"), horizon=o["horizon"])
+    functional = ContinuousReducedFunctional if o["gradient"] == "continuous" else ReducedFunctional
+    return functional(model, cfg.transform(tau0), cfg.objective(), adjoint=Adjoint(cfg.stepper(model)),
+                      schedule=checkpoint_schedule(o.get("checkpoint_every"), o.get("checkpoint_snapshots")),
+                      horizon=o["horizon"])
 
 
 def optimize_single(cfg: Config, tau0: float, *, cache_dir=None, progress: bool = False,

@@ -1,4 +1,4 @@
-"""The cardiac elastodynamics benchmark (monoventricular problem 1 of Aróstica et al. 2025), run and compared.
+"""The cardiac elastodynamics benchmark (monoventricular problem 1 of Aróstica et al. 2025): its curves, compared.
 
 R. Aróstica et al., "A software benchmark for cardiac elastodynamics", Comput. Methods Appl. Mech. Engrg. 435
 (2025) 117485. The problem is the shipped configuration ``hyperoc/data/cardiac-benchmark.toml`` (step 1: the
@@ -8,87 +8,24 @@ endocardial pressure and the active tension of the benchmark's Bestel laws on it
 - ``"0B"``: the endocardial pressure alone (no active tension),
 - ``"1"``: both,
 
-are that configuration with a load left out (`benchmark_config`). `run_benchmark` solves a step in checkpointed
-segments (`hyperoc.dynamics.resumable.run_resumable`: an interrupted run resumes bitwise), records the
-displacements of the probe points p0 and p1 (`hyperoc.cardiac.benchmark_geometry.P0`, ``P1``; m), the cavity
-volume enclosed by the endocardium and its deformed rim (m^3), the pressure and the active tension (Pa), and
+are that configuration with a load left out (`hyperoc.app.cardiac_benchmark.benchmark_config`, which also runs
+them: `hyperoc.app.cardiac_benchmark.run_benchmark`). `benchmark_curves` records of a solve the displacements of
+the probe points p0 and p1 (`hyperoc.cardiac.benchmark_geometry.P0`, ``P1``; m), the cavity volume enclosed by
+the endocardium and its deformed rim (m^3), the pressure and the active tension (Pa); `compare_with_codes`
 compares them with the band the ten participating codes span (`hyperoc.cardiac.benchmark_curves`).
 """
 
 from __future__ import annotations
 
-import tomllib
-from importlib import resources
-from pathlib import Path
-
 import numpy as np
 
-from ..errors import InputError
 from .benchmark_curves import STEPS, curve_band, reference_curves
 from .benchmark_geometry import P0, P1
 
-__all__ = ["STEPS", "SAMPLE_DT", "benchmark_config", "run_benchmark", "benchmark_curves", "compare_with_codes",
-           "sample_times", "resampled"]
+__all__ = ["STEPS", "SAMPLE_DT", "benchmark_curves", "compare_with_codes", "sample_times", "resampled"]
 
-#: The loads each step keeps, of ``[dynamics] pressure`` and ``[dynamics] activation``.
-STEP_LOADS = {"0A": ("activation",), "0B": ("pressure",), "1": ("pressure", "activation")}
 #: The codes' sampling interval (s): the comparison and the results JSON use these times.
 SAMPLE_DT = 0.01
-#: Time steps per checkpoint segment.
-CHECKPOINT_EVERY = 50
-
-
-def benchmark_config(step: str = "1", *, degree: int = 1, mesh: str = "reference", T: float | None = None):
-    """The `hyperoc.app.config.Config` of benchmark step ``step`` (`STEP_LOADS`): Lagrange ``degree`` 1 or 2,
-    ``mesh`` ``"reference"`` (the benchmark's) or ``"coarse"``, the end time ``T`` (s; default the beat, 1 s)."""
-    from ..app.config import parse_config
-
-    step = _step(step)
-    if degree not in (1, 2):
-        raise InputError(f"cardiac benchmark: degree must be 1 or 2, got {degree}")
-    source = resources.files("hyperoc").joinpath("data", "cardiac-benchmark.toml")
-    data = tomllib.loads(source.read_text(encoding="utf-8"))
-    data["mesh"].update(degree=degree, variant=mesh)
-    for load in ("pressure", "activation"):
-        if load not in STEP_LOADS[step]:
-            del data["dynamics"][load]
-    if T is not None:
-        data["dynamics"]["T"] = float(T)
-    return parse_config(data, Path("."), f"cardiac benchmark step {step} (P{degree}, {mesh} mesh)")
-
-
-def _step(step) -> str:
-    step = str(step).upper()
-    if step not in STEPS:
-        raise InputError(f"cardiac benchmark: unknown step {step!r} (steps: {', '.join(STEPS)})")
-    return step
-
-
-def run_benchmark(step: str, out, *, degree: int = 1, mesh: str = "reference", T: float | None = None,
-                  progress: bool = False, on_segment=None, model=None) -> dict:
-    """Solve benchmark step ``step`` (`benchmark_config`) with checkpoints in ``out/segments`` and return the
-    record `benchmark_curves` makes of it, with the comparison `compare_with_codes` under ``"comparison"``
-    and the run's cost. A run started again on the same ``out`` resumes from its last segment. ``model``: the
-    configuration's model if already built (`hyperoc.app.workflows.check_run`)."""
-    from ..dynamics.resumable import SEGMENTS_DIR, run_resumable, segment_costs
-
-    cfg = benchmark_config(step, degree=degree, mesh=mesh, T=T)
-    model = model or cfg.model()
-    stepper, grid = cfg.stepper(model), cfg.grid()
-    segments = Path(out) / SEGMENTS_DIR
-    sol = run_resumable(stepper, grid, None, folder=segments, every=CHECKPOINT_EVERY, progress=progress,
-                        on_segment=on_segment, identity=cfg.sections)
-    record = benchmark_curves(sol, stepper)
-    record.update(step=_step(step), mesh={"variant": mesh, "vertices": int(len(model.mesh.points)),
-                                          "cells": int(len(model.mesh.cells))},
-                  degree=degree, dt=float(cfg["dynamics"]["dt"]), unknowns=int(model.n),
-                  scheme={"theta": float(cfg["dynamics"]["theta"]), "newton": cfg["dynamics"]["newton"]},
-                  newton_iterations={"total": int(np.sum(sol.newton_iterations)),
-                                     "mean": float(np.mean(sol.newton_iterations)),
-                                     "max": int(np.max(sol.newton_iterations))},
-                  **segment_costs(segments))
-    record["comparison"] = compare_with_codes(record)
-    return record
 
 
 def benchmark_curves(sol, stepper) -> dict:

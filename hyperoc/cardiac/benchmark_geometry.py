@@ -103,18 +103,18 @@ def benchmark_mesh(h: float = 0.005, *, curved: bool = True, refinements: int = 
     tangent plane), see `hyperoc.fem.geometry`; ``refinements`` uniform refinements keep the walls exact."""
     if not (h > 0 and math.isfinite(h)):
         raise InputError(f"benchmark_mesh: need a finite h > 0 (m), got {h}")
-    with geometry._gmsh_model("benchmark-ventricle") as gmsh:
+    with geometry.gmsh_model("benchmark-ventricle") as gmsh:
         occ = gmsh.model.occ
         apex, slope, length = _base_cone()
         cone = occ.addCone(apex - length, 0, 0, length, 0, 0, slope * length, 0.0)
         wall, _ = occ.intersect([(3, _occ_ellipsoid(occ, *EPI))], [(3, cone)])
         occ.cut(wall, [(3, _occ_ellipsoid(occ, *ENDO))])
         occ.synchronize()
-        mesh = geometry._gmsh_generate(gmsh, 3, h)
-    walls = {"endocardium": geometry._Quadric(_semi_axes(ENDO)), "epicardium": geometry._Quadric(_semi_axes(EPI))}
-    tag = lambda mesh, curved: geometry._tagged(mesh, walls, {"base": _cone_distance}, dirichlet="base",
-                                                neumann="endocardium", curved=curved, planes={"base": _cone_normal})
-    return geometry._refined(mesh, tag, curved, refinements)
+        mesh = geometry.gmsh_generate(gmsh, 3, h)
+    walls = {"endocardium": geometry.Quadric(_semi_axes(ENDO)), "epicardium": geometry.Quadric(_semi_axes(EPI))}
+    tag = lambda mesh, curved: geometry.tagged(mesh, walls, {"base": _cone_distance}, dirichlet="base",
+                                               neumann="endocardium", curved=curved, planes={"base": _cone_normal})
+    return geometry.refined(mesh, tag, curved, refinements)
 
 
 def _semi_axes(axes: tuple) -> tuple:

@@ -62,7 +62,7 @@ from ..mechanics.model import VOLUMETRIC, StateModel
 
 __all__ = ["BEAM", "VENTRICLE", "CONTRACTION", "PUBLISHED", "BASE_CONDITIONS", "FORMULATIONS", "BenchmarkResult",
            "beam_mesh", "beam_problem", "ventricle_problem", "contraction_problem", "node_position", "beam_deflection",
-           "ventricle_apex", "save_state", "load_state"]
+           "ventricle_apex", "save_state", "load_state", "Formulation", "VentricleMesh", "LoadStepping"]
 
 #: Problem 1 parameters (Land et al. 2015): Guccione moduli (kPa, dimensionless) and pressure (kPa).
 BEAM = {"C": 2.0, "bf": 8.0, "bt": 2.0, "bfs": 4.0, "pressure": 0.004, "point": (10.0, 0.5, 1.0)}
@@ -119,22 +119,74 @@ class BenchmarkResult:
 FORMULATIONS = VOLUMETRIC + ("taylor-hood",)
 
 
-def _model(mesh: Mesh, params: dict, bulk_modulus: float, isochoric: bool, volumetric: str, degree: int,
-           frames=None, **kwargs) -> StateModel:
-    """The Guccione model of a benchmark: ``params`` the moduli, ``bulk_modulus`` the bulk modulus (kPa; with
-    ``"taylor-hood"`` also ``math.inf``: incompressible), ``volumetric`` one of `FORMULATIONS`,
-    ``frames`` the fibre field (default: fibres along x)."""
-    if volumetric not in FORMULATIONS:
-        raise InputError(f"volumetric must be one of {list(FORMULATIONS)}, got {volumetric!r}")
-    mixed = volumetric == "taylor-hood"
-    if mixed and degree != 2:
-        raise InputError(f"the Taylor-Hood formulation is P2-P1: degree must be 2, got {degree}")
-    material = Guccione(C=params["C"], bf=params["bf"], bt=params["bt"], bfs=params["bfs"],
-                        bulk_modulus=0.0 if mixed and math.isinf(bulk_modulus) else bulk_modulus, isochoric=isochoric)
-    frames = _fibres_along_x if frames is None else frames
-    if mixed:
-        return TaylorHoodModel(mesh, material, bulk_modulus=bulk_modulus, frames=frames, **kwargs)
-    return StateModel(mesh, material, degree=degree, frames=frames, volumetric=volumetric, **kwargs)
+@dataclass(frozen=True)
+class Formulation:
+    """How a benchmark's Guccione law is discretized: ``bulk_modulus`` the bulk modulus (kPa; with
+    ``"taylor-hood"`` also ``math.inf``: incompressible), ``degree`` of the displacement space,
+    ``volumetric`` one of `FORMULATIONS`, ``isochoric``: `Guccione` on the isochoric strain."""
+
+    bulk_modulus: float
+    degree: int = 2
+    volumetric: str = "pointwise"
+    isochoric: bool = False
+
+    def model(self, mesh: Mesh, params: dict, frames=None, **conditions) -> StateModel:
+        """The Guccione model on ``mesh``: ``params`` the moduli, ``frames`` the fibre field (default: fibres
+        along x), ``conditions`` the `StateModel` boundary conditions."""
+        if self.volumetric not in FORMULATIONS:
+            raise InputError(f"volumetric must be one of {list(FORMULATIONS)}, got {self.volumetric!r}")
+        mixed = self.volumetric == "taylor-hood"
+        if mixed and self.degree != 2:
+            raise InputError(f"the Taylor-Hood formulation is P2-P1: degree must be 2, got {self.degree}")
+        bulk = 0.0 if mixed and math.isinf(self.bulk_modulus) else self.bulk_modulus
+        material = Guccione(C=params["C"], bf=params["bf"], bt=params["bt"], bfs=params["bfs"], bulk_modulus=bulk,
+                            isochoric=self.isochoric)
+        frames = _fibres_along_x if frames is None else frames
+        if mixed:
+            return TaylorHoodModel(mesh, material, bulk_modulus=self.bulk_modulus, frames=frames, **conditions)
+        return StateModel(mesh, material, degree=self.degree, frames=frames, volumetric=self.volumetric,
+                          **conditions)
+
+    def params(self) -> dict:
+        """The formulation's entries of a result's ``params`` (`BenchmarkResult`, `save_state`)."""
+        return {"bulk_modulus": self.bulk_modulus, "degree": self.degree, "volumetric": self.volumetric,
+                "isochoric": self.isochoric}
+
+
+@dataclass(frozen=True)
+class VentricleMesh:
+    """The mesh of problems 2 and 3: `hyperoc.fem.geometry.ventricle` of size ``h`` (mm), ``curved``
+    (isoparametric P2 on the exact ellipsoids, else straight-sided cells), after ``refinements`` uniform
+    refinements, with the base condition ``base`` (`BASE_CONDITIONS`)."""
+
+    h: float
+    curved: bool = True
+    base: str = "clamped"
+    refinements: int = 0
+
+    def model(self, formulation: Formulation, params: dict, frames=None) -> StateModel:
+        """``formulation``'s model with the moduli ``params`` and the fibre field ``frames`` on this mesh."""
+        if self.base not in BASE_CONDITIONS:
+            raise InputError(f"ventricle base must be one of {sorted(BASE_CONDITIONS)}, got {self.base!r}")
+        mesh = ventricle(self.h, curved=self.curved, refinements=self.refinements)
+        return formulation.model(mesh, params, frames, **BASE_CONDITIONS[self.base])
+
+
+@dataclass(frozen=True)
+class LoadStepping:
+    """How a benchmark's static solve steps the load (`hyperoc.dynamics.statics.solve_static`): ``steps``
+    nominal increments, at most ``cutbacks`` halvings of a failed one, the linear ``solver``, the
+    ``predictor`` of each increment and the Newton ``monitor``."""
+
+    steps: int = 10
+    cutbacks: int = 8
+    solver: object = "auto"
+    predictor: str = "previous"
+    monitor: object = None
+
+    def params(self) -> dict:
+        """The stepping's entries of a result's ``params``."""
+        return {"steps": self.steps, "cutbacks": self.cutbacks, "predictor": self.predictor}
 
 
 def _fibres_along_x(x):
@@ -159,7 +211,7 @@ def beam_problem(n: int, *, bulk_modulus: float, degree: int = 2, volumetric: st
     """Problem 1 on `beam_mesh` (n): the model and its follower pressure on the bottom face
     (``volumetric``: how the penalty enters, `StateModel`; ``isochoric``: `Guccione` on the isochoric
     strain; ``"taylor-hood"``: `hyperoc.mechanics.mixed.TaylorHoodModel`, bulk_modulus may then be ``math.inf``)."""
-    model = _model(beam_mesh(n), BEAM, bulk_modulus, isochoric, volumetric, degree)
+    model = Formulation(bulk_modulus, degree, volumetric, isochoric).model(beam_mesh(n), BEAM)
     return model, FollowerPressure(model, "z_bottom", BEAM["pressure"])
 
 
@@ -182,7 +234,8 @@ def ventricle_problem(h: float, *, bulk_modulus: float, degree: int = 2, curved:
     pressure on the cavity has no net in-plane force or moment about z). With ``bf = bt = bfs = 1``
     the Guccione law is isotropic (``Q = tr(E^2)``): the constant frame it is given does not matter.
     ``volumetric``, ``isochoric``: as in `beam_problem`."""
-    model = _ventricle_model(h, VENTRICLE, None, bulk_modulus, degree, curved, base, refinements, volumetric, isochoric)
+    model = VentricleMesh(h, curved, base, refinements).model(Formulation(bulk_modulus, degree, volumetric, isochoric),
+                                                               VENTRICLE)
     return model, FollowerPressure(model, "endocardium", VENTRICLE["pressure"])
 
 
@@ -196,19 +249,11 @@ def contraction_problem(h: float, *, bulk_modulus: float, degree: int = 2, curve
     benchmark but a variant, the tension tapered to zero on the long axis (`hyperoc.mechanics.active.axis_taper`),
     where the fibres are singular."""
     fibres = prolate_fibres(helix_endo=CONTRACTION["helix"][0], helix_epi=CONTRACTION["helix"][1])
-    model = _ventricle_model(h, CONTRACTION, fibres, bulk_modulus, degree, curved, base, refinements, volumetric,
-                             isochoric)
+    model = VentricleMesh(h, curved, base, refinements).model(Formulation(bulk_modulus, degree, volumetric, isochoric),
+                                                               CONTRACTION, fibres)
     profile = axis_taper(taper) if taper else None
     return model, (FollowerPressure(model, "endocardium", CONTRACTION["pressure"]),
                    FibreTension(model, CONTRACTION["tension"], profile))
-
-
-def _ventricle_model(h, params, frames, bulk_modulus, degree, curved, base, refinements, volumetric, isochoric):
-    """The Guccione model (`_model`) on `hyperoc.fem.geometry.ventricle` with the base condition ``base``."""
-    if base not in BASE_CONDITIONS:
-        raise InputError(f"ventricle base must be one of {sorted(BASE_CONDITIONS)}, got {base!r}")
-    return _model(ventricle(h, curved=curved, refinements=refinements), params, bulk_modulus, isochoric, volumetric,
-                  degree, frames, **BASE_CONDITIONS[base])
 
 
 def node_position(model: StateModel, u, point, tol: float = 1e-9) -> np.ndarray:
@@ -222,16 +267,16 @@ def node_position(model: StateModel, u, point, tol: float = 1e-9) -> np.ndarray:
     return X + model.expand(u)[a]
 
 
-def _solve(model, follower, steps, cutbacks, solver, points: dict, params: dict, extra=None,
-           coarse: BenchmarkResult | None = None, monitor=None) -> BenchmarkResult:
+def _solve(model, follower, stepping: LoadStepping, points: dict, params: dict, extra=None,
+           coarse: BenchmarkResult | None = None) -> BenchmarkResult:
     """Solve; ``values`` are the z of the deformed ``points`` (name -> X) and ``extra(model, u)`` (a dict).
     ``coarse``: the same problem solved on the mesh this one refines, whose prolonged solution is
-    Newton's first try at the full load (`solve_static`'s ``guess``); ``monitor``: `solve_static`'s."""
+    Newton's first try at the full load (`solve_static`'s ``guess``)."""
     t0 = time.perf_counter()
     guess = None if coarse is None else model.prolong(coarse.model, coarse.u)
-    sol = solve_static(model, follower=follower, constrained=False, steps=steps, solver=solver,
-                       line_search=False, cutbacks=cutbacks, predictor=params["predictor"], guess=guess,
-                       monitor=monitor)
+    sol = solve_static(model, follower=follower, constrained=False, steps=stepping.steps, solver=stepping.solver,
+                       line_search=False, cutbacks=stepping.cutbacks, predictor=stepping.predictor, guess=guess,
+                       monitor=stepping.monitor)
     seconds = time.perf_counter() - t0
     if coarse is not None:
         params["start"] = "prolonged" if sol.from_guess else f"prolonged, failed ({sol.guess_failure}): load stepping"
@@ -252,10 +297,10 @@ def beam_deflection(n: int, *, bulk_modulus: float = 1000.0, degree: int = 2, st
     """Problem 1: ``values["z_tip"]`` = z of the deformed point (10, 0.5, 1) (mm; 1 at rest).
     ``monitor``: `solve_static`'s (e.g. ``hyperoc.solvers.newton.NewtonLog(sys.stderr)``)."""
     model, load = beam_problem(n, bulk_modulus=bulk_modulus, degree=degree, volumetric=volumetric, isochoric=isochoric)
-    return _solve(model, load, steps, cutbacks, solver, {"z_tip": BEAM["point"]},
-                  {"problem": 1, "n": n, "bulk_modulus": bulk_modulus, "degree": degree, "steps": steps,
-                   "cutbacks": cutbacks, "volumetric": volumetric, "isochoric": isochoric, "predictor": predictor},
-                  monitor=monitor)
+    stepping = LoadStepping(steps, cutbacks, solver, predictor, monitor)
+    params = {"problem": 1, "n": n, **Formulation(bulk_modulus, degree, volumetric, isochoric).params(),
+              **stepping.params()}
+    return _solve(model, load, stepping, {"z_tip": BEAM["point"]}, params)
 
 
 def ventricle_apex(h: float, *, bulk_modulus: float = 1000.0, degree: int = 2, steps: int = 10, cutbacks: int = 8,
@@ -280,12 +325,12 @@ def ventricle_apex(h: float, *, bulk_modulus: float = 1000.0, degree: int = 2, s
     model, load = _ventricle_setup(problem, h, bulk_modulus=bulk_modulus, degree=degree, curved=curved, base=base,
                                    refinements=refinements, volumetric=volumetric, isochoric=isochoric, taper=taper)
     cavity = lambda model, u: {"V_cavity": float(CavityVolume(model, "endocardium", apex="rim").volume(u))}
-    return _solve(model, load, steps, cutbacks, solver,
-                  {"z_endo": VENTRICLE["endo_apex"], "z_epi": VENTRICLE["epi_apex"]},
-                  {"problem": problem, "mesh_size": h, "bulk_modulus": bulk_modulus, "degree": degree, "steps": steps,
-                   "cutbacks": cutbacks, "curved": curved, "base": base, "refinements": refinements,
-                   "volumetric": volumetric, "isochoric": isochoric, "predictor": predictor,
-                   **({"taper": taper} if taper else {})}, cavity, coarse, monitor)
+    stepping = LoadStepping(steps, cutbacks, solver, predictor, monitor)
+    params = {"problem": problem, "mesh_size": h, **Formulation(bulk_modulus, degree, volumetric, isochoric).params(),
+              **stepping.params(), "curved": curved, "base": base, "refinements": refinements,
+              **({"taper": taper} if taper else {})}
+    return _solve(model, load, stepping, {"z_endo": VENTRICLE["endo_apex"], "z_epi": VENTRICLE["epi_apex"]}, params,
+                  cavity, coarse)
 
 
 def _ventricle_setup(problem: int, h: float, *, taper: float = 0.0, **kwargs):

@@ -153,7 +153,7 @@ class Adjoint:
         rhs = vjp_split((lam0 + v_y0n, jnp.zeros((), x.dtype)))[0] + n_x
         w_u, w_p = st.solver.solve(blocks, row, col, rhs[:-1], rhs[-1], corner)  # transpose: col <-> row
         w = jnp.concatenate([w_u, w_p[None]])
-        res = lambda y0, y1, s, xi0, xi1, dt, t0: st.residual(x, y0, y1, s, xi0, xi1, f0, f1, dt, V0, t0)
+        res = lambda y0, y1, s, xi0, xi1, dt, t0: st.residual(x, (y0, y1, s), (xi0, xi1), (f0, f1), dt, V0, t0)
         _, vjp_r = jax.vjp(res, y0, y1, s_prev, xi0, xi1, dt, t0)
         r_y0, r_y1, r_s, r_xi0, r_xi1, r_dt, r_t0 = vjp_r(w)
         return (v_y0 - r_y0 + n_y0, v_y1 - r_y1, n_s - r_s), (-r_xi0, -r_xi1, v_dt - r_dt + n_dt, -r_t0)
@@ -165,11 +165,14 @@ class Adjoint:
 
     @cached_property
     def _scan(self):
-        """`step` over a range of L steps, last first, in one compiled loop: ``(lam, Y0, Y1 (L+1, n), S (L+1, ...),
-        Xi (L+1, n_ctrl), F (L+1, n), dt (L,), V0, t0 (L,), gY0, gY1 (L, n), gP (L,))`` (S the carried states
-        at the levels) to the totals at the range's first level and the steps' derivatives ``(dJ/dxi_n,
-        dJ/dxi_{n+1} (L, n_ctrl), dJ/ddt_n, dJ/dt_n (L,))``."""
-        def run(lam, Y0, Y1, S, Xi, F, dt, V0, t0, gY0, gY1, gP):
+        """`step` over a range of L steps, last first, in one compiled loop: ``(lam, levels, steps, partials)``
+        with ``levels = (Y0, Y1 (L+1, n), S (L+1, ...), Xi (L+1, n_ctrl), F (L+1, n))`` (S the carried states at
+        the levels), ``steps = (dt (L,), V0, t0 (L,))`` and J's partials ``(gY0, gY1 (L, n), gP (L,))``, to the
+        totals at the range's first level and the steps' derivatives ``(dJ/dxi_n, dJ/dxi_{n+1} (L, n_ctrl),
+        dJ/ddt_n, dJ/dt_n (L,))``."""
+        def run(lam, levels, steps, partials):
+            (Y0, Y1, S, Xi, F), (dt, V0, t0), (gY0, gY1, gP) = levels, steps, partials
+
             def body(carry, inp):
                 (l0, l1, ls), out = self.step(carry, inp[:-2])
                 g0, g1 = inp[-2:]
@@ -305,9 +308,10 @@ class _Reversal:
         dJ/dt_n (L,))``."""
         rec, adjoint = self.rec, self.adjoint
         if rec.schedule.compiled and adjoint.stepper.solver.traced:
-            args = (Y0, Y1, rec.carried[a:b + 1], rec.xi[a:b + 1], rec.loads[a:b + 1], rec.dt[a:b])
-            self.lam, out = adjoint._scan(self.lam, *(on_device(x) for x in args), rec.V0, on_device(rec.grid.t[a:b]),
-                                          *(on_device(g) for g in self._partials(a, b)), on_device(self.gP[a:b]))
+            levels = tuple(on_device(x) for x in (Y0, Y1, rec.carried[a:b + 1], rec.xi[a:b + 1], rec.loads[a:b + 1]))
+            steps = (on_device(rec.dt[a:b]), rec.V0, on_device(rec.grid.t[a:b]))
+            partials = (*(on_device(g) for g in self._partials(a, b)), on_device(self.gP[a:b]))
+            self.lam, out = adjoint._scan(self.lam, levels, steps, partials)
             return out
         outs = [None] * (b - a)
         for n in reversed(range(a, b)):

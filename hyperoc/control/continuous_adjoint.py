@@ -17,6 +17,9 @@ It is integrated with implicit Euler backwards on the state's time levels (as in
 with ``H = c + zeta0 . y1 + zeta1 . (B xi + f - kappa K y1 - R(y0) - p G(y0))``. This gradient is
 *not* the gradient of the discrete J; its deviation from `ReducedFunctional.gradient` is first
 order in dt at best, and is measured in ``tests/test_continuous_adjoint.py``.
+
+`ContinuousReducedFunctional` is a `ReducedFunctional` whose `value_and_gradient` returns this gradient
+(its `value_and_derivative` stays the exact derivative of the discrete J).
 """
 
 from __future__ import annotations
@@ -31,8 +34,36 @@ from ..errors import InputError
 from ..solvers.linsolve import SparseSolver
 from .objectives import ControlCost, PressureAt, PressureRise
 from .reduced import ControlPoint, ReducedFunctional
+from .revolve import Schedule, StoreAll
 
-__all__ = ["continuous_gradient"]
+__all__ = ["ContinuousReducedFunctional", "continuous_gradient"]
+
+
+class ContinuousReducedFunctional(ReducedFunctional):
+    """``J(m)`` with the paper's optimize-then-discretize gradient (`continuous_gradient`), for comparison
+    with the exact one. Same parameters as `ReducedFunctional`; the running cost must not penalize
+    ``d xi/dt`` (``beta = 0``) and the schedule is `StoreAll` (the gradient reads the whole `state`)."""
+
+    def __init__(self, *args, **options):
+        super().__init__(*args, **options)
+        if self.objective.control_weights[1] > 0:
+            raise InputError("the continuous gradient does not include the cost of d xi/dt (beta > 0): "
+                             "use ReducedFunctional, the exact gradient")
+
+    @ReducedFunctional.schedule.setter
+    def schedule(self, schedule: Schedule) -> None:
+        if not isinstance(schedule, StoreAll):
+            raise InputError(f"checkpointing ({schedule!r}) is implemented for the exact gradient only")
+        ReducedFunctional.schedule.fset(self, schedule)
+
+    def __call__(self, m: ControlPoint) -> float:
+        """J(m) from the whole `state`, the solve its gradient reads."""
+        value, _ = self._objective_pair
+        return float(value(*self._solution_arrays(self.state(m))))
+
+    def value_and_gradient(self, m: ControlPoint) -> tuple[float, ControlPoint]:
+        """J(m) and the continuous-adjoint gradient as a Riesz representative (`continuous_gradient`)."""
+        return self(m), continuous_gradient(self, m)
 
 
 def _running_cost_parts(J: ReducedFunctional):

@@ -8,12 +8,11 @@ for the paper's cost, H^1(0, 2; L2(omega)) when the objective penalizes ``d xi/d
 so that optimizers see mesh- and step-independent quantities.
 
 The value and the gradient come from one forward solve recorded under a checkpointing schedule
-(`hyperoc.control.revolve`, `ReducedFunctional.schedule`): every level state by default; with
-``checkpoint_every=k`` they never hold the whole trajectory: the forward pass keeps every k-th level
-state, the levels the objective reads and the step multipliers, and the adjoint recomputes each
-segment from its checkpoint (`hyperoc.control.revolve.EveryK`). With ``checkpoint_snapshots=s`` it
-follows the binomial schedule instead (s snapshots, the least number of recomputed steps;
-`hyperoc.control.revolve.Binomial`).
+(`hyperoc.control.revolve`, `ReducedFunctional.schedule`): every level state by default (`StoreAll`);
+with ``schedule=EveryK(k)`` they never hold the whole trajectory: the forward pass keeps every k-th
+level state, the levels the objective reads and the step multipliers, and the adjoint recomputes each
+segment from its checkpoint. With ``schedule=Binomial(s)`` it follows the binomial schedule instead
+(s snapshots, the least number of recomputed steps).
 
 The forward solve of the value and the gradient stops after the last step the objective reads
 (``horizon="objective"``, `hyperoc.control.objectives.Objective.steps_read`): for ``p(tau)`` the step
@@ -30,6 +29,7 @@ otherwise.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -45,21 +45,9 @@ from ..mechanics.model import StateModel
 from .adjoint import Adjoint, Record
 from .control_space import ControlSpace, control_space
 from .objectives import Objective, Trajectory
-from .revolve import Binomial, EveryK, Schedule, StoreAll
+from .revolve import Schedule, StoreAll, checkpoint_schedule
 
-__all__ = ["ControlPoint", "ReducedFunctional", "LevelStates", "checkpoint_options"]
-
-
-def checkpoint_options(every, snapshots) -> tuple[int | None, int | None]:
-    """Validated ``(checkpoint_every, checkpoint_snapshots)``: each None or an integer >= 1, not both set;
-    raises `InputError` naming the option."""
-    for name, value in (("checkpoint_every", every), ("checkpoint_snapshots", snapshots)):
-        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1):
-            raise InputError(f"{name} must be None or an integer >= 1, got {value!r}")
-    if every is not None and snapshots is not None:
-        raise InputError(f"checkpoint_every = {every} and checkpoint_snapshots = {snapshots} exclude each other "
-                         "(equidistant or binomial checkpoints: set one to None)")
-    return (None if every is None else int(every)), (None if snapshots is None else int(snapshots))
+__all__ = ["ControlPoint", "ReducedFunctional", "LevelStates"]
 
 
 class LevelStates:
@@ -68,7 +56,7 @@ class LevelStates:
     ``states[k]`` (an int, negative from the end) returns the stored level k, (n,); a slice stacks
     its levels. With checkpointing, objective terms see ``traj.y0`` and ``traj.y1`` as these: terms
     that read single levels (``traj.y1[-1]``, ``traj.y0[traj.tau_index]``) work unchanged, terms that
-    use the whole array do not (they need ``checkpoint_every=None``).
+    use the whole array do not (they need the schedule `StoreAll`).
 
     num_levels : N+1; levels : the stored level indices (ascending); values : (len(levels), n).
     """
@@ -140,7 +128,8 @@ class _Solves:
 
 
 class ReducedFunctional:
-    """``J(m)`` and its exact gradient for a model, a time transform and an objective (maximized).
+    """``J(m)`` and its exact gradient for a model, a time transform and an objective (maximized). The paper's
+    optimize-then-discretize gradient is `hyperoc.control.continuous_adjoint.ContinuousReducedFunctional`'s.
 
     Parameters
     ----------
@@ -149,44 +138,36 @@ class ReducedFunctional:
     objective : Objective.
     scheme, solver : time-stepping options (multiplier "step").
     u0, v0 : initial state (reduced vectors), zero by default.
-    gradient : "exact" (gradient of the discrete J, default) or "continuous" (the paper's
-        optimize-then-discretize gradient, `hyperoc.control.continuous_adjoint`; for comparison).
-    checkpoint_every : None (default: the value and the gradient store all N+1 level states
-        ``(y0, y1)``, 2 (N+1) n floats) or an int k >= 1: store the level states at ``0, k, 2k, ...``
-        only, plus the levels the objective reads, and recompute each segment of k steps from its
-        checkpoint during the adjoint sweep. Memory ``ceil(N/k) + k + 1`` level states (least near
-        ``k = sqrt(N)``), at the cost of one more forward solve per gradient (Newton included); the
-        gradient equals the stored one to round-off (same compiled step, same Newton warm start).
-        The objective's terms must read ``traj.y0`` / ``traj.y1`` by static levels (see
-        `LevelStates`); exact gradient only. `state` still returns the whole trajectory (for reports).
+    schedule : the checkpointing schedule of the value and the gradient (`hyperoc.control.revolve`):
+        `StoreAll()` (default: every level state ``(y0, y1)``, 2 (N+1) n floats), `EveryK(k)`: the level
+        states at ``0, k, 2k, ...`` only, plus the levels the objective reads, each segment of k steps
+        recomputed from its checkpoint during the adjoint sweep (memory ``ceil(N/k) + k + 1`` level
+        states, least near ``k = sqrt(N)``, one more forward solve per gradient), or `Binomial(s)`:
+        Griewank's revolve with s snapshots (memory s + 2 level states, ``t(N, s) + 1`` step evaluations
+        per gradient, `hyperoc.control.revolve.minimal_advances`: N (N-1)/2 + 1 for s = 1, N for
+        s >= N - 1, e.g. 4.5 N for N = 3000, s = 10). With checkpoints the objective's terms must read
+        ``traj.y0`` / ``traj.y1`` by static levels (see `LevelStates`); the gradient equals the stored
+        one to round-off (same compiled step, same Newton warm start); `state` still returns the whole
+        trajectory (for reports). The attribute may be set between evaluations.
     space : the control space (`ControlSpace`); by default L2 in time, or H^1 in time with the time
         scale ``(2/T) sqrt(beta/alpha)`` of the objective's `hyperoc.control.objectives.ControlRateCost`.
-    checkpoint_snapshots : None (default) or an int s >= 1: binomial checkpointing (`hyperoc.control.revolve`,
-        Griewank's revolve): the forward pass keeps s snapshots, the state at level N-1, ``y0_N``, the
-        levels the objective reads and the step multipliers; the adjoint restores, advances and reverses
-        one step at a time. Memory s + 2 level states; cost ``t(N, s) + 1`` step evaluations per gradient
-        (`hyperoc.control.revolve.minimal_advances`: the fewest possible with s snapshots; N (N-1)/2 + 1 for
-        s = 1, N for s >= N - 1) against N when storing everything, e.g. 4.5 N for N = 3000, s = 10
-        and 3.3 N for s = 20. Same requirements as ``checkpoint_every``, which it excludes; the
-        gradient equals the stored one to round-off.
     horizon : "objective" (default): the value and the gradient solve the steps the objective reads
         (`steps_solved`), "full": all N steps (the state must exist on [0, T]). The gradient is the
         same; `state` always solves all N steps.
     adjoint : the state solver and its adjoint recursion, an `Adjoint` of a stepper of ``model``
         (default ``Adjoint(TimeStepper(model, scheme, solver))``; ``scheme`` and ``solver`` are not
         used when it is given); e.g. `hyperoc.distributed.dynamics.DistributedAdjoint` to solve on MPI ranks.
+    checkpoint_every, checkpoint_snapshots : deprecated spellings of ``schedule=EveryK(k)`` and
+        ``schedule=Binomial(s)``.
     """
 
     def __init__(self, model: StateModel, transform: TimeTransform, objective: Objective, *,
-                 scheme: Scheme = Scheme(), solver="auto", u0=None, v0=None, gradient: str = "exact",
-                 checkpoint_every: int | None = None, checkpoint_snapshots: int | None = None,
-                 space: ControlSpace | None = None, adjoint: Adjoint | None = None, horizon: str = "objective"):
-        if gradient not in ("exact", "continuous"):
-            raise InputError(f"gradient must be 'exact' or 'continuous', got {gradient!r}")
+                 scheme: Scheme = Scheme(), solver="auto", u0=None, v0=None, schedule: Schedule = StoreAll(),
+                 space: ControlSpace | None = None, adjoint: Adjoint | None = None, horizon: str = "objective",
+                 checkpoint_every: int | None = None, checkpoint_snapshots: int | None = None):
         if horizon not in ("objective", "full"):
             raise InputError(f"horizon must be 'objective' or 'full', got {horizon!r}")
         self.horizon = horizon
-        self.gradient_method = gradient
         if model.control is None:
             raise InputError("the optimal control problem needs a model with a control operator")
         if objective.eps and abs(transform.eps - objective.eps) > 1e-14:
@@ -195,8 +176,6 @@ class ReducedFunctional:
         if space is None:
             alpha, beta = objective.control_weights
             space = control_space(transform, model.control, alpha, beta)
-        if gradient == "continuous" and objective.control_weights[1] > 0:
-            raise InputError("gradient = 'continuous' does not include the cost of d xi/dt: use 'exact' with beta > 0")
         self.space = space
         self.adjoint = Adjoint(TimeStepper(model, scheme, solver)) if adjoint is None else adjoint
         self.stepper = self.adjoint.stepper
@@ -205,52 +184,34 @@ class ReducedFunctional:
         self.N = transform.num_steps
         self.counts = {"state": 0, "adjoint": 0}
         self._solves = _Solves(None)
-        self._set_checkpointing(checkpoint_every, checkpoint_snapshots)
+        if checkpoint_every is not None or checkpoint_snapshots is not None:
+            warnings.warn("ReducedFunctional(checkpoint_every=k / checkpoint_snapshots=s) is deprecated: pass "
+                          "schedule=EveryK(k) / Binomial(s) (hyperoc.control.revolve)", DeprecationWarning,
+                          stacklevel=2)
+            schedule = checkpoint_schedule(checkpoint_every, checkpoint_snapshots)
+        self.schedule = schedule
         from jax.experimental import sparse as jsparse
 
         # Built eagerly: a cached property first touched inside a traced function would leak tracers.
         self._control_mass = jsparse.BCOO.from_scipy_sparse(model.control.mass.tocoo())
 
     @property
-    def checkpoint_every(self) -> int | None:
-        """Checkpoint spacing k (None: store every level); may be changed between evaluations."""
-        return self._checkpoint_every
+    def schedule(self) -> Schedule:
+        """The checkpointing schedule of the value and the gradient (`hyperoc.control.revolve.Schedule`)."""
+        return self._schedule
 
-    @checkpoint_every.setter
-    def checkpoint_every(self, k: int | None) -> None:
-        self._set_checkpointing(k, self._checkpoint_snapshots)
-
-    @property
-    def checkpoint_snapshots(self) -> int | None:
-        """Snapshots s of the binomial schedule (None: not used); may be changed between evaluations."""
-        return self._checkpoint_snapshots
-
-    @checkpoint_snapshots.setter
-    def checkpoint_snapshots(self, s: int | None) -> None:
-        self._set_checkpointing(self._checkpoint_every, s)
+    @schedule.setter
+    def schedule(self, schedule: Schedule) -> None:
+        if not all(hasattr(schedule, name) for name in ("forward", "reverse", "compiled")):
+            raise InputError(f"schedule must be a hyperoc.control.revolve.Schedule (StoreAll, EveryK, Binomial), "
+                             f"got {schedule!r}")
+        self._schedule = schedule
+        self._solves.record = None  # made under the previous schedule
 
     @property
     def checkpointed(self) -> bool:
-        """Whether the value and the gradient use checkpoints (equidistant or binomial)."""
-        return self._checkpoint_every is not None or self._checkpoint_snapshots is not None
-
-    @property
-    def schedule(self) -> Schedule:
-        """The checkpointing schedule of the value and the gradient, from ``checkpoint_every`` and
-        ``checkpoint_snapshots``."""
-        if self._checkpoint_snapshots is not None:
-            return Binomial(self._checkpoint_snapshots)
-        if self._checkpoint_every is not None:
-            return EveryK(self._checkpoint_every)
-        return StoreAll()
-
-    def _set_checkpointing(self, every, snapshots) -> None:
-        every, snapshots = checkpoint_options(every, snapshots)
-        if (every or snapshots) and self.gradient_method != "exact":
-            raise InputError(f"{'checkpoint_every' if every else 'checkpoint_snapshots'} is implemented for the exact "
-                             "gradient only")
-        self._checkpoint_every, self._checkpoint_snapshots = every, snapshots
-        self._solves.record = None  # made under the previous schedule
+        """Whether the value and the gradient use checkpoints (any schedule but `StoreAll`)."""
+        return not isinstance(self._schedule, StoreAll)
 
     @property
     def steps_solved(self) -> int:
@@ -360,8 +321,7 @@ class ReducedFunctional:
                 f64(N), f64(N + 1, nc), f64(N))
         except (TypeError, AttributeError) as err:
             raise InputError(f"checkpointing: the objective uses traj.y0 / traj.y1 as whole arrays ({err}); "
-                             "index single levels (traj.y1[-1]) or set checkpoint_every and "
-                             "checkpoint_snapshots to None") from err
+                             "index single levels (traj.y1[-1]) or use the schedule StoreAll()") from err
         return tuple(sorted(recorders[0].read | recorders[1].read))
 
     @cached_property
@@ -407,8 +367,6 @@ class ReducedFunctional:
 
     def __call__(self, m: ControlPoint) -> float:
         value, _ = self._objective_pair
-        if self.gradient_method == "continuous":  # its gradient reads `state`: the value from the same solve
-            return float(value(*self._solution_arrays(self.state(m))))
         return float(value(*self._record_arrays(self.record(m), m)))
 
     def value_and_derivative(self, m: ControlPoint) -> tuple[float, ControlPoint]:
@@ -430,11 +388,7 @@ class ReducedFunctional:
         return self.value_and_derivative(m)[1]
 
     def value_and_gradient(self, m: ControlPoint) -> tuple[float, ControlPoint]:
-        """J(m) and its Riesz gradient (L2(0,2; L2(omega)) x R), exact or continuous (see ``gradient``)."""
-        if self.gradient_method == "continuous":
-            from .continuous_adjoint import continuous_gradient
-
-            return self(m), continuous_gradient(self, m)
+        """J(m) and its Riesz gradient (L2(0,2; L2(omega)) x R): `riesz` of the exact derivative."""
         J, d = self.value_and_derivative(m)
         return J, self.riesz(d)
 

@@ -48,12 +48,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import lru_cache
 from math import comb
+from numbers import Integral
 from typing import ClassVar, Protocol
 
 from ..errors import InputError
 
 __all__ = ["Advance", "Store", "Restore", "Free", "Reverse", "Schedule", "StoreAll", "EveryK", "Binomial", "binomial",
-           "repetitions", "minimal_advances", "schedule"]
+           "repetitions", "minimal_advances", "schedule", "checkpoint_schedule"]
 
 
 @dataclass(frozen=True)
@@ -113,7 +114,7 @@ def minimal_advances(steps: int, snapshots: int) -> int:
 
 def _check(steps: int, snapshots: int) -> None:
     for name, value in (("steps", steps), ("snapshots", snapshots)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        if isinstance(value, bool) or not isinstance(value, Integral) or value < 1:
             raise InputError(f"revolve: {name} must be an integer >= 1, got {value!r}")
 
 
@@ -208,6 +209,9 @@ class EveryK:
     k: int
     compiled: ClassVar[bool] = True
 
+    def __post_init__(self):
+        _check_count("EveryK: k (checkpoint_every)", self.k)
+
     def forward(self, steps: int) -> tuple[tuple[int, ...], set[int]]:
         bounds = (*range(0, steps, self.k), steps)
         return bounds, set(bounds[:-1])
@@ -227,11 +231,31 @@ class Binomial:
     snapshots: int
     compiled: ClassVar[bool] = False
 
+    def __post_init__(self):
+        _check_count("Binomial: snapshots (checkpoint_snapshots)", self.snapshots)
+
     def forward(self, steps: int) -> tuple[tuple[int, ...], set[int]]:
         return (0, steps), {*_binomial_passes(steps, self.snapshots)[0], steps - 1, steps}
 
     def reverse(self, steps: int) -> tuple:
         return Restore(steps - 1), *_binomial_passes(steps, self.snapshots)[1]
+
+
+def _check_count(name: str, value) -> None:
+    """Refuses a count that is not an integer >= 1 (`InputError` naming it)."""
+    if isinstance(value, bool) or not isinstance(value, Integral) or value < 1:
+        raise InputError(f"{name} must be an integer >= 1, got {value!r}")
+
+
+def checkpoint_schedule(every: int | None = None, snapshots: int | None = None) -> Schedule:
+    """The schedule of the configuration's spelling ``[optimize] checkpoint_every = k`` (`EveryK`) or
+    ``checkpoint_snapshots = s`` (`Binomial`), `StoreAll` when both are None; both set is an `InputError`."""
+    if every is not None and snapshots is not None:
+        raise InputError(f"checkpoint_every = {every} and checkpoint_snapshots = {snapshots} exclude each other "
+                         "(equidistant or binomial checkpoints: set one to None)")
+    if snapshots is not None:
+        return Binomial(snapshots)
+    return StoreAll() if every is None else EveryK(every)
 
 
 @lru_cache(maxsize=4)

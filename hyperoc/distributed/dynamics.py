@@ -37,7 +37,7 @@ from ..dynamics.stepper import Scheme, StepStatus, TimeStepper
 from ..errors import InputError
 from ..mechanics import operators
 from ..mechanics.model import StateModel
-from ..solvers.linsolve import _eliminate
+from ..solvers.linsolve import eliminate_border
 from ..solvers.newton import NewtonStatus
 from .layout import Layout
 from .newton import KeptJacobian, newton
@@ -96,7 +96,7 @@ class DistributedStepper(TimeStepper):
 
         def residual(yl0, yl1, dt, t0, x):
             """The element rows (m,) and the local volume of ``x = (y0' (m,), p')``, the step from level t0."""
-            return st.residual(x, yl0, yl1, 0.0, None, None, zero, zero, dt, 0.0, t0)
+            return st.residual(x, (yl0, yl1, 0.0), (None, None), (zero, zero), dt, 0.0, t0)
 
         def residual_vjp(yl0, yl1, dt, t0, x, w):
             return jax.vjp(lambda a, b, c, s: residual(a, b, c, s, x), yl0, yl1, dt, t0)[1](w)
@@ -203,7 +203,7 @@ class DistributedAdjoint(Adjoint):
             blocks = np.swapaxes(blocks, 1, 2)
         col, row = L.add(col), L.add(row)
         L.factor(blocks)
-        w_u, w_p = _eliminate(L.solve(lam0[o] + v_y0n, row), col, gp, dot=L.dot)  # transpose: col <-> row
+        w_u, w_p = eliminate_border(L.solve(lam0[o] + v_y0n, row), col, gp, dot=L.dot)  # transpose: col <-> row
         with L.clock("kernels"):
             w = jnp.append(jnp.asarray(L.local_of_owned(w_u)), w_p)
             r_y0, r_y1, r_dt, r_t0 = (np.asarray(a) for a in k["residual_vjp"](jnp.asarray(y0[d]), jnp.asarray(y1[d]),

@@ -37,7 +37,7 @@ class Layout:
     cells : (nc_local,) the rank's cells; dofs : (m,) their unknowns (serial indices, increasing);
     owned_serial : (m_o,) the serial index of each owned entry; n_u : for a model with a pressure
     field (Taylor-Hood), the number of owned entries that are displacements (they come first), else
-    None (the blocks of `hyperoc.solvers.newton._small`; every rank has the same number of them).
+    None (the blocks of `hyperoc.solvers.newton.small_increment`; every rank has the same number of them).
     """
 
     #: as a stepper's solver (`hyperoc.dynamics.stepper.TimeStepper.solver`): solves on the host, one

@@ -8,27 +8,40 @@ The unknown is ``x = (owned values (m_o,), q)`` with q the multiplier of the vol
     [ K     col ] [du]   [ -r_u ]
     [ row^T  0  ] [dq] = [ -r_c ]
 
-as `hyperoc.solvers.linsolve._eliminate` does (``K a = -r_u``, ``K b = col`` against one factorization),
+as `hyperoc.solvers.linsolve.eliminate_border` does (``K a = -r_u``, ``K b = col`` against one factorization),
 unconstrained ``K du = -r_u``. Full Newton (``kept=None``) factors K at every iteration, takes full steps
 and stops when ``|du_b|_inf <= rtol |u_b + du_b|_inf + atol`` on each block b (displacements, then
-Taylor-Hood pressures: `hyperoc.solvers.newton._small`). Chord Newton (a `KeptJacobian`) is the serial
+Taylor-Hood pressures: `hyperoc.solvers.newton.small_increment`). Chord Newton (a `KeptJacobian`) is the serial
 ``newton(..., chord=True)`` (`hyperoc.solvers.newton`): it solves with the Jacobian of an earlier
 iterate, of this solve or of an earlier one, takes the step if it decreases ``|r|^2`` (sufficient
 decrease 1e-4), refreshes the Jacobian after a rejected step or when the contraction rate exceeds
-`CHORD_RATE`, and stops by the serial policy, `hyperoc.solvers.newton.chord_stopping_test` (the error left after the
-update, of u and of the multiplier). Every rank makes the same sequence of collective calls: the
-decisions are taken on reduced values, equal on all ranks.
+`hyperoc.solvers.newton.CHORD_RATE`, and stops when the error left after the update, of u and of the
+multiplier, is small. Its decisions are the serial loop's pure policy functions
+(`hyperoc.solvers.newton.chord_stopping_test`, ``chord_accepts``, ``chord_next``, ``chord_counts``) on
+NumPy values. Every rank makes the same sequence of collective calls: the decisions are taken on reduced
+values, equal on all ranks.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..solvers.linsolve import _eliminate
-from ..solvers.newton import CHORD_RATE, NewtonStatus, _small, chord_stopping_test
-from .layout import Layout
+from ..solvers.linsolve import eliminate_border
+from ..solvers.newton import (
+    NewtonStatus,
+    chord_accepts,
+    chord_counts,
+    chord_next,
+    chord_stopping_test,
+    small_increment,
+    sufficient_decrease,
+)
+
+if TYPE_CHECKING:  # the loop needs only the layout's methods; importing it needs PETSc
+    from .layout import Layout
 
 __all__ = ["KeptJacobian", "newton"]
 
@@ -70,12 +83,12 @@ def newton(residual, jacobian, layout: Layout, x0: np.ndarray, *, rtol: float, a
             dx = _kept_step(layout, r, constrained, kept)
         du = dx[:m_o]
         solved = layout.all_finite(dx)
-        it += 1 if refresh or solved else 0  # a kept solve that failed only asks for a refresh
+        it += 1 if chord_counts(refresh, solved, xp=np) else 0
         if refresh and not solved:
             return x, it, NewtonStatus.NON_FINITE
         increment = layout.inf_norm(du) if solved else np.inf
         chord = kept is not None
-        small = lambda u, v, rt, at: bool(_small(u, v, layout.n_u, rt, at, inf_norm=layout.inf_norm))
+        small = lambda u, v, rt, at: bool(small_increment(u, v, layout.n_u, rt, at, inf_norm=layout.inf_norm))
         if chord:
             p, dp = (x[m_o], dx[m_o]) if constrained else (0.0, 0.0)
             settled, rate = chord_stopping_test(x[:m_o], du, p, dp, increment, previous, small, rtol=rtol,
@@ -86,13 +99,14 @@ def newton(residual, jacobian, layout: Layout, x0: np.ndarray, *, rtol: float, a
         if converged:
             return x + dx, it, NewtonStatus.CONVERGED
         r1 = residual(*at(x + dx)) if solved else None
-        accepted = solved and (refresh or merit(r1) <= (1 - 1e-4) * merit(r))
+        decreased = solved and bool(sufficient_decrease(merit(r1), merit(r)))  # a chord step is taken whole
+        accepted = bool(chord_accepts(solved, converged, decreased, refresh, xp=np))
         if accepted:
             x, r = x + dx, r1
             if not layout.all_finite(r):
                 return x, it, NewtonStatus.NON_FINITE
-        previous = increment if accepted else np.inf
-        refresh = not chord or not accepted or rate > CHORD_RATE
+        refresh_next, previous = chord_next(accepted, rate, increment, xp=np)
+        refresh, previous = not chord or bool(refresh_next), float(previous)
     return x, max_iter, NewtonStatus.MAX_ITERATIONS
 
 
@@ -108,7 +122,7 @@ def _fresh_step(jacobian, layout: Layout, xl_q, r, constrained: bool, kept: Kept
     ab = layout.solve(-r[:m_o], col)
     if kept is not None:
         kept.b, kept.row = ab[:, 1].copy(), row
-    du, dq = _eliminate(ab, row, -r[m_o], dot=layout.dot)
+    du, dq = eliminate_border(ab, row, -r[m_o], dot=layout.dot)
     return np.append(du, dq)
 
 
@@ -118,5 +132,5 @@ def _kept_step(layout: Layout, r, constrained: bool, kept: KeptJacobian) -> np.n
     a = layout.solve(-r[:m_o])
     if not constrained:
         return a[:, 0]
-    du, dq = _eliminate(np.column_stack([a[:, 0], kept.b]), kept.row, -r[m_o], dot=layout.dot)
+    du, dq = eliminate_border(np.column_stack([a[:, 0], kept.b]), kept.row, -r[m_o], dot=layout.dot)
     return np.append(du, dq)

@@ -7,7 +7,7 @@ The same discrete problem as `hyperoc.dynamics.statics.solve_static`: with the v
     R(u) + p G(u) = sum_j f_j(u; s),      vol(u) = V(s),
 
 else ``R(u) = sum_j f_j(u; s)``, the follower loads f_j and the target volume ramped over the load
-factor s (`hyperoc.dynamics.statics._step_load`, shared). Each Newton iteration solves
+factor s (`hyperoc.dynamics.statics.step_load`, shared). Each Newton iteration solves
 
     [ K   G ] [du]   [ -r           ]
     [ G^T 0 ] [dp] = [ -(vol - V)    ]
@@ -27,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 from mpi4py import MPI
 
-from ..dynamics.statics import _step_load
+from ..dynamics.statics import step_load
 from ..dynamics.stepper import Scheme
 from ..errors import InputError
 from ..mechanics.active import FibreTension
@@ -142,7 +142,7 @@ class DistributedStatics:
         V = V0 if volume is None else float(volume)
         solve = lambda x0, fk, Vk, s: self._newton(x0, Vk, s, scheme)
         # no linear solver object: a failed KSP solve ends Newton as NON_FINITE
-        x, iters, rejected = _step_load(None, solve, x, 0.0, V0, V, steps=steps, cutbacks=cutbacks,
+        x, iters, rejected = step_load(None, solve, x, 0.0, V0, V, steps=steps, cutbacks=cutbacks,
                                         predictor=predictor)
         seconds = MPI.Wtime() - t0
         return DistributedSolution(layout.serial(x[: layout.owned_size]), float(x[-1]) if self.constrained else 0.0,

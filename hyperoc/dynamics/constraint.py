@@ -349,7 +349,7 @@ class NoConstraint(_ScalarState):
 
     def border(self, blocks, x, y0, dt, theta, weighting):
         """``(K e, e)``: K e the assembled element blocks applied to e (exactly the Jacobian's column)."""
-        index = self.model._element_gather
+        index = self.model.element_gather
         Ke = jnp.einsum("ckl,cl->ck", blocks, gather(self.e, index))
         return scatter(Ke, index, self.model.n), self.e
 

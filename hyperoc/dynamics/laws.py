@@ -5,7 +5,7 @@ t-grid of the optimal control problem (`hyperoc.dynamics.timegrid.TimeTransform`
 tau, so the exact tau-gradient of the discrete state needs ``dg/dt`` (`jax.grad` of `TimeLaw.__call__`).
 
 - `Constant`: ``g(t) = c``.
-- `ExpressionLaw`: an expression of t (`hyperoc.app.expr`, evaluated with jax.numpy).
+- `ExpressionLaw`: an expression of t (`hyperoc.expr`, evaluated with jax.numpy).
 - `Table`: piecewise-linear interpolation of samples ``(t_k, g_k)`` (strictly increasing ``t_k``), held
   constant outside them; its derivative jumps at the samples (one-sided there).
 - `OdeLaw`: the solution of a scalar ODE ``g' = h(t, g)``, ``g(t0) = g0``, integrated once by
@@ -81,12 +81,12 @@ class Constant(TimeLaw):
 
 @dataclass(frozen=True)
 class ExpressionLaw(TimeLaw):
-    """``g(t)`` given as an expression string of ``t`` (`hyperoc.app.expr` syntax, e.g. ``"1e3*sin(pi*t)"``)."""
+    """``g(t)`` given as an expression string of ``t`` (`hyperoc.expr` syntax, e.g. ``"1e3*sin(pi*t)"``)."""
 
     source: str
 
     def __post_init__(self):
-        from ..app.expr import Expression
+        from ..expr import Expression
 
         object.__setattr__(self, "_expr", Expression(self.source, frozenset({"t"})))
 

@@ -266,7 +266,7 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
                 return solution
             warnings.warn(f"solve_static: Newton from the guess failed ({guess_failure}); stepping the load instead",
                           RuntimeWarning, stacklevel=2)
-        x, iters, cut = _step_load(lin, compiled(line_search), initial_unknown(model, u, constrained), f, V_start, V,
+        x, iters, cut = step_load(lin, compiled(line_search), initial_unknown(model, u, constrained), f, V_start, V,
                                    steps=steps, cutbacks=cutbacks, predictor=predictor)
         return _solution(model, x, constrained, iters, rejected=rejected + cut, guess_failure=guess_failure)
     finally:  # the cached solve must not keep the caller's monitor (and all it holds) alive
@@ -274,7 +274,7 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
             slot[0] = None
 
 
-def _step_load(lin, solve, x, f, V_start: float, V: float, *, steps: int, cutbacks: int, predictor: str):
+def step_load(lin, solve, x, f, V_start: float, V: float, *, steps: int, cutbacks: int, predictor: str):
     """Walk the load factor s from 0 to 1 in ``steps`` nominal increments, each solved by ``solve``
     (`_compiled_solve`) from the predictor; a failed increment is halved while cutbacks are left.
     Returns ``(x at s = 1, Newton iterations per accepted increment, iterations of rejected ones)``."""

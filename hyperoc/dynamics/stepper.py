@@ -327,9 +327,13 @@ class TimeStepper:
         th = self.scheme.theta
         return (y0_new - y0) / (th * dt) - (1 - th) / th * y1
 
-    def residual(self, x, y0, y1, p_prev, xi0, xi1, f0, f1, dt, V0, t0=0.0):
-        """Step residual (n+1,) from the level t0 to t0 + dt: momentum rows then the constraint's row."""
-        return self.residual_at(x, self.known_terms(y0, y1, xi0, xi1, f0, f1, dt, t0), y0, y1, p_prev, dt, V0, t0)
+    def residual(self, x, start, controls, loads, dt, V0, t0=0.0):
+        """Step residual (n+1,) from the level t0 to t0 + dt: momentum rows then the constraint's row.
+        ``start = (y0, y1, p_prev)`` the state and the constraint's carried state at t0, ``controls = (xi0, xi1)``
+        and ``loads = (f0, f1)`` at the step's two levels."""
+        y0, y1, p_prev = start
+        known = self.known_terms(y0, y1, *controls, *loads, dt, t0)
+        return self.residual_at(x, known, y0, y1, p_prev, dt, V0, t0)
 
     def known_terms(self, y0, y1, xi0, xi1, f0, f1, dt, t0=0.0):
         """The parts of the momentum rows that do not depend on the unknown x: computed once per step

@@ -48,7 +48,7 @@ import jax.numpy as jnp
 from ..errors import InputError
 from ..mechanics import kernels
 from ..mechanics.active import FibreTension
-from ..mechanics.follower import BoundaryFacets, FollowerPressure, _area_vector
+from ..mechanics.follower import BoundaryFacets, FollowerPressure, area_vector
 from .laws import Constant, TimeLaw
 
 __all__ = ["RobinBoundary", "DynamicPressure", "PrescribedTension", "Viscosity"]
@@ -81,7 +81,7 @@ class RobinBoundary(BoundaryFacets):
         2k is exact; a curved P2 facet, `hyperoc.fem.mesh.Mesh.curved_edges`, gets the area and normal of
         its isoparametric map at each point)."""
         tangents = jnp.einsum("qaj,fai->fqij", self._dN, self._X)
-        a = jax.vmap(jax.vmap(_area_vector))(tangents)  # (nf, nq, d)
+        a = jax.vmap(jax.vmap(area_vector))(tangents)  # (nf, nq, d)
         area = jnp.linalg.norm(a, axis=-1)
         nf, m, d = self._X.shape
         if self.direction == "full":
@@ -186,20 +186,21 @@ class Viscosity:
         return jax.grad(self._element_dissipation, argnums=1)(ue, ve, dN, w)
 
     def _cells(self, y0, y1):
-        m = self.model
-        return (kernels.gather(y0, m._element_gather), kernels.gather(y1, m._element_gather), m._dN, m._w)
+        """``(y0_e, y1_e, dN, w)``: each cell's displacements and velocities and its quadrature data."""
+        ue, dN, w, _ = self.model.element_args(y0)
+        return ue, kernels.gather(y1, self.model.element_gather), dN, w
 
     def force(self, y0, y1, t):
         m = self.model
-        forces = m._map_cells(lambda xs: self._element_force(*xs), self._cells(y0, y1))
-        return kernels.scatter(forces, m._element_gather, m.n)
+        forces = m.map_cells(lambda xs: self._element_force(*xs), self._cells(y0, y1))
+        return kernels.scatter(forces, m.element_gather, m.n)
 
     def add_tangent(self, blocks, y0, y1, t, a, b):
         def element(xs):
             du, dv = jax.jacfwd(self._element_force, argnums=(0, 1))(*xs)
             return a * du + b * dv
 
-        return blocks + self.model._map_cells(element, self._cells(y0, y1))
+        return blocks + self.model.map_cells(element, self._cells(y0, y1))
 
     def dissipation_rate(self, y0, y1):
         """``eta int tr(Edot^2)`` (power) = ``y1 . A``."""

@@ -19,6 +19,10 @@ The midpoint ``m`` is moved along the surface normal direction at ``m`` to the s
 of a quadratic for these quadrics); an edge that also lies in a flat boundary (the ventricle's
 rim, on the base plane) moves within that plane, so flat boundaries stay flat.
 
+Building blocks of such generators, public for other domains (`hyperoc.cardiac.benchmark_geometry`):
+`gmsh_model` and `gmsh_generate` (a Gmsh model and its simplices), `Quadric` (an analytic wall),
+`tagged` (boundaries named after the nearest surface, P2 edges curved onto the walls) and `refined`.
+
 File I/O (`from_file`, `to_file`) lives in `hyperoc.fem.files` and is re-exported here.
 
 Gmsh is imported on first use and finalized at the end of every call, so no Gmsh state outlives
@@ -126,11 +130,11 @@ def thick_shell(r_inner: float = 0.5, r_outer: float = 1.0, h: float = 0.2, *, c
     """
     _require(0 < r_inner < r_outer, "thick_shell: need 0 < r_inner < r_outer")
     _require(h > 0, "thick_shell: need h > 0")
-    with _gmsh_model("thick_shell") as gmsh:
+    with gmsh_model("thick_shell") as gmsh:
         occ = gmsh.model.occ
         occ.cut([(3, occ.addSphere(0, 0, 0, r_outer))], [(3, occ.addSphere(0, 0, 0, r_inner))])
         occ.synchronize()
-        mesh = _gmsh_generate(gmsh, 3, h)
+        mesh = gmsh_generate(gmsh, 3, h)
     return _curved_shell(mesh, r_inner, r_outer, curved, refinements)
 
 
@@ -176,18 +180,18 @@ def ventricle(
     _require(h > 0, "ventricle: need h > 0")
     _require(0 < rs_endo < rs_epi and 0 < rl_endo < rl_epi, "ventricle: endo semi-axes must be below epi ones")
     _require(abs(base_z) < rl_endo, "ventricle: the base plane must cut the cavity (|base_z| < endo long axis)")
-    with _gmsh_model("ventricle") as gmsh:
+    with gmsh_model("ventricle") as gmsh:
         occ = gmsh.model.occ
         width = 4 * rs_epi
         above_base = occ.addBox(-width / 2, -width / 2, base_z, width, width, 2 * rl_epi)
         wall = [(3, _occ_ellipsoid(occ, rs_epi, rl_epi))]
         occ.cut(wall, [(3, _occ_ellipsoid(occ, rs_endo, rl_endo)), (3, above_base)])
         occ.synchronize()
-        mesh = _gmsh_generate(gmsh, 3, h)
-    walls = {"endocardium": _Quadric((rs_endo, rs_endo, rl_endo)), "epicardium": _Quadric((rs_epi, rs_epi, rl_epi))}
-    tag = lambda mesh, curved: _tagged(mesh, walls, {"base": lambda x: x[:, 2] - base_z}, dirichlet="base",
+        mesh = gmsh_generate(gmsh, 3, h)
+    walls = {"endocardium": Quadric((rs_endo, rs_endo, rl_endo)), "epicardium": Quadric((rs_epi, rs_epi, rl_epi))}
+    tag = lambda mesh, curved: tagged(mesh, walls, {"base": lambda x: x[:, 2] - base_z}, dirichlet="base",
                                        neumann="endocardium", curved=curved, planes={"base": (0.0, 0.0, 1.0)})
-    return _refined(mesh, tag, curved, refinements)
+    return refined(mesh, tag, curved, refinements)
 
 
 def _polar_grid(r_inner: float, r_outer: float, n_radial: int, n_theta: int) -> Mesh:
@@ -204,14 +208,14 @@ def _polar_grid(r_inner: float, r_outer: float, n_radial: int, n_theta: int) -> 
 
 
 def _gmsh_annulus(r_inner: float, r_outer: float, h: float) -> Mesh:
-    with _gmsh_model("annulus") as gmsh:
+    with gmsh_model("annulus") as gmsh:
         occ = gmsh.model.occ
         occ.cut([(2, occ.addDisk(0, 0, 0, r_outer, r_outer))], [(2, occ.addDisk(0, 0, 0, r_inner, r_inner))])
         occ.synchronize()
-        return _gmsh_generate(gmsh, 2, h)
+        return gmsh_generate(gmsh, 2, h)
 
 
-class _Quadric:
+class Quadric:
     """The surface ``f(x) = sum_i x_i^2 / s_i^2 - 1 = 0`` centred at the origin, semi-axes ``s`` (dim,):
     a circle, a sphere or an ellipsoid of revolution."""
 
@@ -234,14 +238,14 @@ class _Quadric:
 
 
 def _curved_shell(mesh: Mesh, r_inner: float, r_outer: float, curved: bool, refinements: int) -> Mesh:
-    """`_tagged` for the concentric circles/spheres ``|x| = r_outer`` (``"outer"``, ``gamma_d``) and
-    ``|x| = r_inner`` (``"inner"``, ``gamma_n``, the cavity) of an annulus or a shell, `_refined`."""
-    spheres = {name: _Quadric(np.full(mesh.dim, r)) for name, r in (("outer", r_outer), ("inner", r_inner))}
-    tag = lambda mesh, curved: _tagged(mesh, spheres, {}, dirichlet="outer", neumann="inner", curved=curved)
-    return _refined(mesh, tag, curved, refinements)
+    """`tagged` for the concentric circles/spheres ``|x| = r_outer`` (``"outer"``, ``gamma_d``) and
+    ``|x| = r_inner`` (``"inner"``, ``gamma_n``, the cavity) of an annulus or a shell, `refined`."""
+    spheres = {name: Quadric(np.full(mesh.dim, r)) for name, r in (("outer", r_outer), ("inner", r_inner))}
+    tag = lambda mesh, curved: tagged(mesh, spheres, {}, dirichlet="outer", neumann="inner", curved=curved)
+    return refined(mesh, tag, curved, refinements)
 
 
-def _refined(mesh: Mesh, tag: Callable, curved: bool, refinements: int) -> Mesh:
+def refined(mesh: Mesh, tag: Callable, curved: bool, refinements: int) -> Mesh:
     """``tag(mesh, curved)`` (boundary names and curved edges) after ``refinements`` uniform refinements
     (`hyperoc.fem.mesh.refine`), each of the curved mesh: the new vertices of the boundary edges land on
     the exact surfaces, so the refined meshes approximate the true domain, not the first mesh's."""
@@ -252,9 +256,9 @@ def _refined(mesh: Mesh, tag: Callable, curved: bool, refinements: int) -> Mesh:
     return tag(mesh, curved)
 
 
-def _tagged(mesh: Mesh, walls: dict, flat: dict, *, dirichlet: str, neumann: str, curved: bool,
-            planes: dict | None = None) -> Mesh:
-    """Boundary facets named after the nearest of the curved ``walls`` (name -> `_Quadric`) and the
+def tagged(mesh: Mesh, walls: dict, flat: dict, *, dirichlet: str, neumann: str, curved: bool,
+           planes: dict | None = None) -> Mesh:
+    """Boundary facets named after the nearest of the curved ``walls`` (name -> `Quadric`) and the
     ``flat`` surfaces (name -> distance function), `_tag_boundary`; with ``curved``, the P2 edge
     nodes curved onto the walls (`_curve_edges`, ``planes`` the unit normals of flat boundaries),
     after removing the cells whose vertices all lie on the cavity wall ``neumann``: such a cell lies
@@ -269,7 +273,7 @@ def _tagged(mesh: Mesh, walls: dict, flat: dict, *, dirichlet: str, neumann: str
     inside = on_cavity[mesh.cells].all(axis=1)
     if inside.any():
         points, cells, _ = _drop_unused_points(mesh.points, mesh.cells[~inside], {})
-        return _tagged(Mesh(points, cells), walls, flat, dirichlet=dirichlet, neumann=neumann, curved=curved,
+        return tagged(Mesh(points, cells), walls, flat, dirichlet=dirichlet, neumann=neumann, curved=curved,
                        planes=planes)
     return _curve_edges(mesh, walls, planes)
 
@@ -282,7 +286,7 @@ def _facet_edges(facets: np.ndarray) -> np.ndarray:
 
 def _curve_edges(mesh: Mesh, surfaces: dict, planes: dict | None = None) -> Mesh:
     """``mesh`` with curved P2 edge nodes. The node of every edge of the facets of ``surfaces``
-    (boundary name -> `_Quadric`) moves from the edge midpoint onto that surface (`_Quadric.project`;
+    (boundary name -> `Quadric`) moves from the edge midpoint onto that surface (`Quadric.project`;
     an edge that is also an edge of a flat boundary in ``planes``, name -> unit normal (dim,), moves
     within it; a normal given as a function of the midpoints (n, dim) -> (n, dim), e.g. of a cone, moves
     the edge node within the tangent plane at its midpoint); the other boundary edge nodes and the vertices
@@ -337,7 +341,7 @@ def _tag_boundary(mesh: Mesh, surfaces: dict[str, _Distance], *, dirichlet: str,
 
 
 @contextlib.contextmanager
-def _gmsh_model(name: str):
+def gmsh_model(name: str):
     """A fresh, silent Gmsh instance holding one model; the ``gmsh`` module is yielded."""
     import gmsh
 
@@ -351,7 +355,7 @@ def _gmsh_model(name: str):
         gmsh.finalize()
 
 
-def _gmsh_generate(gmsh, dim: int, h: float) -> Mesh:
+def gmsh_generate(gmsh, dim: int, h: float) -> Mesh:
     """Mesh the current (synchronized) Gmsh model with size ``h``; keep its ``dim``-simplices."""
     gmsh.option.setNumber("Mesh.MeshSizeMax", h)
     gmsh.model.mesh.generate(dim)

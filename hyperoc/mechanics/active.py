@@ -46,7 +46,7 @@ class FibreTension:
     def __init__(self, model, tension: float, profile=None):
         if not math.isfinite(tension):
             raise InputError(f"fibre tension must be finite, got {tension}")
-        if model._frames is None:
+        if model.material_frames is None:
             raise InputError("FibreTension needs a model with fibre frames (StateModel(..., frames=...))")
         self.model, self.tension, self.n = model, float(tension), model.n
         q = model.quad
@@ -54,7 +54,7 @@ class FibreTension:
         if not np.all(np.isfinite(w)):
             raise InputError("the activation profile must be finite at every quadrature point")
         self._w = jnp.asarray(w)  # quadrature weights times the profile, (nc, nq)
-        f0 = np.asarray(model._frames)[..., 0, :]  # (nc, nq, d)
+        f0 = np.asarray(model.material_frames)[..., 0, :]  # (nc, nq, d)
         self._f0 = jnp.asarray(f0)
         g = np.einsum("cqaj,cqj->cqa", q.dN, f0)  # grad N_a . f0
         self._G = jnp.asarray(np.einsum("cq,cqa,cqb->cab", w, g, g))  # (nc, nloc, nloc)

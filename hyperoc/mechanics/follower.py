@@ -50,7 +50,7 @@ from .kernels import gather, scatter
 __all__ = ["BoundaryFacets", "FollowerPressure"]
 
 
-def _area_vector(T):
+def area_vector(T):
     """Area vector ``a`` (dim,) of the facet tangents ``T`` (dim, dim - 1): ``n da = a dxi``."""
     if T.shape[0] == 3:
         return jnp.cross(T[:, 0], T[:, 1])
@@ -77,7 +77,7 @@ def _outward_facets(mesh, facets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         raise InputError("follower pressure: some facets are interior (shared by two cells), not boundary facets")
     owner, opp = owner_of_face[order[pos]], opposite[order[pos]]
     X = mesh.points[facets]
-    a = np.asarray(jax.vmap(_area_vector)(jnp.asarray(np.swapaxes(X[:, 1:] - X[:, :1], 1, 2))))
+    a = np.asarray(jax.vmap(area_vector)(jnp.asarray(np.swapaxes(X[:, 1:] - X[:, :1], 1, 2))))
     inward = np.einsum("fi,fi->f", a, mesh.points[opp] - X[:, 0]) > 0
     facets[inward, 0], facets[inward, 1] = facets[inward, 1].copy(), facets[inward, 0].copy()
     return facets, owner
@@ -162,7 +162,7 @@ class FollowerPressure(BoundaryFacets):
     def _area_vectors(self, x):
         """Area vectors at the quadrature points of one facet with nodal positions x (m, dim) -> (nq, dim)."""
         T = jnp.einsum("qaj,ai->qij", self._dN, x)
-        return jax.vmap(_area_vector)(T)
+        return jax.vmap(area_vector)(T)
 
     def _facet_force(self, x):
         """``int N_a a dxi`` (m dim,) for unit pressure on one facet with nodal positions x (m, dim)."""

@@ -126,7 +126,7 @@ class TaylorHoodModel(StateModel):
                              prolong(p1(coarse.mesh), p1(self.mesh), coarse.pressure(np.asarray(x))))
 
     #: quasi-static: no mass or damping blocks
-    PER_CELL = ("_dN", "_w", "_frames", "_cell_volume")
+    PER_CELL = ("_dN", "_w", "material_frames", "_cell_volume")
 
     def restricted(self, cells: np.ndarray, dofs: np.ndarray) -> "TaylorHoodModel":
         """`StateModel.restricted`; among ``dofs`` the displacements come first (serial order), then the
@@ -169,8 +169,8 @@ class TaylorHoodModel(StateModel):
         ``W_rest`` with the det F Hessian weighted by ``b + a p`` at each point; ``G_(ai),c = a sum_q w_q (cof F_q)_iJ
         dN_aJ N^p_c`` couples the pressures to dJ; ``M_p = sum_q w_q N^p N^p^T`` (0 when bulk_modulus = inf).
         """
-        return self._map_cells(lambda xs: self._element_block(*self._split_element(xs[0]), *xs[1:], a, b),
-                               self._element_args(x))
+        return self.map_cells(lambda xs: self._element_block(*self._split_element(xs[0]), *xs[1:], a, b),
+                              self.element_args(x))
 
     def _split_element(self, xe):
         """One cell's unknowns xe (k,) -> ``(u_e (nloc, d), vertex pressures (d + 1,))``."""

@@ -97,6 +97,11 @@ class StateModel:
         free; m = 0 normally.
     pinned_dofs : array of int
         Global dofs (``node * dim + component``) fixed by ``pin_rigid``.
+    material_frames : (nc, nq, d, d) array or None
+        The material frame at every quadrature point (rows: fibre, sheet, normal), from ``frames``;
+        None without frames (isotropic laws).
+    element_gather : (nc, k) int array
+        Each cell's reduced dofs, constrained ones pointing at a dump slot n (`kernels.gather` reads 0 there).
     """
 
     def __init__(self, mesh: Mesh, material: Material, *, degree: int = 1, damping: float = 0.0, density: float = 1.0,
@@ -117,26 +122,26 @@ class StateModel:
         self.control = control.build(self.space, self.to_reduced) if control is not None else None
         self.neumann = neumann
         self.traction_load = self.load_vector(traction=traction) if traction is not None else np.zeros(self.n)
-        self._frames = None if frames is None else on_device(frames(self.quad.x))
+        self.material_frames = None if frames is None else on_device(frames(self.quad.x))
         self._dN = on_device(self.quad.dN)
         self._w = on_device(self.quad.wdx)
         self._cell_volume = jnp.sum(self._w, axis=1)  # (nc,)
         self._set_cell_dofs(self.to_reduced[self.space.cell_dofs])
         # the displacement's gather (`deformation_gradient`); a subclass appending unknowns to the
-        # element (Taylor-Hood's pressures) resets `_element_gather` only, so this one stays the displacement's
-        self._gather = self._element_gather
+        # element (Taylor-Hood's pressures) resets `element_gather` only, so this one stays the displacement's
+        self._gather = self.element_gather
 
     #: per-cell data (leading axis the cells) that `restricted` slices: attributes and cached properties
-    PER_CELL = ("_dN", "_w", "_frames", "_cell_volume", "mass_blocks", "laplace_blocks")
+    PER_CELL = ("_dN", "_w", "material_frames", "_cell_volume", "mass_blocks", "laplace_blocks")
     #: the compiled kernels and solvers cached on the model (`release_kernels`)
     KERNEL_CACHES = ("jitted", "_ellipticity_fn", "_static_solves", "_static_solvers")
 
     def _set_cell_dofs(self, cell_dofs: np.ndarray) -> None:
-        """Set ``cell_dofs`` (nc, k) (-1 = constrained) and ``_element_gather``, the same with constrained
+        """Set ``cell_dofs`` (nc, k) (-1 = constrained) and ``element_gather``, the same with constrained
         entries pointing at a dump slot n (read as 0, `kernels.gather`). Set eagerly (an array created
         while a kernel is traced would become that trace's constant)."""
         self.cell_dofs = cell_dofs
-        self._element_gather = on_device(dump_index(cell_dofs, self.n), dtype=None)
+        self.element_gather = on_device(dump_index(cell_dofs, self.n), dtype=None)
 
     # --- constant operators (`hyperoc.mechanics.operators`) ----------------------------------------
     @cached_property
@@ -225,26 +230,28 @@ class StateModel:
         ue = kernels.gather(u, self._gather)
         return kernels.deformation_gradient(ue.reshape(ue.shape[0], -1, self.dim), self._dN)
 
-    def _pointwise(self, fn, F):
-        """``fn(F, frame)`` at every quadrature point, F (nc, nq, d, d)."""
-        return kernels.pointwise(fn, F, self._frames)
+    def pointwise(self, fn, F):
+        """``fn(F, frame)`` at every quadrature point, F (nc, nq, d, d), frame the point's `material_frames`
+        row (None without frames); e.g. the first Piola stress of the law at the model's frames."""
+        return kernels.pointwise(fn, F, self.material_frames)
 
     def strain_energy(self, u):
         """Pi(u) = int W(E) dx, or with ``volumetric="cell-mean"`` int W_rest(E) dx + sum_e |e| U(theta_e),
         theta_e = |e|^-1 int_e det F dx (scalar): the sum of `_element_energy` over the cells."""
-        return jnp.sum(self._map_cells(lambda xs: self._element_energy(*xs), self._element_args(u)))
+        return jnp.sum(self.map_cells(lambda xs: self._element_energy(*xs), self.element_args(u)))
 
     def internal_force(self, u):
         """R(u) = (P(F), grad phi) = dPi/du, (n,): each cell's gradient of `_element_energy` in its own
-        unknowns, summed into the dofs. Cells go `_map_cells` chunks at a time, so the intermediates
+        unknowns, summed into the dofs. Cells go `map_cells` chunks at a time, so the intermediates
         reverse mode keeps are one chunk's, not the mesh's (3.6 GB at 145k Taylor-Hood cells)."""
-        forces = self._map_cells(lambda xs: jax.grad(self._element_energy)(*xs), self._element_args(u))
-        return kernels.scatter(forces, self._element_gather, self.n)
+        forces = self.map_cells(lambda xs: jax.grad(self._element_energy)(*xs), self.element_args(u))
+        return kernels.scatter(forces, self.element_gather, self.n)
 
-    def _element_args(self, x):
-        """``(x_e (nc, k), dN, w, frames)``: each cell's unknowns (0 on constrained dofs) and quadrature
-        data, the per-cell arguments of `_element_energy`."""
-        return kernels.gather(x, self._element_gather), self._dN, self._w, self._frames
+    def element_args(self, x):
+        """``(x_e (nc, k), dN (nc, nq, nloc, d), w (nc, nq), frames)``: each cell's unknowns of x (n,), 0 on
+        constrained dofs, its shape gradients, quadrature weights times |det J| and `material_frames`; the
+        per-cell arguments of `_element_energy` and of element terms (`map_cells`)."""
+        return kernels.gather(x, self.element_gather), self._dN, self._w, self.material_frames
 
     def _element_energy(self, ue, dN, w, frames):
         """One cell's `kernels.element_energy` (scalar) of its unknowns ue (k,), node-major; a model
@@ -269,12 +276,13 @@ class StateModel:
 
         Cells are processed ``tangent_chunk_points // nq`` at a time (`kernels.element_tangent` on each).
         """
-        return self._map_cells(lambda xs: kernels.element_tangent(self._point_material, self._bulk,
+        return self.map_cells(lambda xs: kernels.element_tangent(self._point_material, self._bulk,
                                                                   xs[0].reshape(-1, self.dim), *xs[1:], a, b),
-                               self._element_args(u))
+                              self.element_args(u))
 
-    def _map_cells(self, kernel, xs):
-        """`kernels.map_cells`, ``tangent_chunk_points // nq`` cells at a time."""
+    def map_cells(self, kernel, xs):
+        """``kernel`` on each cell's slice of the per-cell arrays ``xs`` (leading axis the cells), stacked:
+        `kernels.map_cells`, ``tangent_chunk_points // nq`` cells at a time (bounds the intermediates' memory)."""
         return kernels.map_cells(kernel, xs, max(1, self.tangent_chunk_points // self._w.shape[1]))
 
     def _voigt_derivatives(self, e, frame):
@@ -298,7 +306,7 @@ class StateModel:
     def _ellipticity_fn(self):
         # one compiled loop over the states (lax.map: one state's tensors in memory at a time)
         return jax.jit(lambda U: jax.lax.map(lambda u: diagnostics.min_acoustic_eigenvalue(
-            self.material.energy_of_F, self.deformation_gradient(u), self._frames), U))
+            self.material.energy_of_F, self.deformation_gradient(u), self.material_frames), U))
 
     def min_acoustic_eigenvalues(self, U) -> np.ndarray:
         """`hyperoc.mechanics.diagnostics.min_acoustic_eigenvalue` of the full law, for each state of

@@ -15,6 +15,7 @@ The adjoint solves the transpose, which is the same call with ``col`` and ``row`
 - `SparseSolver`: assembly into a fixed sparsity pattern and a host solver (SuperLU, MINRES from scipy;
   MKL PARDISO's symmetric indefinite LDL^T, `hyperoc.solvers.pardiso`), called from traced code through
   ``jax.pure_callback``; SuperLU runs on K permuted once by METIS nested dissection (`nested_dissection`).
+  The method's assembly and factorization are its backend (`hyperoc.solvers.backends`).
 """
 
 from __future__ import annotations
@@ -25,17 +26,16 @@ from concurrent.futures import ThreadPoolExecutor
 import jax
 import jax.numpy as jnp
 import numpy as np
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from .._jax import on_device
 from ..errors import InputError
 from ..fem.assembly import dump_index
+from .backends import MinresBackend, PardisoBackend, SuperLUBackend, nested_dissection
 
 __all__ = ["DenseSolver", "TridiagonalSolver", "SparseSolver", "make_solver", "nested_dissection"]
 
 
-def _eliminate(ab, row, r_c, dot=None, corner=0.0):
+def eliminate_border(ab, row, r_c, dot=None, corner=0.0):
     """The bordered solution ``(x, q)`` from ``a = K^-1 r_u`` and ``b = K^-1 col``, the columns of ab
     (NumPy or JAX arrays): ``q = (row . a - r_c) / (row . b - corner)``, ``x = a - b q``. ``dot(u, v)``:
     the inner product (default ``u @ v``; a distributed solve passes the sum over the ranks of their parts')."""
@@ -46,7 +46,7 @@ def _eliminate(ab, row, r_c, dot=None, corner=0.0):
 
 
 def _schur(solve2, col, row, r_u, r_c, corner):
-    return _eliminate(solve2(jnp.stack([r_u, col], axis=1)), row, r_c, corner=corner)
+    return eliminate_border(solve2(jnp.stack([r_u, col], axis=1)), row, r_c, corner=corner)
 
 
 class DenseSolver:
@@ -120,26 +120,11 @@ def _gather_table(n, pairs, sentinel):
     return on_device(table, dtype=None)
 
 
-def nested_dissection(pattern) -> np.ndarray:
-    """Fill-reducing order ``q`` (n,) of a structurally symmetric pattern, new index -> old index
-    (the LU factors ``K[q][:, q]``), by METIS multilevel nested dissection of the graph of ``K``.
-
-    On 3D P2 meshes this gives fewer stored factor entries and faster SuperLU factorizations than
-    minimum degree (``python bench/bench_ordering.py``).
-    """
-    import pymetis
-
-    n = pattern.size
-    A = sp.csr_matrix((np.ones(pattern.nnz, dtype=np.int8), pattern.indices, pattern.indptr), shape=(n, n))
-    A = (A + A.T).tocsr()  # the element patterns are symmetric; this only guards the graph METIS needs
-    A.setdiag(0)
-    A.eliminate_zeros()
-    q, _ = pymetis.nested_dissection(pymetis.CSRAdjacency(A.indptr, A.indices))
-    return np.asarray(q, dtype=np.int64)
-
-
 class SparseSolver:
-    """Host solver on the sparsity pattern of the model, reached through ``jax.pure_callback``.
+    """Host solver on the sparsity pattern of the model, reached through ``jax.pure_callback``: a backend
+    (`backend`, `hyperoc.solvers.backends`: K's assembly and factorization for the method) under one reuse and
+    precision policy (this class: the kept factorizations, their refresh, iterative refinement to ``rtol``,
+    the chord Newton's kept Jacobian, the worker thread and ``stats``).
 
     method
         ``"lu"`` (default): SuperLU with diagonal pivots first and threshold partial pivoting as
@@ -224,17 +209,16 @@ class SparseSolver:
             if not available():
                 raise InputError(f"the {method!r} solver needs MKL: python -m pip install mkl")
         self.pattern, self.n, self.method, self.rtol = model.pattern, model.n, method, rtol
-        self._pardiso, self._reuse = method.startswith("pardiso"), method.endswith("_reuse")
-        self._single = method.startswith("pardiso_single")
-        self._upper = None  # (slot, weight, indices, indptr): CSR data -> the upper triangle of (K + K^T) / 2
-        self.pivot_thresh, self.fallback_thresh, self.ordering = pivot_thresh, fallback_thresh, ordering
+        self.stats = {}
+        self.reset_stats()
+        self.backend = _backend(method, self.pattern, self.stats, rtol=rtol, ordering=ordering,
+                                pivot_thresh=pivot_thresh, fallback_thresh=fallback_thresh)
+        self._reuse = method.endswith("_reuse")
         self.reuse_rate, self.reuse_max_iter, self.refine_max_iter = reuse_rate, reuse_max_iter, refine_max_iter
-        self._order = None  # (q, position, indices, indptr) of the permuted CSC, after the first call
-        self._lu = None  # kept factorization ("lu_reuse")
+        self._lu = None  # kept factorization ("_reuse" methods)
         self._kept = None  # the chord iteration's factorization (`refresh_solve`)
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hyperoc-superlu")
         self.last_failure = None
-        self.reset_stats()
 
     def __del__(self):
         worker = getattr(self, "_worker", None)
@@ -256,65 +240,12 @@ class SparseSolver:
         self._worker.submit(self._release).result()
 
     def reset_stats(self):
-        self.stats = {"calls": 0, "factorizations": 0, "iterations": 0, "kept_solves": 0, "refactor_after_stall": 0,
-                      "failed": 0, "order_s": 0.0, "assembly_s": 0.0, "factor_s": 0.0, "solve_s": 0.0, "host_s": 0.0,
-                      "fill": 0, "off_diagonal_pivots": 0, "pivoting_fallbacks": 0}
-
-    # --- structure ----------------------------------------------------------------------------
-    def _factor(self, K, thresh, permuted: bool):
-        """SuperLU of K: in its own numbering if ``permuted`` (K already in the fixed ordering),
-        else ordered by SuperLU's minimum degree on ``K + K^T``."""
-        t0 = time.perf_counter()
-        lu = spla.splu(K, permc_spec="NATURAL" if permuted else "MMD_AT_PLUS_A",
-                       diag_pivot_thresh=thresh, options={"SymmetricMode": True})
-        self.stats["factor_s"] += time.perf_counter() - t0
-        self.stats["factorizations"] += 1
-        self.stats["fill"] = lu.nnz  # not lu.L / lu.U: each builds a copy of the factor (+2.8 GB at 80k dofs)
-        self.stats["off_diagonal_pivots"] = int(np.count_nonzero(lu.perm_r != lu.perm_c))
-        return lu
-
-    def _factor_ldl(self, K):
-        """PARDISO's ``L D L^T`` of ``(K + K^T) / 2``, from the CSR K by one bincount into its upper triangle."""
-        from .pardiso import PardisoLDL
-
-        t0 = time.perf_counter()
-        if self._upper is None:
-            self._upper = _upper_triangle_map(self.pattern)
-        slot, weight, indices, indptr = self._upper
-        data = np.bincount(slot, weights=K.data * weight, minlength=indices.size)
-        lu = PardisoLDL(sp.csr_matrix((data, indices, indptr), shape=K.shape), single=self._single)
-        self.stats["factor_s"] += time.perf_counter() - t0
-        self.stats["factorizations"] += 1
-        self.stats["fill"], self.stats["off_diagonal_pivots"] = lu.nnz, lu.perturbed_pivots
-        return lu
-
-    def _set_order(self, q):
-        """Permuted CSC structure and the map element entry -> CSC data slot, for ``K[q][:, q]``
-        (``q``: new index -> old index)."""
-        P = self.pattern
-        tag = sp.csr_matrix((np.arange(1, P.nnz + 1, dtype=np.float64), P.indices, P.indptr), shape=(P.size, P.size))
-        Kq = tag[q][:, q].tocsc()
-        Kq.sort_indices()
-        src = Kq.data.astype(np.int64) - 1  # permuted-CSC slot k holds CSR entry src[k]
-        slot = np.empty(P.nnz + 1, dtype=np.int64)
-        slot[src] = np.arange(P.nnz)
-        slot[P.nnz] = P.nnz  # dropped entries stay in the dump slot
-        self._order = (q, slot[P.position], Kq.indices.astype(np.int32), Kq.indptr.astype(np.int32))
-
-    def _matrix(self, blocks):
-        """K (CSC) in the solver's ordering, and the permutation q (None before an ordering is fixed)."""
-        t0 = time.perf_counter()
-        vals = np.asarray(blocks, dtype=np.float64).reshape(-1)
-        if self.method == "minres" or self._pardiso:  # in the original numbering (PARDISO orders itself)
-            K, q = self.pattern.matrix(vals.reshape(self.pattern.element_shape)), None
-        elif self._order is None:
-            K, q = self.pattern.matrix(vals.reshape(self.pattern.element_shape)).tocsc(), None
-        else:
-            q, position, indices, indptr = self._order
-            data = np.bincount(position, weights=vals, minlength=indices.size + 1)[: indices.size]
-            K = sp.csc_matrix((data, indices, indptr), shape=(self.n, self.n))
-        self.stats["assembly_s"] += time.perf_counter() - t0
-        return K, q
+        """Zero the counters and timings of ``stats`` (the same dict, shared with the backend)."""
+        self.stats.clear()
+        self.stats.update({"calls": 0, "factorizations": 0, "iterations": 0, "kept_solves": 0,
+                           "refactor_after_stall": 0, "failed": 0, "order_s": 0.0, "assembly_s": 0.0,
+                           "factor_s": 0.0, "solve_s": 0.0, "host_s": 0.0, "fill": 0, "off_diagonal_pivots": 0,
+                           "pivoting_fallbacks": 0})
 
     # --- solves -------------------------------------------------------------------------------
     def host_solve(self, blocks, col, row, r_u, r_c, corner=0.0, keep: bool = False):
@@ -325,39 +256,41 @@ class SparseSolver:
     def _host_solve(self, blocks, col, row, r_u, r_c, corner=0.0, keep: bool = False):
         t_start = time.perf_counter()
         self.stats["calls"] += 1
-        if self._order is None and self.ordering == "nd" and self.method in ("lu", "lu_reuse"):
-            self._set_order(nested_dissection(self.pattern))
-            self.stats["order_s"] += time.perf_counter() - t_start
-        K, q = self._matrix(blocks)
+        self.backend.prepare()
+        K, q = self.backend.matrix(blocks)
         rhs = _checked_rhs(np.stack([r_u, col], axis=1))
         if not np.isfinite(K.data).all():
             raise np.linalg.LinAlgError("the tangent or the residual has non-finite entries (NaN or Inf)")
-        if self.method == "minres":
+        if isinstance(self.backend, MinresBackend):
             t0 = time.perf_counter()
-            ab = np.stack([self._minres(K, rhs[:, j]) for j in range(2)], axis=1)
+            ab = self.backend.solve(K, rhs)
             self.stats["solve_s"] += time.perf_counter() - t0
         else:
-            rhs = rhs if q is None else rhs[q]
-            # The first "mmd" factorization is of K in the original numbering, later ones of the
-            # permuted K: it is not kept.
-            keepable = q is not None or self._pardiso
-            if keep:
-                self._kept = None  # freed before the new factorization is built
-                lu, ab = self._fresh_solve(K, rhs, q is not None)
-                self._kept = ((lu, _unpermuted(ab, q)[:, 1], np.asarray(row, dtype=np.float64), float(corner))
-                              if keepable else None)
-            elif self._reuse and self._lu is not None:
-                ab = self._solve_refined(K, rhs, self._lu, max_iter=self.reuse_max_iter, rate=self.reuse_rate)
-                if ab is None:  # the kept factorization is too far from K: refresh it
-                    self.stats["refactor_after_stall"] += 1
-                    self._lu = None  # freed before the new factorization is built
-                    self._lu, ab = self._fresh_solve(K, rhs, q is not None)
-            else:
-                lu, ab = self._fresh_solve(K, rhs, q is not None)
-                self._lu = lu if self._reuse and keepable else None
-            ab = _unpermuted(ab, q)
+            ab = _unpermuted(self._factored_solve(K, rhs if q is None else rhs[q], q, row, corner, keep), q)
         self.stats["host_s"] += time.perf_counter() - t_start
         return _bordered(ab, row, r_c, corner)
+
+    def _factored_solve(self, K, rhs, q, row, corner, keep: bool):
+        """``K^-1 rhs`` (in the ordering q) by the reuse policy: a fresh factor kept for chord Newton
+        (``keep``), the kept factor of a "_reuse" method refined and refreshed when it stalls, or a fresh
+        factor (kept by a "_reuse" method)."""
+        keepable = self.backend.keepable(q)
+        if keep:
+            self._kept = None  # freed before the new factorization is built
+            lu, ab = self._fresh_solve(K, rhs, q is not None)
+            self._kept = ((lu, _unpermuted(ab, q)[:, 1], np.asarray(row, dtype=np.float64), float(corner))
+                          if keepable else None)
+            return ab
+        if self._reuse and self._lu is not None:
+            ab = self._solve_refined(K, rhs, self._lu, max_iter=self.reuse_max_iter, rate=self.reuse_rate)
+            if ab is None:  # the kept factorization is too far from K: refresh it
+                self.stats["refactor_after_stall"] += 1
+                self._lu = None  # freed before the new factorization is built
+                self._lu, ab = self._fresh_solve(K, rhs, q is not None)
+            return ab
+        lu, ab = self._fresh_solve(K, rhs, q is not None)
+        self._lu = lu if self._reuse and keepable else None
+        return ab
 
     def _host_kept_solve(self, r_u, r_c):
         """The bordered solve with the whole Jacobian of the last `refresh_solve`: its factorization,
@@ -365,7 +298,7 @@ class SparseSolver:
         t_start = time.perf_counter()
         self.stats["calls"] += 1
         lu, b, row, corner = self._kept
-        q = None if self._pardiso else self._order[0]
+        q = self.backend.order
         r_u = _checked_rhs(r_u)
         a = _unpermuted(lu.solve(r_u if q is None else r_u[q]), q)
         self.stats["kept_solves"] += 1
@@ -374,34 +307,24 @@ class SparseSolver:
         return _bordered(np.stack([a, b], axis=1), row, r_c, corner)
 
     def _fresh_solve(self, K, rhs, permuted: bool):
-        """Factor K (``permuted``: in the fixed ordering, `_matrix`) and solve with refinement:
-        ``(lu, x)``. Diagonal pivots first; when they leave the refinement short of ``rtol``,
-        threshold partial pivoting (``fallback_thresh``). PARDISO: refinement of its perturbed
-        ``L D L^T`` of ``(K + K^T) / 2`` while it contracts (by 0.9 or better in 3 steps), up to
+        """Factor K (``permuted``: in the backend's fixed ordering) and solve with refinement: ``(lu, x)``.
+        A factor of K itself (SuperLU): two refinement steps; when the first pivots leave them short of
+        ``rtol``, the backend's fallback pivots. A factor of a modified K (PARDISO's perturbed ``L D L^T``
+        of ``(K + K^T) / 2``): refinement while it contracts (by 0.9 or better in 3 steps), up to
         ``refine_max_iter`` steps (a fresh factor is the best there is, so a slow contraction is waited
         out, where a kept factor is refreshed instead)."""
-        if self._pardiso:
-            lu = self._factor_ldl(K)
+        backend = self.backend
+        lu = backend.factor(K, permuted)
+        if not backend.exact:
             return lu, self._solve_refined(K, rhs, lu, max_iter=self.refine_max_iter, rate=0.9, patience=3,
                                            strict=True)
-        lu = self._direct(K, self.pivot_thresh, permuted)
-        can_fall_back = self.fallback_thresh > self.pivot_thresh  # else a second factorization repeats the first
-        x = self._solve_refined(K, rhs, lu, max_iter=2, rate=self.reuse_rate if can_fall_back else None)
+        x = self._solve_refined(K, rhs, lu, max_iter=2, rate=self.reuse_rate if backend.can_fall_back else None)
         if x is None:
             self.stats["pivoting_fallbacks"] += 1
             lu = None  # freed before the second factorization is built (GBs at 80k dofs)
-            lu = self._direct(K, self.fallback_thresh, permuted)
+            lu = backend.factor(K, permuted, fallback=True)
             x = self._solve_refined(K, rhs, lu, max_iter=2)
         return lu, x
-
-    def _direct(self, K, thresh, permuted: bool):
-        """Factor K; with ``ordering="mmd"`` the first factorization also fixes the ordering reused
-        afterwards. A K that is not ``permuted`` is ordered by SuperLU even when an ordering is fixed
-        by then: the fallback of the very first call factors the same unpermuted K again."""
-        lu = self._factor(K, thresh, permuted)
-        if self._order is None:
-            self._set_order(np.argsort(lu.perm_c))
-        return lu
 
     def _solve_refined(self, K, rhs, lu, *, max_iter, rate=None, patience=1, strict=False):
         """Iterative refinement with ``lu`` (of K or of an earlier K) to backward error ``rtol``.
@@ -441,22 +364,6 @@ class SparseSolver:
         # numerically singular K shows up as a Newton failure, reported with the step).
         return None if rate is not None else x
 
-    def _minres(self, K, rhs):
-        M = sp.diags(1.0 / np.abs(K.diagonal()))  # Jacobi: K is mass dominated in dynamics
-        count = [0]
-        cb = lambda _: count.__setitem__(0, count[0] + 1)
-        Knorm = abs(K).sum(axis=1).max()
-        x = None
-        for _ in range(4):  # restarts until the true backward error meets rtol (scipy tests an estimate)
-            x, info = spla.minres(K, rhs, x0=x, M=M, rtol=self.rtol, maxiter=5000, callback=cb)
-            err = np.abs(rhs - K @ x).max() / max(Knorm * np.abs(x).max() + np.abs(rhs).max(), 1e-300)
-            if err <= self.rtol:
-                break
-        self.stats["iterations"] += count[0]
-        if info != 0 or not err <= 10 * self.rtol:
-            raise np.linalg.LinAlgError(f"MINRES did not converge (info = {info}, backward error {err:.2e})")
-        return x
-
     def _host_solve_or_nan(self, *args, keep: bool = False):
         """`host_solve`, with NaN for a singular matrix (SuperLU), a tangent or residual with NaN or
         Inf entries (an iterate with inverted elements), a refinement that fails (PARDISO) or a MINRES
@@ -483,7 +390,7 @@ class SparseSolver:
     @property
     def chord(self) -> bool:
         """Whether `refresh_solve` / `kept_solve` are available (every method with a factorization)."""
-        return self.method != "minres"
+        return not isinstance(self.backend, MinresBackend)
 
     def refresh_solve(self, blocks, col, row, r_u, r_c, corner=0.0):
         """`solve`, keeping this Jacobian (the factorization of K, ``K^-1 col``, ``row`` and the corner) for
@@ -522,22 +429,19 @@ def _unpermuted(ab, q):
 
 
 def _bordered(ab, row, r_c, corner=0.0) -> np.ndarray:
-    """`_eliminate` on the host, as one array ``(x, q)`` (n + 1,)."""
-    x, q = _eliminate(ab, np.asarray(row, dtype=np.float64), float(r_c), corner=float(corner))
+    """`eliminate_border` on the host, as one array ``(x, q)`` (n + 1,)."""
+    x, q = eliminate_border(ab, np.asarray(row, dtype=np.float64), float(r_c), corner=float(corner))
     return np.concatenate([x, [q]])
 
 
-def _upper_triangle_map(pattern) -> tuple:
-    """For the structurally symmetric CSR ``pattern``: ``(slot, weight, indices, indptr)`` with the
-    upper triangle's CSR structure and, per entry (i, j) of the pattern, the slot of (min, max) in it
-    and the weight (1 on the diagonal, 1/2 off it): ``bincount(slot, data * weight)`` is ``(K + K^T) / 2``."""
-    n = pattern.size
-    rows = np.repeat(np.arange(n, dtype=np.int64), np.diff(pattern.indptr))
-    cols = pattern.indices.astype(np.int64)
-    lo, hi = np.minimum(rows, cols), np.maximum(rows, cols)
-    key, slot = np.unique(lo * n + hi, return_inverse=True)
-    indptr = np.searchsorted(key // n, np.arange(n + 1)).astype(np.int32)
-    return slot, np.where(rows == cols, 1.0, 0.5), (key % n).astype(np.int32), indptr
+def _backend(method: str, pattern, stats: dict, *, rtol, ordering, pivot_thresh, fallback_thresh):
+    """The backend of a method string (`SparseSolver`): SuperLU, PARDISO (double or single) or MINRES."""
+    if method == "minres":
+        return MinresBackend(pattern, stats, rtol=rtol)
+    if method.startswith("pardiso"):
+        return PardisoBackend(pattern, stats, single=method.startswith("pardiso_single"))
+    return SuperLUBackend(pattern, stats, ordering=ordering, pivot_thresh=pivot_thresh,
+                          fallback_thresh=fallback_thresh)
 
 
 def make_solver(model, kind: str = "auto"):

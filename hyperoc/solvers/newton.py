@@ -21,8 +21,9 @@ import jax.numpy as jnp
 
 from .. import _jax  # noqa: F401
 
-__all__ = ["newton", "NewtonStatus", "NewtonIteration", "NewtonLog", "CHORD_RATE", "CHORD_MARGIN",
-           "chord_stopping_test"]
+__all__ = ["newton", "NewtonStatus", "NewtonIteration", "NewtonLog", "NewtonOptions", "CHORD_RATE", "CHORD_MARGIN",
+           "chord_stopping_test", "chord_accepts", "chord_next", "chord_counts", "sufficient_decrease",
+           "small_increment"]
 
 #: Contraction rate above which a chord iteration refreshes the factorization: below it a kept
 #: factorization gains a digit or more per solve; a slower one would need more solves to reach the
@@ -98,6 +99,20 @@ class NewtonLog:
         self._last = now
 
 
+@dataclass(frozen=True)
+class NewtonOptions:
+    """The options of one Newton solve (`newton`): tolerances ``rtol``, ``atol`` of the increment test,
+    ``max_iter`` (may be traced), ``line_search``, the per-iteration ``monitor`` and ``n_u`` (the
+    displacement unknowns before a pressure field, None without one)."""
+
+    rtol: float
+    atol: float
+    max_iter: object
+    line_search: bool = True
+    monitor: object = None
+    n_u: int | None = None
+
+
 def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, max_iter,
            line_search: bool = True, monitor=None, n_u: int | None = None, chord: bool = False):
     """Solve ``residual(x) = 0``; returns ``(x, iterations, status)``.
@@ -135,8 +150,8 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
     `CHORD_MARGIN`; or at the round-off floor.
     """
     if chord:
-        return _chord_newton(residual, jacobian_parts, solver, x0, rtol=rtol, atol=atol, max_iter=max_iter,
-                             line_search=line_search, monitor=monitor, n_u=n_u)
+        return _chord_newton(residual, jacobian_parts, solver, x0,
+                             NewtonOptions(rtol, atol, max_iter, line_search, monitor, n_u))
 
     def body(state):
         # r = residual(x) is carried: the line search evaluates it at the point it accepts, which
@@ -150,7 +165,7 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
         solved = jnp.all(jnp.isfinite(dx))
         # An increment below the tolerance is taken whole: its merit is at round-off level and
         # backtracking on it would only stall.
-        converged = solved & _small(x[:-1], du, n_u, rtol, atol)
+        converged = solved & small_increment(x[:-1], du, n_u, rtol, atol)
         r_full = residual(x + dx)
         if line_search:
             alpha, r1 = _backtrack(residual, x, dx, _merit(r), r_full, ~(converged | ~solved))
@@ -174,8 +189,12 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
     return x, it, status
 
 
-def _chord_newton(residual, jacobian_parts, solver, x0, *, rtol, atol, max_iter, line_search, monitor, n_u):
-    """`newton` with ``chord=True`` (its docstring); returns ``(x, iterations, status)``."""
+def _chord_newton(residual, jacobian_parts, solver, x0, options: NewtonOptions):
+    """`newton` with ``chord=True`` (its docstring); returns ``(x, iterations, status)``. The decisions are
+    the pure policy functions shared with the distributed loop (`chord_stopping_test`, `chord_accepts`,
+    `chord_next`, `chord_counts`)."""
+    rtol, atol, n_u, monitor = options.rtol, options.atol, options.n_u, options.monitor
+
     def fresh(x, r):
         blocks, col, row, *corner = jacobian_parts(x)
         return solver.refresh_solve(blocks, col, row, -r[:-1], -r[-1], *corner)
@@ -190,14 +209,13 @@ def _chord_newton(residual, jacobian_parts, solver, x0, *, rtol, atol, max_iter,
         m0 = _merit(r)
         solved = jnp.all(jnp.isfinite(dx))
         increment = jnp.where(solved, jnp.max(jnp.abs(du)), jnp.inf)
-        settled, rate = chord_stopping_test(x[:-1], du, x[-1], dp, increment, previous,
-                                            lambda u, v, rt, at: _small(u, v, n_u, rt, at), rtol=rtol, atol=atol)
+        small = lambda u, v, rt, at: small_increment(u, v, n_u, rt, at)
+        settled, rate = chord_stopping_test(x[:-1], du, x[-1], dp, increment, previous, small, rtol=rtol, atol=atol)
         converged = solved & settled
         r_full = residual(x + dx)
         # A fresh (full Newton) step backtracks (with ``line_search``); a chord step is taken whole or rejected.
-        alpha, r1 = _backtrack(residual, x, dx, m0, r_full, refresh & ~converged & solved & line_search)
-        decreased = _sufficient_decrease(r1, alpha, m0)
-        accepted = solved & (converged | decreased | refresh)
+        alpha, r1 = _backtrack(residual, x, dx, m0, r_full, refresh & ~converged & solved & options.line_search)
+        accepted = chord_accepts(solved, converged, sufficient_decrease(_merit(r1), m0, alpha), refresh)
         x_new = jnp.where(accepted, x + alpha * dx, x)
         r_new = jnp.where(accepted, r1, r)
         if monitor is not None:
@@ -206,14 +224,13 @@ def _chord_newton(residual, jacobian_parts, solver, x0, *, rtol, atol, max_iter,
         finite = ~refresh | solved  # a failed kept solve only asks for a refresh
         finite = finite & jnp.all(jnp.isfinite(x_new)) & (converged | jnp.isfinite(_merit(r_new)))
         status = _status(finite, converged)
-        refresh_next = ~accepted | (rate > CHORD_RATE)
-        # A kept solve that failed (no factorization yet) is no iteration: only the refresh it asks for.
-        counted = it + jnp.where(refresh | solved, 1, 0)
-        return x_new, r_new, counted, status, finite, refresh_next, jnp.where(accepted, increment, jnp.inf)
+        refresh_next, previous_next = chord_next(accepted, rate, increment)
+        counted = it + jnp.where(chord_counts(refresh, solved), 1, 0)
+        return x_new, r_new, counted, status, finite, refresh_next, previous_next
 
     def cond(state):
         _, _, it, status, finite, *_ = state
-        return _running(status, it, finite, max_iter)
+        return _running(status, it, finite, options.max_iter)
 
     init = (x0, residual(x0), 0, int(NewtonStatus.MAX_ITERATIONS), True, jnp.asarray(False),
             jnp.asarray(jnp.inf, dtype=x0.dtype))
@@ -227,7 +244,7 @@ def chord_stopping_test(u, du, p, dp, increment, previous, small, *, rtol, atol,
 
     ``u, du``: the iterate's displacements and their increment; ``p, dp``: its multiplier and increment
     (0 and 0 unconstrained); ``increment = |du|_inf`` and ``previous``, the last accepted one (inf if
-    none); ``small(u, du, rtol, atol)``: the block test of `_small`. A linearly converging iteration
+    none); ``small(u, du, rtol, atol)``: the block test of `small_increment`. A linearly converging iteration
     leaves an error of about ``left |dx|`` after the update dx, ``left = rate / (1 - rate)``,
     ``rate = increment / previous`` (1 while the rate is unknown or above `CHORD_RATE`). Settled: what
     is left of u meets the tolerances scaled by `CHORD_MARGIN`, and what is left of p meets
@@ -243,15 +260,35 @@ def chord_stopping_test(u, du, p, dp, increment, previous, small, *, rtol, atol,
     return (u_settled & p_settled) | at_floor, rate
 
 
+def chord_accepts(solved, converged, decreased, refresh, xp=jnp):
+    """Whether a chord iteration takes its step: the solve succeeded, and the step converged, decreased
+    ``|r|^2`` enough (`sufficient_decrease`) or is a fresh (full Newton) step, taken after its line search."""
+    return xp.logical_and(solved, xp.logical_or(xp.logical_or(converged, decreased), refresh))
+
+
+def chord_next(accepted, rate, increment, xp=jnp):
+    """``(refresh, previous)`` for the next chord iteration: the Jacobian is assembled and factored again
+    after a rejected step or when the contraction rate exceeds `CHORD_RATE` (a kept factorization then
+    gains less than a digit per solve); the rate is next measured against this increment if the step
+    was taken, else it is unknown (``previous = inf``)."""
+    return xp.logical_or(xp.logical_not(accepted), rate > CHORD_RATE), xp.where(accepted, increment, xp.inf)
+
+
+def chord_counts(refresh, solved, xp=jnp):
+    """Whether a chord iteration counts as one: a kept solve that failed (no factorization yet, or a
+    singular one) is no iteration, only the refresh it asks for."""
+    return xp.logical_or(refresh, solved)
+
+
+def sufficient_decrease(m1, m0, alpha=1.0):
+    """Whether a step of length ``alpha`` took the merit ``m0 = |r|^2`` to ``m1`` with enough decrease
+    (Armijo with 1e-4)."""
+    return m1 <= (1 - 1e-4 * alpha) * m0
+
+
 def _merit(r):
     """``|r|^2``, the merit function of the line search."""
     return jnp.sum(r * r)
-
-
-def _sufficient_decrease(r1, alpha, m0):
-    """Whether the step of length ``alpha`` to the residual r1 decreased the merit ``m0`` enough
-    (Armijo with 1e-4)."""
-    return _merit(r1) <= (1 - 1e-4 * alpha) * m0
 
 
 def _backtrack(residual, x, dx, m0, r_full, search):
@@ -263,7 +300,7 @@ def _backtrack(residual, x, dx, m0, r_full, search):
 
     def keep_shrinking(ls):
         alpha, r1 = ls
-        return search & ~_sufficient_decrease(r1, alpha, m0) & (alpha > 2.0**-12)
+        return search & ~sufficient_decrease(_merit(r1), m0, alpha) & (alpha > 2.0**-12)
 
     return jax.lax.while_loop(keep_shrinking, shrink, (1.0, r_full))
 
@@ -285,7 +322,7 @@ def _blocks(n_u):
     return [slice(None)] if n_u is None else [slice(None, n_u), slice(n_u, None)]
 
 
-def _small(u, du, n_u, rtol, atol, inf_norm=None):
+def small_increment(u, du, n_u, rtol, atol, inf_norm=None):
     """Whether ``|du_b|_inf <= rtol |u_b + du_b|_inf + atol`` on every block b (`_blocks`).
     ``inf_norm(v)``: the max norm (default ``max |v|``; a distributed solve passes the maximum over
     the ranks of their parts')."""

@@ -1,4 +1,4 @@
-"""The files of a cardiac benchmark run (`hyperoc.cardiac.benchmark.run_benchmark`) and their figures.
+"""The files of a cardiac benchmark run (`hyperoc.app.cardiac_benchmark.run_benchmark`) and their figures.
 
 ``OUT/curves.npz``: the record's arrays at every time level (``t`` s; ``p0``, ``p1`` (L, 3) m; ``volume`` m^3;
 ``pressure``, ``tension`` Pa). ``OUT/benchmark.json``: the same curves at the codes' sampling times
@@ -14,10 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..app.plotting import _new_figure, _save, axis_label
+from ..cardiac.benchmark import resampled, sample_times
+from ..cardiac.benchmark_curves import curve_band, reference_curves
 from ..io import read_json, write_json, write_npz
-from .benchmark import resampled, sample_times
-from .benchmark_curves import curve_band, reference_curves
+from .plotting import axis_label, new_figure, save_figure
 
 __all__ = ["CURVES", "write_benchmark_outputs", "read_benchmark_record", "sampled_record", "plot_displacements",
            "plot_volume_and_loads"]
@@ -67,7 +67,7 @@ def plot_displacements(path, record: dict, *, title: str) -> Path:
     t (s), hyperoc's over each code's and the band they span."""
     curves = reference_curves(record["step"])
     t = np.asarray(record["t"])
-    fig = _new_figure(12.0, 6.5)
+    fig = new_figure(12.0, 6.5)
     axes = fig.subplots(2, 3, sharex=True)
     times = np.linspace(0.0, t[-1], 201)
     for row, point in enumerate(("p0", "p1")):
@@ -86,7 +86,7 @@ def plot_displacements(path, record: dict, *, title: str) -> Path:
         ax.set_xlabel(axis_label("t", "s"))
         ax.set_xlim(0.0, t[-1])
     fig.suptitle(f"{title}: displacements of p0 and p1 (grey: the ten participating codes)")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_volume_and_loads(path, record: dict, *, title: str) -> Path:
@@ -94,7 +94,7 @@ def plot_volume_and_loads(path, record: dict, *, title: str) -> Path:
     pressure and active tension (kPa)."""
     curves = reference_curves(record["step"])
     t = np.asarray(record["t"])
-    fig = _new_figure(11.0, 4.2)
+    fig = new_figure(11.0, 4.2)
     left, right = fig.subplots(1, 2)
     times = np.linspace(0.0, t[-1], 201)
     band = curve_band(curves, times, "volume")
@@ -116,4 +116,4 @@ def plot_volume_and_loads(path, record: dict, *, title: str) -> Path:
         ax.set_xlim(0.0, t[-1])
         ax.grid(alpha=0.3)
     fig.suptitle(f"{title}: cavity volume and loads")
-    return _save(fig, path)
+    return save_figure(fig, path)

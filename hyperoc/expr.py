@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import InputError, quote
+from .errors import InputError, quote
 
 __all__ = ["Expression", "parse_expression", "expression_field", "DEFAULT_VARIABLES", "FUNCTIONS", "CONSTANTS"]
 
