@@ -41,7 +41,7 @@ import numpy as np
 from bench_wellposed import refinement_rows
 from hyperoc.app.paper import PAPER_REPORT, formulation_config, transferred_control
 from hyperoc.app.workflows import build_reduced
-from hyperoc.control.optimize import _tau_range, lbfgsb, newton_cg, stationarity
+from hyperoc.control.optimize import BoxProblem, lbfgsb, newton_cg, stationarity
 from hyperoc.control.reduced import ControlPoint
 from results import command_line, table, write_results
 
@@ -60,7 +60,7 @@ def solve(formulation: str, observation: str, h: float, dt: float, tau0: float, 
                                            "objective.observation": observation, **(changes or {})})
     tau = tau0 if warm is None else warm[1].tau
     J = build_reduced(cfg, tau)
-    bounds, tau_range = cfg.xi_bounds(), _tau_range(J, None, False, tau)  # the optimizers' own range
+    bounds, tau_range = cfg.xi_bounds(), BoxProblem.around(J, tau).tau_range  # the optimizers' own range
     zero = J.zero(tau)
     cold = stationarity(J, zero, J.value_and_gradient(zero)[1], tau_range, bounds)
     m0 = zero if warm is None else ControlPoint(transferred_control(*warm, J, tau), tau)

@@ -22,7 +22,7 @@ from pathlib import Path
 import hyperoc  # noqa: F401  (before JAX: hyperoc._jax sets JAX's flags)
 from hyperoc.app.config import load_config
 from hyperoc.app.workflows import build_reduced
-from hyperoc.control.optimize import _tau_range, lbfgsb, tau_scaling
+from hyperoc.control.optimize import BoxProblem, lbfgsb, tau_scaling
 from results import Table, command_line, write_results
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "ventricle-3d.toml"
@@ -46,7 +46,8 @@ def main():
                 "range: the default rule, both blocks normalized to their admissible ranges.")
     for text in args.scales.split(","):
         scale = text.strip() if text.strip() == "range" else float(text)
-        c = tau_scaling(J, scale, _tau_range(J, cfg["optimize"].get("tau_margin"), False, tau0), cfg.xi_bounds())
+        tau_range = BoxProblem.around(J, tau0, tau_margin=cfg["optimize"].get("tau_margin")).tau_range
+        c = tau_scaling(J, scale, tau_range, cfg.xi_bounds())
         before = J.counts["state"]
         t0 = time.perf_counter()
         res = lbfgsb(J, J.zero(tau0), xi_bounds=cfg.xi_bounds(), gtol=args.gtol, max_iter=args.max_iter,

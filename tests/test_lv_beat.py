@@ -1,4 +1,4 @@
-"""``hyperoc reproduce lv-beat`` (`hyperoc.cardiac.beat`): the paper's hybrid problem on the benchmark ventricle in
+"""``hyperoc reproduce lv-beat`` (`hyperoc.app.lv_beat`): the paper's hybrid problem on the benchmark ventricle in
 isovolumic contraction (the cavity volume held by the LV pressure), max dp/dt at tau by an apical active tension.
 
 - The rate of pressure rise of the job's figures and summary is the objective's finite difference.
@@ -16,7 +16,7 @@ import pytest
 from hyperoc import ControlPoint, taylor_test
 from hyperoc.app.cli import main
 from hyperoc.app.workflows import build_reduced
-from hyperoc.cardiac.beat import beat_config, pressure_rise, reproduce_lv_beat
+from hyperoc.app.lv_beat import beat_config, pressure_rise, reproduce_lv_beat
 from hyperoc.control.verification import random_directions
 
 

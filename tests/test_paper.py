@@ -27,7 +27,7 @@ from hyperoc.app.paper import (
     reproduce_paper_1d,
 )
 from hyperoc.app.workflows import build_reduced, optimize_single
-from hyperoc.control.optimize import _tau_range, stationarity
+from hyperoc.control.optimize import BoxProblem, stationarity
 from hyperoc.control.reduced import ControlPoint
 
 SMALL = {"mesh.n": 20, "dynamics.dt": 0.1, "optimize.max_iter": 3}
@@ -136,7 +136,7 @@ def test_headline_converges_to_the_kkt_tolerance(tmp_path):
     end = ControlPoint(np.load(tmp_path / "results.npz")["xi"][:, :, 0], on_disk["tau"])
     value, g = J.value_and_gradient(end)
     best = max(q["maxima"], key=lambda e: e["objective"])
-    tau_range = _tau_range(J, None, False, best["tau0"])
+    tau_range = BoxProblem.around(J, best["tau0"]).tau_range
     assert value == pytest.approx(on_disk["objective"], rel=1e-12)
     assert (stationarity(J, end, g, tau_range, (None, None))
             <= cfg["optimize"]["gtol"] * cold_stationarity(J, best["tau0"], tau_range, (None, None)))
@@ -148,7 +148,7 @@ def test_bounded_problem_reaches_a_kkt_point():
     cfg = formulation_config("bounded", COARSE)
     J, res = optimize_single(cfg, PAPER_REPORT["tau0"])
     assert res.converged and np.abs(res.point.xi).max() <= XI_MAX
-    bounds, tau_range = cfg.xi_bounds(), _tau_range(J, None, False, PAPER_REPORT["tau0"])
+    bounds, tau_range = cfg.xi_bounds(), BoxProblem.around(J, PAPER_REPORT["tau0"]).tau_range
     zero = J.zero(PAPER_REPORT["tau0"])
     assert (stationarity(J, res.point, J.value_and_gradient(res.point)[1], tau_range, bounds)
             <= cfg["optimize"]["gtol"] * stationarity(J, zero, J.value_and_gradient(zero)[1], tau_range, bounds))

@@ -293,7 +293,7 @@ def _reproduce(args) -> None:
 
 
 def _reproduce_lv_beat(out: Path, progress: bool) -> None:
-    from ..cardiac.beat import reproduce_lv_beat
+    from .lv_beat import reproduce_lv_beat
 
     _start_compiler()
     s = reproduce_lv_beat(out, progress=progress)

@@ -15,7 +15,7 @@ and wrap-up the optimizers share), `search` (the projected Armijo line search), 
 """
 
 from .bb import BBStepRule, barzilai_borwein
-from .box import BoxProblem, _tau_range, stationarity, tau_scaling  # noqa: F401  (_tau_range: the paper job's)
+from .box import BoxProblem, stationarity, tau_scaling
 from .cache import EvaluationCache
 from .curvature import CurvaturePairs
 from .newton import newton_cg

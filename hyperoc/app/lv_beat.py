@@ -45,7 +45,7 @@ BEAT_CONFIG = "lv-beat.toml"
 def beat_config(entries: dict | None = None):
     """The `hyperoc.app.config.Config` of the job (`BEAT_CONFIG`), with the ``{"SECTION.KEY": value}`` of
     ``entries`` set (`hyperoc.app.config.set_entries`)."""
-    from ..app.config import parse_config, set_entries
+    from .config import parse_config, set_entries
 
     source = resources.files("hyperoc").joinpath("data", BEAT_CONFIG)
     data = set_entries(tomllib.loads(source.read_text(encoding="utf-8")), entries or {})
@@ -62,8 +62,8 @@ def pressure_rise(t: np.ndarray, p: np.ndarray, eps: float) -> np.ndarray:
 def reproduce_lv_beat(out, *, progress: bool = False, entries: dict | None = None) -> dict:
     """Run the job into the folder ``out`` (module docstring), the config's ``entries`` changed (`beat_config`);
     returns the summary."""
-    from ..app.report import write_state_outputs
-    from ..app.workflows import build_reduced, check_run, figure_units, optimize_single, write_optimization_outputs
+    from .report import write_state_outputs
+    from .workflows import build_reduced, check_run, figure_units, optimize_single, write_optimization_outputs
 
     start = time.perf_counter()
     out = Path(out)
@@ -107,7 +107,7 @@ def reproduce_lv_beat(out, *, progress: bool = False, entries: dict | None = Non
 
 def _write_figures(out: Path, sols: dict, volumes: dict, tau: float, eps: float, units) -> None:
     """``pressure.png`` (p and its rate of rise for each run of ``sols``, tau* marked) and ``pv_loops.png``."""
-    from ..app.plotting import plot_pressure_comparison, plot_pv_loops
+    from .plotting import plot_pressure_comparison, plot_pv_loops
 
     curves = {name: (sol.t, sol.pressure) for name, sol in sols.items()}
     rises = {name: (sol.t[:len(r)], r) for name, sol in sols.items()
