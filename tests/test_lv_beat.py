@@ -15,8 +15,8 @@ import pytest
 
 from hyperoc import ControlPoint, taylor_test
 from hyperoc.app.cli import main
-from hyperoc.app.workflows import build_reduced
 from hyperoc.app.lv_beat import beat_config, pressure_rise, reproduce_lv_beat
+from hyperoc.app.workflows import build_reduced
 from hyperoc.control.verification import random_directions
 
 

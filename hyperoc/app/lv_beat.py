@@ -94,7 +94,7 @@ def reproduce_lv_beat(out, *, progress: bool = False, entries: dict | None = Non
         "pressure_rise_gain": rise_opt / rise_unc - 1.0,
         "uncontrolled_max_pressure_rise": {"value": float(rates[k]), "t": float(sol_unc.t[k])},
         "gain_over_uncontrolled_max": rise_opt / float(rates[k]) - 1.0,
-        "control_min": float(np.min(res.point.xi)),
+        "control_min": float(np.min(res.point.xi)), "control_max": float(np.max(res.point.xi)),
         "cavity_volume_error": {name: float(np.max(np.abs(v / v[0] - 1.0))) for name, v in volumes.items()},
         "objective_terms": optimized["optimization"]["objective_terms"],
         "dofs": int(model.n), "steps": int(J.N),
