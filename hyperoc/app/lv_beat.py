@@ -10,9 +10,10 @@ the free time tau. The objective is the clinical contractility index, the rate o
 
     J(xi, tau) = (p(tau + eps) - p(tau)) / eps - alpha/2 ||xi||^2 - beta/2 ||d xi/dt||^2,
 
-maximized over ``-XI_BOUND <= xi <= 0`` and tau by projected Newton-CG on the exact gradient and Hessian
-products, from the zero control at ``[optimize] tau0``, to a projected gradient of ``gtol`` relative to the
-zero control's.
+maximized over ``lo <= xi <= 0`` (``[optimize] xi_bounds``, Pa) and tau by projected Newton-CG on the exact
+gradient and Hessian products, tau weighted in its metric by J's curvature in tau (``tau_scale = "curvature"``),
+from the zero control at ``[optimize] tau0``, to a projected gradient of ``gtol`` relative to the zero
+control's, or ``[optimize] max_iter`` iterations.
 
 `reproduce_lv_beat` writes
 
