@@ -114,8 +114,7 @@ def minimal_advances(steps: int, snapshots: int) -> int:
 
 def _check(steps: int, snapshots: int) -> None:
     for name, value in (("steps", steps), ("snapshots", snapshots)):
-        if isinstance(value, bool) or not isinstance(value, Integral) or value < 1:
-            raise InputError(f"revolve: {name} must be an integer >= 1, got {value!r}")
+        _check_count(f"revolve: {name}", value)
 
 
 def _split(length: int, snapshots: int) -> int:

@@ -168,15 +168,13 @@ def _hessian_product(box: BoxProblem, m: ControlPoint, G: ControlPoint, v: Contr
 
 
 def _tau_curvature(run: Run, m: ControlPoint, current, counts: dict) -> float:
-    """``|d^2 J / d tau^2|`` at m (``current`` its evaluation, in a metric of tau weight 1) by a forward
-    difference of the gradient (through the run's cache); 1.0 where tau is fixed, the difference point
-    fails or the curvature is not a positive finite number."""
+    """``|d^2 J / d tau^2|`` at m (``current`` its evaluation, in a metric of tau weight 1): the tau-part of
+    the Hessian product along tau (`_hessian_product`); 1.0 where tau is fixed, the difference point fails
+    or the curvature is not a positive finite number."""
     if run.box.tau_range[0] == run.box.tau_range[1]:
         return 1.0
-    h = np.sqrt(np.finfo(float).eps) * (1.0 + abs(m.tau))
-    counts["hessian_products"] += 1
-    shifted = run.try_evaluate(ControlPoint(m.xi, m.tau + h))
-    curvature = abs(shifted.G.tau - current.G.tau) / h if shifted is not None else 0.0
+    Hv = _hessian_product(run.box, m, current.G, ControlPoint(np.zeros_like(m.xi), 1.0), counts)
+    curvature = abs(Hv.tau) if Hv is not None else 0.0
     return float(curvature) if np.isfinite(curvature) and curvature > 0 else 1.0
 
 
