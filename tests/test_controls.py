@@ -96,3 +96,79 @@ def test_lumped_mass_is_positive_and_keeps_the_total(degree, curved):
         np.testing.assert_allclose(lumped, rows, rtol=1e-12)
     else:
         assert rows.min() <= 1e-13 * rows.max()
+
+
+def _profiled_bar(profile):
+    from hyperoc import Objective, PressureRise, ReducedFunctional, TimeTransform
+
+    model = StateModel(interval(20), SaintVenantKirchhoff(0.05, 0.05), damping=2e-3,
+                       control=BodyForce(Region("box", lower=(0.75,), upper=(1.0,)), profile=profile))
+    return ReducedFunctional(model, TimeTransform.for_step(1.75, 0.25, 0.75, 0.25),
+                             Objective(at_tau=PressureRise(0.25)))
+
+
+def _profile_point(J, tau=0.75):
+    from hyperoc import ControlPoint
+    from hyperoc.control.verification import random_directions
+
+    return ControlPoint(0.05 * random_directions(J, J.zero(tau), seed=3)["xi"].xi, tau)
+
+
+PROFILE = "1 + 0.8*sin(4*t)"
+
+
+def test_a_profile_scales_the_control_at_each_level():
+    """With a profile g the state is the one of the control g(t_k) xi_k without a profile: the load of level k is
+    B (g(t_k) xi_k)."""
+    from hyperoc import ControlPoint
+    from hyperoc.dynamics.laws import ExpressionLaw
+
+    law = ExpressionLaw(PROFILE)
+    J_g, J_1 = _profiled_bar(law), _profiled_bar(None)
+    m = _profile_point(J_g)
+    t = J_g.transform.grid(m.tau).t
+    scaled = ControlPoint(law.values(t)[:, None] * m.xi, m.tau)
+    np.testing.assert_allclose(J_g.state(m).pressure, J_1.state(scaled).pressure, rtol=1e-12, atol=1e-15)
+    assert not np.allclose(J_1.state(m).pressure, J_g.state(m).pressure, rtol=1e-3)
+
+
+def test_a_unit_profile_is_no_profile():
+    from hyperoc.dynamics.laws import Constant
+
+    J_g, J_1 = _profiled_bar(Constant(1.0)), _profiled_bar(None)
+    m = _profile_point(J_g)
+    (v_g, g_g), (v_1, g_1) = J_g.value_and_gradient(m), J_1.value_and_gradient(m)
+    assert v_g == pytest.approx(v_1, rel=1e-13)
+    np.testing.assert_allclose(g_g.xi, g_1.xi, rtol=1e-11, atol=1e-13 * np.abs(g_1.xi).max())
+    assert g_g.tau == pytest.approx(g_1.tau, rel=1e-11)
+
+
+def test_taylor_with_a_time_profile():
+    """The tau-gradient includes the profile's rate g'(t) dt_k/dtau at the moving levels: Taylor rates 2 for
+    xi, tau and a joint direction (a missing term leaves rate 1 in tau)."""
+    from hyperoc import taylor_test
+    from hyperoc.control.verification import random_directions
+    from hyperoc.dynamics.laws import ExpressionLaw
+
+    J = _profiled_bar(ExpressionLaw(PROFILE))
+    m = _profile_point(J)
+    for name, dm in random_directions(J, m, seed=5).items():
+        r = taylor_test(J, m, dm)
+        assert r.remainder.size >= 3, (name, r.as_dict())
+        assert 1.9 <= r.rate <= 2.1, (name, r.as_dict())
+
+
+def test_profile_activation_needs_an_activation():
+    cfg = parse_config({"mesh": {"kind": "interval", "n": 4}, "control": {"profile": "activation"}})
+    with pytest.raises(InputError, match="needs \\[dynamics.activation\\]"):
+        cfg.control_operator()
+
+
+def test_the_continuous_gradient_refuses_a_profile():
+    from hyperoc import Objective, TimeTransform
+    from hyperoc.control.continuous_adjoint import ContinuousReducedFunctional
+    from hyperoc.dynamics.laws import ExpressionLaw
+
+    model = StateModel(interval(4), SaintVenantKirchhoff(), control=BodyForce(profile=ExpressionLaw("t")))
+    with pytest.raises(InputError, match="time profile"):
+        ContinuousReducedFunctional(model, TimeTransform.for_step(1.0, 0.25, 0.5), Objective())

@@ -180,12 +180,22 @@ class Config:
         from ..mechanics.controls import ActiveStress, BodyForce
 
         c = self["control"]
-        region = _region(c.get("region"))
+        region, profile = _region(c.get("region")), self.control_profile()
         if c["kind"] == "body_force":
-            return BodyForce(region)
+            return BodyForce(region, profile)
         if c["kind"] == "active_stress":
-            return ActiveStress(region, fibres=None if frames is None else frames.fibre)
+            return ActiveStress(region, fibres=None if frames is None else frames.fibre, profile=profile)
         raise InputError(f"config: [control] kind {c['kind']!r} unknown (body_force, active_stress)")
+
+    def control_profile(self):
+        """The time law of ``[control] profile`` (``"activation"``: the law of ``[dynamics.activation]``), or None."""
+        profile = self["control"].get("profile")
+        if profile != "activation":
+            return None if profile is None else time_law(profile)
+        activation = self.sections.get("dynamics", {}).get("activation")
+        if activation is None:
+            raise InputError("config: [control] profile = 'activation' needs [dynamics.activation]")
+        return time_law(activation["law"])
 
     def material(self):
         """The `hyperoc.mechanics.materials.Material` of ``[material]``, its parameters checked (no JAX needed)."""

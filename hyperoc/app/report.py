@@ -58,10 +58,11 @@ def _cell_series(sol: StateSolution, levels: np.ndarray, frames) -> dict:
     2D tensor padded with zeros to 3 x 3 as ParaView and XDMF expect.
 
     ``det_F`` (min over the cell's quadrature points); ``cauchy_stress`` (`_stress_and_fibre_strain`);
-    with an active-stress control ``active_stress = -xi_c fhat (x) fhat``, the first Piola-Kirchhoff stress
+    with an active-stress control ``active_stress = -g(t) xi_c fhat (x) fhat``, the first Piola-Kirchhoff stress
     the control adds, with the sign it acts with (a contraction, fibre tension T_a = -xi_c > 0, is
     positive; stress units, zero outside omega; ``xi_c`` the mean of the cell's nodal control values,
-    ``fhat`` the control's fibre at the centroid, `hyperoc.mechanics.controls.ActiveStress`). With
+    ``fhat`` the control's fibre at the centroid, g the control's time profile, 1 without one,
+    `hyperoc.mechanics.controls.ActiveStress`). With
     ``frames`` (`hyperoc.mechanics.fibres.FibreFrames`, or any callable ``x (nc, nq, 3) -> (nc, nq, k,
     3)`` as `hyperoc.mechanics.model.StateModel` takes) the unit vectors ``fibre``, ``sheet``, ``normal``
     at the centroids (constant in time) and the fibre strain ``E_ff``.
@@ -78,7 +79,7 @@ def _cell_series(sol: StateSolution, levels: np.ndarray, frames) -> dict:
     control = model.control
     if sol.xi is not None and control is not None and control.fibres is not None:
         f = control.fibres
-        xi_c = control.cell_values(sol.xi[levels])[..., 0]  # (nl, nc_omega)
+        xi_c = control.cell_values(sol.xi[levels])[..., 0] * control.scale(sol.t[levels])[:, None]  # (nl, nc_omega)
         active[:, control.cell_mask] = -xi_c[..., None, None] * np.einsum("ci,cj->cij", f, f)
         fields["active_stress"] = _padded_tensor(active)
     sigma, E_ff = _stress_and_fibre_strain(sol, levels, active, fibre)

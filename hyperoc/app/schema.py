@@ -105,9 +105,17 @@ def _time_law(value):
     return value
 
 
+def _control_profile(value):
+    """``"activation"`` (the law of ``[dynamics.activation]``) or a time law (`_time_law`)."""
+    return value if value == "activation" else _time_law(value)
+
+
 Expressions = Annotated[Any, BeforeValidator(_expressions)]
 TimeLawValue = Annotated[Any, BeforeValidator(_time_law),
                          Field(json_schema_extra={"type": "number, expression of t, table or Bestel law"})]
+ControlProfile = Annotated[Any, BeforeValidator(_control_profile),
+                           Field(json_schema_extra={"type": "'activation', number, expression of t, table or "
+                                                            "Bestel law"})]
 TauScale = Annotated[Any, BeforeValidator(_tau_scale),
                      Field(json_schema_extra={"type": "'range', 'curvature' or number"})]
 Bounds = Annotated[list[Number], AfterValidator(_ordered_pair)]
@@ -421,6 +429,10 @@ class Control(Section):
     kind: Literal["body_force", "active_stress"] = Field(
         "body_force", description="a body force (one component per dimension) or a fibre active stress (one)")
     region: Optional[Region] = Field(None, description="support of the control (default: the whole body)")
+    profile: Optional[ControlProfile] = Field(
+        None, description="g(t): dynamics apply the control as g(t) xi(x, t); 'activation': the prescribed tension "
+                          "T_a(t) of [dynamics.activation], so that an active-stress xi is dimensionless and the fibre "
+                          "tension T_a (1 - xi) (a contraction cannot push: xi <= 1); none: g = 1")
     value: Optional[Expressions] = Field(
         None, description="simulate: xi(x, y, z, r, t) as an expression, or a list with one per component",
         json_schema_extra={"type": "expression(s)"})

@@ -49,6 +49,9 @@ class ContinuousReducedFunctional(ReducedFunctional):
         if self.objective.control_weights[1] > 0:
             raise InputError("the continuous gradient does not include the cost of d xi/dt (beta > 0): "
                              "use ReducedFunctional, the exact gradient")
+        if self.model.control.profile is not None:
+            raise InputError("the continuous gradient does not include a control's time profile: "
+                             "use ReducedFunctional, the exact gradient")
 
     @ReducedFunctional.schedule.setter
     def schedule(self, schedule: Schedule) -> None:

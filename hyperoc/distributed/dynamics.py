@@ -69,6 +69,9 @@ class DistributedStepper(TimeStepper):
             raise InputError("DistributedStepper: the dynamics of a Taylor-Hood model is not implemented")
         if scheme.multiplier != "step":
             raise InputError("DistributedStepper: multiplier must be 'step' (the adjoint's scheme)")
+        if model.control is not None and model.control.profile is not None:
+            raise InputError("DistributedStepper: a control's time profile is not implemented on the distributed "
+                             "path")
         self.model, self.scheme = model, scheme
         self.constraint = TissueVolume(model)  # the distributed step holds the tissue volume
         self.layout = self.solver = Layout(model, comm, solver)

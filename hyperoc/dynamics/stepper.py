@@ -296,6 +296,7 @@ class TimeStepper:
         self.solver = make_solver(model, solver) if isinstance(solver, str) else solver
         M, K, B = model.jax_operators
         self._M, self._K, self._B = M, K, B
+        self._profile = model.control.profile if model.control is not None else None
         self._mass_blocks = on_device(model.mass_blocks)
         self._lap_blocks = on_device(model.laplace_blocks)
         self._inertia_damping = combined_matvec(model.mass, model.laplace)  # (y, a, b) -> a M y + b K y
@@ -317,10 +318,13 @@ class TimeStepper:
         """The mass matrix M of the reduced dofs (JAX sparse, as the step uses it)."""
         return self._M
 
-    def load(self, xi, f):
-        """L = B xi + f on the reduced dofs (f: external load vector of the level)."""
+    def load(self, xi, f, t):
+        """``L(t) = B (g(t) xi) + f`` on the reduced dofs (f: external load vector of the level at time t; g the
+        control's time profile, `hyperoc.mechanics.controls.ControlData.profile`, 1 without one)."""
         if self._B is None:
             return f
+        if self._profile is not None:
+            xi = self._profile(t) * xi
         return self._B @ xi + f
 
     def velocity(self, y0_new, y0, y1, dt):
@@ -345,7 +349,7 @@ class TimeStepper:
         m, th = self.model, self.scheme.theta
         return (self._inertia_damping(y1, -1.0, dt * (1 - th) * m.damping)
                 + dt * (1 - th) * (m.internal_force(y0) + self.terms_force(y0, y1, t0))
-                - dt * (th * self.load(xi1, f1) + (1 - th) * self.load(xi0, f0)))
+                - dt * (th * self.load(xi1, f1, t0 + dt) + (1 - th) * self.load(xi0, f0, t0)))
 
     def residual_at(self, x, known, y0, y1, p_prev, dt, V0, t0=0.0):
         """`residual` given the `known_terms` of the step."""
@@ -493,7 +497,7 @@ class TimeStepper:
         m = self.model
         G = m.volume_gradient(y0)
         _, Hy1 = jax.jvp(m.volume_gradient, (y0,), (y1,))
-        rhs = self.load(xi, f) - m.damping * (self._K @ y1) - m.internal_force(y0) - self.terms_force(y0, y1, t)
+        rhs = self.load(xi, f, t) - m.damping * (self._K @ y1) - m.internal_force(y0) - self.terms_force(y0, y1, t)
         MinvG = m.apply_mass_inverse(G)
         return (MinvG @ rhs + y1 @ Hy1) / (G @ MinvG)
 

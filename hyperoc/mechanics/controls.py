@@ -9,6 +9,12 @@ The control is discretized with the state's Lagrange space restricted to the clo
 its dofs are the nodal values on the nodes of the cells of omega. `ControlData.load` is the
 (reduced state dofs x control dofs) matrix B with load ``B xi``, and `ControlData.mass` the
 L2(omega) Gram matrix of the control dofs.
+
+Either operator takes an optional time profile ``g`` (a `hyperoc.dynamics.laws.TimeLaw`): time-dependent
+runs then apply the load ``B (g(t) xi(t))``, so the control scales a prescribed history. With ``g`` the
+prescribed activation T_a(t) (Pa) of a cardiac run and an active-stress control, xi is dimensionless and the
+fibre tension is ``T_a(t) (1 - xi)``: a modulation of the tissue's contractility that acts only while
+the tissue is active, and "a contraction cannot push" is the bound ``xi <= 1``.
 """
 
 from __future__ import annotations
@@ -139,6 +145,7 @@ class ControlData:
     cell_mask : (nc,) the cells of omega.
     cell_nodes : (nc_omega, nloc) indices into ``nodes`` of the nodes of each cell of omega.
     fibres : (nc_omega, dim) unit fibre at each cell centroid of omega (active stress), or None.
+    profile : the time profile g, a scalar function of t (traced JAX scalar in, scalar out), or None (g = 1).
     """
 
     load: sp.csr_matrix
@@ -148,6 +155,12 @@ class ControlData:
     cell_mask: np.ndarray
     cell_nodes: np.ndarray
     fibres: np.ndarray | None = None
+    profile: Callable | None = None
+
+    def scale(self, t) -> np.ndarray:
+        """``g(t)`` at the times ``t`` (k,) on the host, (k,); ones without a profile."""
+        t = np.asarray(t, dtype=np.float64)
+        return np.ones_like(t) if self.profile is None else self.profile.values(t)
 
     @property
     def size(self) -> int:
@@ -201,9 +214,11 @@ def _scalar_mass_blocks(space: VectorSpace, mask: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class BodyForce:
-    """Distributed body force ``<f(xi), phi> = int_omega xi . phi`` (vector control, density units)."""
+    """Distributed body force ``<f(xi), phi> = int_omega xi . phi`` (vector control, density units), scaled in
+    time by ``profile(t)`` when given (module docstring)."""
 
     region: Region = field(default_factory=Region)
+    profile: Callable | None = None
 
     def build(self, space: VectorSpace, to_reduced: np.ndarray) -> ControlData:
         mask = self.region.cell_mask(space.mesh)
@@ -215,7 +230,7 @@ class BodyForce:
         n_state = int(to_reduced.max()) + 1
         load = _cell_blocks_to_matrix(sdofs, cdofs, blocks, (n_state, nodes.size * d))
         mass = _cell_blocks_to_matrix(cdofs, cdofs, blocks, (nodes.size * d,) * 2)
-        return ControlData(load, mass, nodes, d, mask, cell_nodes)
+        return ControlData(load, mass, nodes, d, mask, cell_nodes, profile=self.profile)
 
 
 def circumferential_fibres(x: np.ndarray) -> np.ndarray:
@@ -237,10 +252,15 @@ class ActiveStress:
     ``fibres(x, cells)`` maps points x (n, nq, dim) of the mesh cells ``cells`` (n,) to unit vectors
     (n, nq, dim), e.g. `hyperoc.mechanics.fibres.FibreFrames.fibre` (row 0 of the material frame); default:
     the x axis in 1D, circumferential in 2D/3D.
+
+    ``profile`` (a `hyperoc.dynamics.laws.TimeLaw`, or None) scales the control in time: the stress added is
+    ``-profile(t) xi fhat (x) fhat`` (module docstring; with the prescribed activation as the profile, xi is
+    dimensionless and the fibre tension is ``T_a(t) (1 - xi)``).
     """
 
     region: Region = field(default_factory=Region)
     fibres: Callable | None = None
+    profile: Callable | None = None
 
     def fibre_field(self, x: np.ndarray, cells: np.ndarray) -> np.ndarray:
         """Unit fibres (n, nq, dim) at points x (n, nq, dim) of the cells ``cells`` (n,)."""
@@ -269,4 +289,4 @@ class ActiveStress:
         n_state = int(to_reduced.max()) + 1
         load = _cell_blocks_to_matrix(sdofs, cdofs, blocks, (n_state, nodes.size))
         mass = _cell_blocks_to_matrix(cdofs, cdofs, _scalar_mass_blocks(space, mask), (nodes.size,) * 2)
-        return ControlData(load, mass, nodes, 1, mask, cell_nodes, f_centroid)
+        return ControlData(load, mass, nodes, 1, mask, cell_nodes, f_centroid, self.profile)
