@@ -201,9 +201,10 @@ class Mesh(Section):
     dirichlet_tag: str = Field("gamma_d", description="boundary tag (name or number) of the file's clamped part")
     neumann_tag: str = Field("gamma_n", description="boundary tag (name or number) of the file's free part")
     control_tag: str = Field("omega", description="subdomain tag of the file's control region")
-    variant: Literal["reference", "coarse"] = Field(
-        "reference", description="cardiac_benchmark: the benchmark's reference mesh or hyperoc's coarse one; "
-                                 "boundaries endocardium (gamma_n), epicardium, base")
+    variant: Literal["reference", "coarse", "medium"] = Field(
+        "reference", description="cardiac_benchmark: the benchmark's reference mesh (17,625 cells) or hyperoc's "
+                                 "coarse (1,402) or medium (3,494) one; boundaries endocardium (gamma_n), "
+                                 "epicardium, base")
     tags: Optional[dict[str, Union[Annotated[int, Field(ge=0)], str]]] = Field(
         None, description="names of the file's tags, e.g. {endocardium = 1, epicardium = 2, base = 3}; any look-up "
                           "also accepts the aliases endo/ENDO, epi/EPI, top for endocardium, epicardium, base")

@@ -56,19 +56,21 @@ P0 = (0.025, 0.03, 0.0)
 P1 = (0.0, 0.03, 0.0)
 #: Facet tags of the reference mesh.
 TAGS = {"endocardium": 1, "epicardium": 2, "base": 3}
-#: Target cell size of the shipped coarse mesh (`coarse_mesh`), m.
+#: Target cell sizes of the shipped coarse and medium meshes (`coarse_mesh`, `read_mesh("medium")`), m.
 COARSE_H = 0.012
+MEDIUM_H = 0.007
 
 _DATA = "data/cardiac_benchmark"
 
 
 #: The shipped meshes of the domain, by variant (`read_mesh`).
-MESH_FILES = {"reference": "ellipsoid_0.005.xdmf", "coarse": "ellipsoid_coarse.msh"}
+MESH_FILES = {"reference": "ellipsoid_0.005.xdmf", "coarse": "ellipsoid_coarse.msh", "medium": "ellipsoid_medium.msh"}
 
 
 def mesh_file(variant: str = "reference") -> Path:
     """Path of a shipped mesh of the domain inside the installed package: ``"reference"``, the benchmark's own
-    (XDMF + HDF5), or ``"coarse"``, hyperoc's generator at `COARSE_H` (Gmsh MSH 2.2)."""
+    (XDMF + HDF5, 17,625 cells), or hyperoc's generator with straight cells (Gmsh MSH 2.2): ``"coarse"`` at
+    `COARSE_H` (1,402 cells), ``"medium"`` at `MEDIUM_H` (3,494 cells, for mesh-independence studies)."""
     if variant not in MESH_FILES:
         raise InputError(f"cardiac benchmark: unknown mesh {variant!r} (one of {', '.join(MESH_FILES)})")
     return Path(str(resources.files("hyperoc").joinpath(_DATA, MESH_FILES[variant])))
