@@ -3,8 +3,8 @@ isovolumic contraction (the cavity volume held by the LV pressure), max dp/dt at
 
 - The rate of pressure rise of the job's figures and summary is the objective's finite difference.
 - The exact gradient of the job's problem: Taylor rates 2.00 +- 0.05 in xi, tau and jointly, on its first 20 ms.
-- The job (slow, three iterations): raises dp/dt at tau* over the uncontrolled beat, holds the cavity volume to
-  1e-10 in both runs, keeps the control a contraction within its bound, and writes its figures and folders.
+- The job (slow): converges to a KKT point, raises dp/dt at tau* over the uncontrolled beat, holds the cavity
+  volume to 1e-10 in both runs, keeps the control within its bounds, and writes its figures and folders.
 - ``--quick`` / ``--workers`` belong to paper-1d: one line, exit 2, nothing written.
 """
 
@@ -30,12 +30,13 @@ def test_pressure_rise_is_the_forward_difference_over_eps():
 
 
 def test_exact_gradient_of_the_beat_problem():
-    """The job's config on [0, 20 ms] at tau = 12 ms, from a contracting control of a few kPa: Taylor rates
-    of the exact gradient. Full Newton: chord Newton leaves p's last correction out of the remainders."""
+    """The job's config on [0, 20 ms] at tau = 12 ms, from a control adding up to 30 % to the prescribed tension:
+    Taylor rates of the exact gradient (the control scaled by T_a(t) at the levels tau moves). Full Newton: chord
+    Newton leaves p's last correction out of the remainders."""
     cfg = beat_config({"dynamics.T": 0.02, "dynamics.newton": "full"})
     J = build_reduced(cfg, 0.012)
     base = random_directions(J, J.zero(0.012), seed=1)["xi"].xi
-    m = ControlPoint(-2e3 * np.abs(base) / np.max(np.abs(base)), 0.012)
+    m = ControlPoint(-0.3 * np.abs(base) / np.max(np.abs(base)), 0.012)
     for name, dm in random_directions(J, m, seed=2).items():
         r = taylor_test(J, m, dm)
         print(name, r.as_dict())
@@ -45,13 +46,15 @@ def test_exact_gradient_of_the_beat_problem():
 
 @pytest.mark.slow
 def test_the_job_converges_and_raises_the_rate_of_pressure_rise(tmp_path):
+    """The job as shipped: a KKT point (projected gradient 1e-6 of the start's) that raises dp/dt at tau*, the
+    cavity volume held to 1e-10, the control within its bounds (a contraction between 0 and 2 T_a)."""
     out = tmp_path / "beat"
-    s = reproduce_lv_beat(out, entries={"optimize.max_iter": 3})
+    s = reproduce_lv_beat(out)
     print(json.dumps({k: v for k, v in s.items() if k != "objective_terms"}, indent=1))
-    assert s["iterations"] == 3
+    assert s["converged"] and s["relative_gradient"] <= 1e-6
     assert s["pressure_rise_gain"] > 0 and s["gain_over_uncontrolled_max"] > 0
     assert max(s["cavity_volume_error"].values()) <= 1e-10
-    assert -3e4 <= s["control_min"] < 0
+    assert -1.0 <= s["control_min"] < 0 and s["control_max"] <= 1.0
     assert 0 < s["tau"] < 0.06
     for name in ("summary.json", "pressure.png", "pv_loops.png", "optimized/summary.json",
                  "optimized/paraview/state.xdmf", "uncontrolled/summary.json"):

@@ -205,6 +205,14 @@ class LumpedMetric:
         d = self.space.dual(g)
         return type(g)(d.xi / self.weights, d.tau)
 
+    def space_inverse(self, r):
+        """``S^-1 r``, S the control space's inner product in this metric (``<a, S b>_L = <a, b>``, ``S b = W^-1
+        A_t b.xi M`` on xi, the identity on tau): with beta > 0 the inverse of the cost's Hessian, Newton-CG's
+        initial preconditioner (`hyperoc.control.optimize.curvature.CurvaturePairs`), under which CG on the
+        lumped metric takes the steps of CG on the space's own."""
+        g = self.space.riesz(type(r)(r.xi * self.weights, 0.0))
+        return type(r)(g.xi, r.tau)
+
 
 class TauWeighted:
     """A metric (`ControlSpace` or `LumpedMetric`) with its tau-part weighted: ``<a, b>_w = <a, b> + (w - 1)
@@ -231,6 +239,10 @@ class TauWeighted:
         """The base metric's gradient with its tau-part divided by the weight."""
         G = self.base.gradient(g)
         return type(G)(G.xi, G.tau / self.weight)
+
+    def space_inverse(self, r):
+        """The base metric's `space_inverse` (its tau-part the identity in either metric)."""
+        return self.base.space_inverse(r)
 
 
 def control_space(transform, control, alpha: float, beta: float) -> ControlSpace:

@@ -55,6 +55,14 @@ class BoxProblem:
         metric = self.J.space.metric(bounded=self.bounded)
         return metric if self.tau_weight == 1.0 else TauWeighted(metric, self.tau_weight)
 
+    @property
+    def cost_inverse(self):
+        """``r -> S^-1 r`` in `metric` (`hyperoc.control.control_space.LumpedMetric.space_inverse`) where the metric
+        is the lumped one of an H^1-in-time space (bounded xi, beta > 0), whose own metric is the cost's Hessian;
+        None where the metric is that space itself or the space is L2 in time (lumped and consistent mass being
+        spectrally equivalent there)."""
+        return self.metric.space_inverse if self.bounded and self.J.space.regular_in_time else None
+
     @cached_property
     def coordinates(self) -> ControlSpace:
         """L-BFGS-B's coordinates: J's control space, or its L2-in-time version when xi has a bound (a

@@ -13,11 +13,12 @@ class CurvaturePairs:
     preconditioning): CG on the next Newton system, whose Hessian differs little, then needs fewer
     products for the directions the pairs already hold (the soft ones along the ridge among them).
     Without pairs it is the identity; it is symmetric positive definite since every pair has
-    ``<s, y> > 0``. Applied by the two-loop recursion in ``metric``, with the initial scaling
+    ``<s, y> > 0``. Applied by the two-loop recursion in ``metric``, with the initial operator ``initial``
+    (``r -> H0 r``, self-adjoint positive definite in ``metric``) or, without one, the initial scaling
     ``<s, y> / <y, y>`` of the newest pair."""
 
-    def __init__(self, metric, memory: int = 20):
-        self.metric, self.memory, self.pairs = metric, memory, []
+    def __init__(self, metric, memory: int = 20, initial=None):
+        self.metric, self.memory, self.pairs, self.initial = metric, memory, [], initial
 
     def add(self, pairs: list) -> None:
         """Append ``pairs`` ``[(s, y, <s, y>)]``, keeping the last ``memory``."""
@@ -29,7 +30,9 @@ class CurvaturePairs:
         for s, y, sy in reversed(self.pairs):
             a = inner(s, q) / sy
             q, alphas = q - y * a, [a, *alphas]
-        if self.pairs:
+        if self.initial is not None:
+            q = self.initial(q)
+        elif self.pairs:
             s, y, sy = self.pairs[-1]
             q = q * (sy / inner(y, y))
         for (s, y, sy), a in zip(self.pairs, alphas):
