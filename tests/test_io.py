@@ -11,7 +11,15 @@ import pytest
 
 import hyperoc.app.plotting
 import hyperoc.io as hio
-from hyperoc.app.plotting import Units, plot_control_spacetime, plot_history, plot_pressure, plot_snapshots
+from hyperoc.app.plotting import (
+    TimeMarks,
+    Units,
+    axis_label,
+    plot_control_spacetime,
+    plot_history,
+    plot_pressure,
+    plot_snapshots,
+)
 from hyperoc.fem.mesh import interval, rectangle
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -262,7 +270,8 @@ def _png_size(path: Path) -> tuple:
 
 def test_plot_pressure(tmp_path):
     t = np.linspace(0, 1, 50)
-    path = plot_pressure(tmp_path / "p.png", t, np.sin(4 * t), tau=0.4, eps=0.1, volume=1 + 1e-6 * t, title="pressure")
+    path = plot_pressure(tmp_path / "p.png", t, np.sin(4 * t), volume=1 + 1e-6 * t, marks=TimeMarks(0.4, 0.1),
+                         title="pressure")
     assert path == tmp_path / "p.png" and _png_size(path) == (960, 960)
     assert _png_size(plot_pressure(tmp_path / "p1.png", t, np.cos(t))) == (960, 480)
     with pytest.raises(ValueError, match="p must have shape"):
@@ -283,8 +292,8 @@ def _figures(monkeypatch) -> list:
 def test_plot_pressure_with_marks_and_units(tmp_path):
     t = np.linspace(0, 8, 81)
     marks = [(2.0, "filling ends"), (7.46, "snapshot"), (7.48, "snapshot")]
-    path = plot_pressure(tmp_path / "p.png", t, np.sin(t), tau=5.0, eps=0.5, volume=1 + 1e-6 * t,
-                         cavity=50 + np.sin(t), title="run: pressure", units=MM_MS, marks=marks)
+    path = plot_pressure(tmp_path / "p.png", t, np.sin(t), volume=1 + 1e-6 * t, cavity=50 + np.sin(t),
+                         marks=TimeMarks(5.0, 0.5, marks), title="run: pressure", units=MM_MS)
     assert _png_size(path) == (960, 1440) and _hidden(tmp_path) == []
 
 
@@ -292,8 +301,8 @@ def test_plot_pressure_labels(monkeypatch):
     figures = _figures(monkeypatch)
     t = np.linspace(0, 8, 81)
     marks = [(2.0, "filling ends"), (7.46, "snapshot"), (7.48, "snapshot")]
-    plot_pressure("p.png", t, np.sin(t), tau=5.0, volume=1 + 1e-6 * t, cavity=50 + np.sin(t), title="run: pressure",
-                  units=MM_MS, marks=marks)
+    plot_pressure("p.png", t, np.sin(t), volume=1 + 1e-6 * t, cavity=50 + np.sin(t), marks=TimeMarks(5.0, events=marks),
+                  title="run: pressure", units=MM_MS)
     plot_pressure("q.png", t, np.sin(t), cavity=np.ones_like(t))
     fig, plain = figures
     assert fig._suptitle.get_text() == "run: pressure"
@@ -311,8 +320,8 @@ def test_plot_labels_carry_units(monkeypatch):
     t, x = np.linspace(0, 1, 11), np.linspace(0, 1, 30)
     xi = np.outer(np.sin(np.pi * t), x - 0.5)
     plot_control_spacetime("c.png", t, x, xi, title="run: control xi", units=MM_MS)
-    plot_snapshots("s.png", x, t, xi, [0.5, 1.0], ylabel="u(x, t)", title="run: displacement u", units=MM_MS,
-                   field_unit="mm")
+    plot_snapshots("s.png", x, t, xi, [0.5, 1.0], ylabel=axis_label("u(x, t)", "mm"),
+                   title="run: displacement u", units=MM_MS)
     plot_snapshots("s0.png", x, t, xi, [0.5], ylabel="u")
     plot_history("h.png", {"objective": [3.0, 2.0], "tau": [0.5, 0.4]}, title="run: optimizer history")
     control, snapshots, plain, history = figures
