@@ -145,8 +145,7 @@ def _series_2d():
     rng = np.random.default_rng(1)
     return {
         "mesh_points": mesh.points,
-        "cells": mesh.cells,
-        "cell_type": "triangle",
+        "cells": ("triangle", mesh.cells),
         "times": times,
         "point_data": {"u": rng.normal(size=(3, nv, 2)), "p": rng.normal(size=(3, nv))},
         "cell_data": {"J": rng.normal(size=(3, nc))},
@@ -160,7 +159,7 @@ def _check_xdmf(path: Path, series: dict):
         points, cells = reader.read_points_cells()
         np.testing.assert_array_equal(points[:, :2], series["mesh_points"])
         np.testing.assert_array_equal(points[:, 2], 0.0)
-        np.testing.assert_array_equal(cells[0].data, series["cells"])
+        np.testing.assert_array_equal(cells[0].data, series["cells"][1])
         for n, t in enumerate(series["times"]):
             time, point_data, cell_data = reader.read_data(n)
             assert time == t
@@ -206,7 +205,7 @@ def test_pvd_series_read_back_with_meshio(tmp_path, monkeypatch):
     assert all((tmp_path / f).is_file() for _, f in entries)
     mesh = meshio.read(tmp_path / entries[1][1])
     np.testing.assert_array_equal(mesh.points[:, :2], series["mesh_points"])
-    np.testing.assert_array_equal(mesh.cells_dict["triangle"], series["cells"])
+    np.testing.assert_array_equal(mesh.cells_dict["triangle"], series["cells"][1])
     np.testing.assert_array_equal(mesh.point_data["u"], np.pad(series["point_data"]["u"][1], [(0, 0), (0, 1)]))
     np.testing.assert_array_equal(mesh.point_data["p"], series["point_data"]["p"][1])
     np.testing.assert_array_equal(mesh.point_data["marker"], series["static_point_data"]["marker"])
@@ -217,7 +216,7 @@ def test_pvd_series_read_back_with_meshio(tmp_path, monkeypatch):
 def test_pvd_1d_series_pads_points_and_vectors(tmp_path):
     mesh = interval(4)
     u = np.linspace(0, 1, 2 * 5).reshape(2, 5, 1)
-    path = hio.write_time_series(tmp_path, "bar", mesh.points, mesh.cells, "line", [0.0, 1.0], {"u": u}, fmt="pvd")
+    path = hio.write_time_series(tmp_path, "bar", mesh.points, ("line", mesh.cells), [0.0, 1.0], {"u": u}, fmt="pvd")
     piece = meshio.read(tmp_path / _pvd_entries(path)[1][1])
     assert piece.points.shape == (5, 3) and piece.point_data["u"].shape == (5, 3)
     np.testing.assert_array_equal(piece.point_data["u"][:, 0], u[1, :, 0])
@@ -253,7 +252,7 @@ def test_time_series_rejects_bad_shapes(tmp_path):
     with pytest.raises(ValueError, match="'p'"):
         hio.write_time_series(tmp_path, "s", **{**series, "point_data": {"p": np.zeros((2, 3))}}, fmt="pvd")
     with pytest.raises(ValueError, match="cell type"):
-        hio.write_time_series(tmp_path, "s", **{**series, "cell_type": "quad"}, fmt="pvd")
+        hio.write_time_series(tmp_path, "s", **{**series, "cells": ("quad", series["cells"][1])}, fmt="pvd")
     with pytest.raises(ValueError, match="name"):
         hio.write_time_series(tmp_path, "../s", **series, fmt="pvd")
     assert list(tmp_path.iterdir()) == []

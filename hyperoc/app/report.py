@@ -203,7 +203,7 @@ def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = No
         full = np.zeros((levels.size, model.space.num_nodes, xi_nodal.shape[-1]))
         full[:, model.control.nodes] = xi_nodal[levels]
         point_data["control"] = full[..., 0] if full.shape[-1] == 1 else full
-    series = write_time_series(out / "paraview", "state", model.space.nodes, cells, cell_type, sol.t[levels],
+    series = write_time_series(out / "paraview", "state", model.space.nodes, (cell_type, cells), sol.t[levels],
                                point_data, cell_data=_cell_series(sol, levels, frames))
     files["time_series"] = str(Path(series).relative_to(out))
     if model.dim == 1:
