@@ -37,7 +37,7 @@ volumetric residual ``~ bulk_modulus |grad du|^2`` that can exceed the residual 
 magnitude although the next iterate is much closer to the solution (Land problem 1: ``bulk_modulus / C =
 500``, |r| grows 2000x after the first step, after which Newton converges quadratically), so the
 backtracking stalls at its smallest step. ``line_search=False`` takes full Newton steps instead
-(`hyperoc.solvers.newton.newton(..., line_search=False)`), as is common in cardiac mechanics codes with load stepping.
+(`hyperoc.solvers.newton.NewtonOptions`), as is common in cardiac mechanics codes with load stepping.
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ from .. import _jax  # noqa: F401
 from ..errors import InputError, SolverError
 from ..mechanics.model import StateModel
 from ..solvers.linsolve import make_solver
-from ..solvers.newton import NewtonIteration, NewtonStatus, newton
+from ..solvers.newton import NewtonIteration, NewtonOptions, NewtonStatus, newton
 from .constraint import TissueVolume
 from .stepper import Scheme, StepStatus
 from .terms import RobinBoundary
@@ -150,10 +150,10 @@ def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, co
         if constrained:  # traced flag: the guess path and the load steps share one compilation
             x0 = jax.lax.cond(fit_multiplier, lambda: fitted_multiplier(x0, fk, s), lambda: x0)
         monitor = (lambda *values: jax.debug.callback(report, s, *values)) if monitored else None
-        x, it, status = newton(lambda x: residual(x, fk, Vk, s), lambda x: jacobian_parts(x, fk, s), lin, x0,
-                               rtol=scheme.rtol, atol=scheme.atol, max_iter=scheme.max_iter, line_search=line_search,
-                               chord=chord,
-                               monitor=monitor, n_u=getattr(model, "n_u", None))
+        options = NewtonOptions(scheme.rtol, scheme.atol, scheme.max_iter, line_search, monitor,
+                                getattr(model, "n_u", None))
+        x, it, status = newton(lambda x: residual(x, fk, Vk, s), lambda x: jacobian_parts(x, fk, s), lin, x0, options,
+                               chord=chord)
         return x, it, status, model.min_det_F(displacement(x))
 
     cache[key] = solve, slot
