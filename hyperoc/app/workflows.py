@@ -80,15 +80,15 @@ def simulate(cfg: Config, out, *, progress: bool = False, monitor=None, on_segme
     resumes from them (`hyperoc.dynamics.resumable.run_resumable`, ``on_segment`` called after each);
     ``model``: the config's model if already built (`check_run`); ``title``: the run's name in the
     figures (default `run_title`)."""
-    from ..dynamics.resumable import SEGMENTS_DIR, run_resumable
+    from ..dynamics.resumable import SEGMENTS_DIR, Segments, run_resumable
 
     model = model or cfg.model()
     grid = cfg.grid()
     xi = cfg.prescribed_control(model, grid.t)
     stepper, o = cfg.stepper(model), cfg["output"]
     if o.get("checkpoint_every"):
-        sol = run_resumable(stepper, grid, xi, folder=Path(out) / SEGMENTS_DIR, every=o["checkpoint_every"],
-                            progress=progress, on_segment=on_segment, identity=cfg.sections)
+        segments = Segments(Path(out) / SEGMENTS_DIR, o["checkpoint_every"], cfg.sections)
+        sol = run_resumable(stepper, grid, xi, segments=segments, progress=progress, on_segment=on_segment)
     else:
         sol = stepper.run(grid, xi, progress=progress, monitor=monitor)
     return write_state_outputs(Path(out), sol, snapshot_times=o.get("snapshot_times"),
