@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hyperoc.cardiac.land import CONTRACTION, contraction_problem, ventricle_apex
+from hyperoc.cardiac.land import CONTRACTION, VentricleMesh, contraction_problem, ventricle_apex
 from hyperoc.dynamics.statics import solve_static
 from hyperoc.dynamics.stepper import Scheme
 from hyperoc.errors import InputError
@@ -177,7 +177,7 @@ def test_profile_weights_the_energy():
 
 def test_taper_is_a_problem_3_variant_only():
     with pytest.raises(InputError, match="problem 3"):
-        ventricle_apex(6.0, problem=2, taper=4.0)
+        ventricle_apex(VentricleMesh(6.0), problem=2, taper=4.0)
 
 
 def test_fibre_tension_needs_fibres_and_a_finite_value():
