@@ -9,8 +9,9 @@ The curated API (see the README for a tour)::
     controls    BodyForce, ActiveStress, Region
     model       StateModel; mixed: TaylorHoodModel (P2-P1, quasi-static, incompressible allowed)
     dynamics    Scheme, TimeStepper, solve_state (monitor= sees each step's StepRecord), StateSolution,
-                StepStatus; statics: solve_static (-> StaticSolution) with state-dependent loads
-                FollowerPressure (pressure on the deformed boundary), FibreTension (active stress), and
+                StepStatus; statics: solve_static (-> StaticSolution; StaticOptions: load stepping, Newton, the
+                linear solver) with state-dependent loads FollowerPressure (pressure on the deformed boundary),
+                FibreTension (active stress), and
                 NewtonLog, a monitor that prints or keeps every Newton iteration; NewtonStatus, how a
                 Newton solve ended
     time        uniform_grid, TimeGrid, TimeTransform
@@ -101,6 +102,7 @@ _LAZY = {
     "ReducedFunctional": "control.reduced",
     "solve_static": "dynamics.statics",
     "StaticSolution": "dynamics.statics",
+    "StaticOptions": "dynamics.statics",
     "TimeGrid": "dynamics.timegrid",
     "TimeTransform": "dynamics.timegrid",
     "uniform_grid": "dynamics.timegrid",
@@ -132,5 +134,5 @@ __all__ = [
     "PressureRise", "PressureMean", "barzilai_borwein", "lbfgsb", "newton_cg", "OptimizationResult", "ControlPoint",
     "ControlSpace", "StepRecord", "StepStatus", "ReducedFunctional", "solve_static", "NewtonLog", "NewtonStatus",
     "FollowerPressure", "FibreTension", "TimeGrid", "TimeTransform", "uniform_grid", "taylor_test", "TaylorResult",
-    "StaticSolution", "Termination",
+    "StaticSolution", "StaticOptions", "Termination",
 ]

@@ -167,14 +167,14 @@ def test_the_newton_strategy_is_a_dynamics_setting_of_the_config():
 def test_static_solves_take_chord_newton_only_on_request(model):
     """`Scheme.chord_with`: time stepping uses chord Newton for "auto" where the solver can, static
     solves only for "chord"; "chord" with a solver that keeps no factorization is refused."""
-    from hyperoc.dynamics.statics import solve_static
+    from hyperoc.dynamics.statics import StaticOptions, solve_static
 
     lu, dense = SparseSolver(model, "lu"), DenseSolver(model)
     assert ho.Scheme().chord_with(lu, auto=True) and not ho.Scheme().chord_with(lu, auto=False)
     assert ho.Scheme(newton="chord").chord_with(lu, auto=False)
     assert not ho.Scheme(newton="full").chord_with(lu, auto=True)
     with pytest.raises(InputError, match="chord"):
-        solve_static(model, scheme=ho.Scheme(newton="chord"), solver="minres")
+        solve_static(model, options=StaticOptions(scheme=ho.Scheme(newton="chord"), solver="minres"))
     with pytest.raises(InputError, match="chord"):
         ho.Scheme(newton="chord").chord_with(dense, auto=True)
 

@@ -38,7 +38,7 @@ from hyperoc.cardiac.land import (
     save_state,
     ventricle_apex,
 )
-from hyperoc.dynamics.statics import solve_static
+from hyperoc.dynamics.statics import StaticOptions, solve_static
 from hyperoc.errors import InputError, SolverError
 from hyperoc.fem.mesh import box, rectangle, refine
 from hyperoc.io import write_npz
@@ -85,7 +85,7 @@ def test_uniaxial_patch_test_is_exact():
     ``P = mu (F - F^-T) + p cof F``, lateral faces free)."""
     mu, stretch = 1.5, 1.2
     model = uniaxial_patch(box(2), mu, stretch)
-    sol = solve_static(model, load=model.traction_load, constrained=False, steps=4)
+    sol = solve_static(model, load=model.traction_load, constraint="none", options=StaticOptions(steps=4))
     F = np.asarray(model.deformation_gradient(jnp.asarray(sol.u)))
     exact = np.diag([stretch, stretch**-0.5, stretch**-0.5])
     # The error left is below Newton's last increment, <= rtol |x|_inf (Scheme: rtol = 1e-11, |x|_inf = 0.25
@@ -108,7 +108,8 @@ def test_newton_monitor_reports_the_pressure_field_apart():
     model = uniaxial_patch(box(1), mu=1.5, stretch=1.2)
     text = io.StringIO()
     log = ho.NewtonLog(text)
-    sol = solve_static(model, load=model.traction_load, constrained=False, steps=steps, monitor=log)
+    sol = solve_static(model, load=model.traction_load, constraint="none",
+                       options=StaticOptions(steps=steps, monitor=log))
     first = log.records[0]
     assert first.field_residual == 0.0 and first.field_increment > 0
     assert first.residual == pytest.approx(np.linalg.norm(model.traction_load[: model.n_u]) / steps, rel=1e-12)

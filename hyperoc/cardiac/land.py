@@ -26,7 +26,7 @@ Reported: the same apex positions.
 What is solved and what it converges to. The benchmark material is incompressible; here it is
 the compressible Guccione law of `hyperoc.mechanics.materials.Guccione` with the volumetric penalty
 ``bulk_modulus/4 (J^2 - 1 - 2 ln J)`` (``bulk_modulus`` = small-strain bulk modulus k, kPa) and *no*
-global volume constraint (``solve_static(..., constrained=False)``). For a fixed k the P2 solutions
+global volume constraint (``solve_static(..., constraint="none")``). For a fixed k the P2 solutions
 converge as h -> 0 to the solution ``u_k`` of that compressible problem; ``u_k`` tends to the
 incompressible solution as ``k -> infinity``, at first order in ``1 / k`` (the volume change is
 ``O(p / k)``). Pure-displacement elements lock as ``k / C`` grows (P1 severely, P2 mildly), so a
@@ -47,7 +47,7 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from ..dynamics.statics import solve_static
+from ..dynamics.statics import StaticOptions, solve_static
 from ..errors import InputError
 from ..fem.geometry import ventricle
 from ..fem.mesh import Mesh, box
@@ -184,6 +184,12 @@ class LoadStepping:
     predictor: str = "previous"
     monitor: object = None
 
+    def options(self) -> StaticOptions:
+        """The `StaticOptions` of the benchmark's solves: this stepping with full Newton steps (the penalty's
+        merit grows after the first step although Newton then converges: `hyperoc.dynamics.statics`)."""
+        return StaticOptions(self.steps, self.cutbacks, self.predictor, line_search=False, solver=self.solver,
+                             monitor=self.monitor)
+
     def params(self) -> dict:
         """The stepping's entries of a result's ``params``."""
         return {"steps": self.steps, "cutbacks": self.cutbacks, "predictor": self.predictor}
@@ -274,9 +280,7 @@ def _solve(model, follower, stepping: LoadStepping, points: dict, params: dict, 
     Newton's first try at the full load (`solve_static`'s ``guess``)."""
     t0 = time.perf_counter()
     guess = None if coarse is None else model.prolong(coarse.model, coarse.u)
-    sol = solve_static(model, follower=follower, constrained=False, steps=stepping.steps, solver=stepping.solver,
-                       line_search=False, cutbacks=stepping.cutbacks, predictor=stepping.predictor, guess=guess,
-                       monitor=stepping.monitor)
+    sol = solve_static(model, follower=follower, constraint="none", guess=guess, options=stepping.options())
     seconds = time.perf_counter() - t0
     if coarse is not None:
         params["start"] = "prolonged" if sol.from_guess else f"prolonged, failed ({sol.guess_failure}): load stepping"
