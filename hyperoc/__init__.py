@@ -19,8 +19,8 @@ The curated API (see the README for a tour)::
                 PressureAt, PressureRise, PressureMean
     gradients   ReducedFunctional, ControlPoint, ControlSpace (inner product, Riesz map), taylor_test
                 (-> TaylorResult)
-    optimizers  barzilai_borwein (the paper's Algorithm 1), lbfgsb, newton_cg -> OptimizationResult,
-                whose Termination says why the run stopped
+    optimizers  barzilai_borwein (the paper's Algorithm 1; BBOptions), lbfgsb, newton_cg (NewtonCGOptions)
+                -> OptimizationResult, whose Termination says why the run stopped
     config      load_config
 
 Importing hyperoc is cheap: the names above are imported on first use (PEP 562), so that the
@@ -103,6 +103,8 @@ _LAZY = {
     "solve_static": "dynamics.statics",
     "StaticSolution": "dynamics.statics",
     "StaticOptions": "dynamics.statics",
+    "BBOptions": "control.optimize",
+    "NewtonCGOptions": "control.optimize",
     "TimeGrid": "dynamics.timegrid",
     "TimeTransform": "dynamics.timegrid",
     "uniform_grid": "dynamics.timegrid",
@@ -134,5 +136,5 @@ __all__ = [
     "PressureRise", "PressureMean", "barzilai_borwein", "lbfgsb", "newton_cg", "OptimizationResult", "ControlPoint",
     "ControlSpace", "StepRecord", "StepStatus", "ReducedFunctional", "solve_static", "NewtonLog", "NewtonStatus",
     "FollowerPressure", "FibreTension", "TimeGrid", "TimeTransform", "uniform_grid", "taylor_test", "TaylorResult",
-    "StaticSolution", "StaticOptions", "Termination",
+    "StaticSolution", "StaticOptions", "Termination", "BBOptions", "NewtonCGOptions",
 ]

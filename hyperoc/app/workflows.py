@@ -14,7 +14,16 @@ import numpy as np
 
 from ..control.adjoint import Adjoint
 from ..control.continuous_adjoint import ContinuousReducedFunctional
-from ..control.optimize import EvaluationCache, OptimizationResult, barzilai_borwein, lbfgsb, newton_cg
+from ..control.optimize import (
+    BBOptions,
+    BoxProblem,
+    EvaluationCache,
+    NewtonCGOptions,
+    OptimizationResult,
+    barzilai_borwein,
+    lbfgsb,
+    newton_cg,
+)
 from ..control.reduced import ControlPoint, ReducedFunctional
 from ..control.revolve import checkpoint_schedule
 from ..control.verification import random_directions, taylor_test
@@ -138,20 +147,19 @@ def optimize_single(cfg: Config, tau0: float, *, cache_dir=None, progress: bool 
             bar.update(1)
             bar.set_postfix(J=f"{value:.5g}", tau=f"{m.tau:.4f}", G=f"{measure:.2e}")
 
-    kwargs = dict(gtol=float(o["gtol"]), max_iter=int(o["max_iter"]), cache_dir=cache_dir, callback=callback,
-                  tau_margin=o.get("tau_margin"), xi_bounds=cfg.xi_bounds())
+    kwargs = dict(gtol=float(o["gtol"]), max_iter=int(o["max_iter"]), cache_dir=cache_dir, callback=callback)
     m0 = J.zero(tau0) if start is None else start
+    box = BoxProblem.around(J, m0.tau, xi_bounds=cfg.xi_bounds(), tau_margin=o.get("tau_margin"))
     if gradient_scale is not None:
         if o["method"] not in ("bb", "newton"):
             raise ValueError(f"optimize_single: {o['method']} has no absolute stopping test (gradient_scale)")
         kwargs.update(gtol=0.0, gtol_abs=float(o["gtol"]) * gradient_scale)
     if o["method"] == "bb":
-        res = barzilai_borwein(J, m0, steps=o["steps"], bb_step=o["bb_step"], nonmonotone=o["nonmonotone"],
-                               **kwargs)
+        res = barzilai_borwein(box, m0, options=BBOptions(o["steps"], o["bb_step"], o["nonmonotone"]), **kwargs)
     elif o["method"] == "newton":
-        res = newton_cg(J, m0, max_cg=o["max_cg"], tau_scale=o["tau_scale"], **kwargs)
+        res = newton_cg(box, m0, options=NewtonCGOptions(o["max_cg"], o["tau_scale"]), **kwargs)
     else:
-        res = lbfgsb(J, m0, tau_scale=o["tau_scale"], **kwargs)
+        res = lbfgsb(box, m0, tau_scale=o["tau_scale"], **kwargs)
     if bar is not None:
         bar.close()
     if res.history["objective"] and res.history["objective"][0] > best["objective"]:
