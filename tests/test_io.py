@@ -11,15 +11,7 @@ import pytest
 
 import hyperoc.app.plotting
 import hyperoc.io as hio
-from hyperoc.app.plotting import (
-    TimeMarks,
-    Units,
-    axis_label,
-    plot_control_spacetime,
-    plot_history,
-    plot_pressure,
-    plot_snapshots,
-)
+from hyperoc.app.plotting import Units, plot_control_spacetime, plot_history, plot_pressure, plot_snapshots
 from hyperoc.fem.mesh import interval, rectangle
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -279,6 +271,7 @@ def test_plot_pressure(tmp_path):
 
 
 MM_MS = Units(time="ms", length="mm", pressure="kPa", control="kPa/mm")
+TimeMarks = hyperoc.app.plotting.TimeMarks  # the pressure figure's tau, window and events
 
 
 def _figures(monkeypatch) -> list:
@@ -319,7 +312,7 @@ def test_plot_labels_carry_units(monkeypatch):
     t, x = np.linspace(0, 1, 11), np.linspace(0, 1, 30)
     xi = np.outer(np.sin(np.pi * t), x - 0.5)
     plot_control_spacetime("c.png", t, x, xi, title="run: control xi", units=MM_MS)
-    plot_snapshots("s.png", x, t, xi, [0.5, 1.0], ylabel=axis_label("u(x, t)", "mm"),
+    plot_snapshots("s.png", x, t, xi, [0.5, 1.0], ylabel="u(x, t) [mm]",
                    title="run: displacement u", units=MM_MS)
     plot_snapshots("s0.png", x, t, xi, [0.5], ylabel="u")
     plot_history("h.png", {"objective": [3.0, 2.0], "tau": [0.5, 0.4]}, title="run: optimizer history")
