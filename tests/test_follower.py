@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from hyperoc.dynamics.constraint import NoConstraint
 from hyperoc.dynamics.statics import StaticOptions, solve_static
 from hyperoc.errors import InputError, SolverError
 from hyperoc.fem.mesh import box, rectangle
@@ -154,3 +155,16 @@ def test_volume_target_needs_the_constraint(inflated_plate):
     model, fol = inflated_plate
     with pytest.raises(InputError):
         solve_static(model, follower=fol, constraint="none", volume=0.5)
+
+
+def test_no_constraint_is_spelled_none_or_by_its_object(inflated_plate):
+    """``constraint="none"`` and a `NoConstraint` are the same unconstrained solve (no multiplier); another
+    name is refused."""
+    model, fol = inflated_plate
+    options = StaticOptions(steps=2, line_search=False)
+    by_name = solve_static(model, follower=fol, constraint="none", options=options)
+    by_object = solve_static(model, follower=fol, constraint=NoConstraint(model), options=options)
+    np.testing.assert_array_equal(by_object.u, by_name.u)
+    assert by_object.p == by_name.p == 0.0
+    with pytest.raises(InputError, match="constraint"):
+        solve_static(model, follower=fol, constraint="volume")
