@@ -55,7 +55,17 @@ import os
 import sys
 from pathlib import Path
 
-from hyperoc.cardiac.land import FORMULATIONS, PUBLISHED, beam_deflection, load_state, save_state, ventricle_apex
+from hyperoc.cardiac.land import (
+    FORMULATIONS,
+    PUBLISHED,
+    Formulation,
+    LoadStepping,
+    VentricleMesh,
+    beam_deflection,
+    load_state,
+    save_state,
+    ventricle_apex,
+)
 from hyperoc.errors import SolverError
 from hyperoc.solvers.linsolve import SparseSolver
 from hyperoc.solvers.newton import NewtonLog
@@ -318,11 +328,10 @@ def main():
         coarse = solved.pop((problem, h, bulk_modulus, k - 1), None)
         if coarse is None and args.coarse_state and args.nested_start:
             coarse = load_state(args.coarse_state)
-        res = ventricle_apex(h, bulk_modulus=bulk_modulus, steps=args.lv_steps, cutbacks=args.cutbacks,
-                             curved=not args.faceted, base=args.base, refinements=k, solver=args.solver,
-                             volumetric=args.volumetric, isochoric=args.isochoric, predictor=args.predictor,
-                             problem=problem,
-                             taper=args.taper if problem == 3 else 0.0, coarse=coarse, monitor=monitor)
+        res = ventricle_apex(VentricleMesh(h, curved=not args.faceted, base=args.base, refinements=k),
+                             Formulation(bulk_modulus, volumetric=args.volumetric, isochoric=args.isochoric),
+                             LoadStepping(args.lv_steps, args.cutbacks, args.solver, args.predictor, monitor),
+                             problem=problem, taper=args.taper if problem == 3 else 0.0, coarse=coarse)
         if args.nested_start:
             solved[(problem, h, bulk_modulus, k)] = res
         if args.save_states:
@@ -333,9 +342,9 @@ def main():
     lv_levels = lv_sequences if args.lv_refinements is not None else [sum(lv_sequences, [])]
     for number, name, sequences, run, level_key, keys in (
         (1, "Problem 1 (beam)", [[int(v) for v in _floats(args.beam_levels)]],
-         lambda lv, k: record(beam_deflection(lv, bulk_modulus=k, steps=args.beam_steps, cutbacks=args.cutbacks,
-                                              volumetric=args.volumetric, isochoric=args.isochoric,
-                                              predictor=args.predictor, monitor=monitor)), "n", ["z_tip"]),
+         lambda lv, k: record(beam_deflection(lv, Formulation(k, volumetric=args.volumetric, isochoric=args.isochoric),
+                                              LoadStepping(args.beam_steps, args.cutbacks, predictor=args.predictor,
+                                                           monitor=monitor))), "n", ["z_tip"]),
         (2, "Problem 2 (ventricle)", lv_levels, lv_run(2), None, LV_KEYS),
         (3, "Problem 3 (contraction)", lv_levels, lv_run(3), None, LV_KEYS),
     ):

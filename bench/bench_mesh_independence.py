@@ -52,7 +52,7 @@ def run(h: float, dt: float, method: str, max_iter: int, alpha: float = ALPHA, t
     else:
         steps = "blockwise" if method == "bb-blockwise" else "joint"
         bb_step = "abbmin" if method == "bb-abbmin" else "bb1"
-        res = ho.barzilai_borwein(J, J.zero(tau0), gtol=1e-6, max_iter=max_iter, steps=steps, bb_step=bb_step)
+        res = ho.barzilai_borwein(J, J.zero(tau0), gtol=1e-6, max_iter=max_iter, options=ho.BBOptions(steps, bb_step))
     wall = time.perf_counter() - t0
     g = res.history["grad_norm"]
     return {"h": h, "dt": dt, "tau0": tau0, "method": method, "iterations": res.iterations,

@@ -41,7 +41,7 @@ import numpy as np
 from bench_wellposed import refinement_rows
 from hyperoc.app.paper import PAPER_REPORT, formulation_config, transferred_control
 from hyperoc.app.workflows import build_reduced
-from hyperoc.control.optimize import BoxProblem, lbfgsb, newton_cg, stationarity
+from hyperoc.control.optimize import BoxProblem, NewtonCGOptions, lbfgsb, newton_cg, stationarity
 from hyperoc.control.reduced import ControlPoint
 from results import command_line, table, write_results
 
@@ -66,7 +66,8 @@ def solve(formulation: str, observation: str, h: float, dt: float, tau0: float, 
     m0 = zero if warm is None else ControlPoint(transferred_control(*warm, J, tau), tau)
     started = time.perf_counter()
     if method == "newton":
-        res = newton_cg(J, m0, xi_bounds=bounds, gtol=0.0, gtol_abs=1e-6 * cold, max_iter=max_iter, max_cg=20)
+        res = newton_cg(J, m0, xi_bounds=bounds, gtol=0.0, gtol_abs=1e-6 * cold, max_iter=max_iter,
+                        options=NewtonCGOptions(max_cg=20))
     else:  # cold starts only: its test relative to its start is the same
         res = lbfgsb(J, m0, xi_bounds=bounds, gtol=1e-6, max_iter=max_iter)
     wall = time.perf_counter() - started

@@ -31,7 +31,7 @@ import time
 
 from bench_ordering import measure, step_blocks
 from hyperoc.cardiac.land import VENTRICLE, node_position, ventricle_problem
-from hyperoc.dynamics.statics import solve_static
+from hyperoc.dynamics.statics import StaticOptions, solve_static
 from hyperoc.solvers.linsolve import SparseSolver
 from results import Table, command_line, write_results
 
@@ -45,8 +45,8 @@ def whole_solve(level: int, h0: float, thresh: float) -> dict:
     model, follower = ventricle_problem(h0, refinements=level, **FORMULATIONS["taylor-hood"])
     solver = SparseSolver(model, "lu", pivot_thresh=thresh)
     t0 = time.perf_counter()
-    sol = solve_static(model, follower=follower, constrained=False, steps=20, solver=solver, line_search=False,
-                       cutbacks=40)
+    sol = solve_static(model, follower=follower, constraint="none",
+                       options=StaticOptions(steps=20, solver=solver, line_search=False, cutbacks=40))
     return {"n": model.n, "seconds": time.perf_counter() - t0, "newton": sum(sol.newton_iterations),
             "z_endo": float(node_position(model, sol.u, VENTRICLE["endo_apex"])[2]), **solver.stats}
 

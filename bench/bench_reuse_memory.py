@@ -42,7 +42,7 @@ def rss_gb() -> float:
 
 def child(method: str, level: int, steps: int) -> dict:
     from hyperoc.cardiac.land import VENTRICLE, node_position, ventricle_problem
-    from hyperoc.dynamics.statics import solve_static
+    from hyperoc.dynamics.statics import StaticOptions, solve_static
     from hyperoc.solvers.linsolve import SparseSolver
 
     model, load = ventricle_problem(6.0, bulk_modulus=math.inf, volumetric="taylor-hood", isochoric=True,
@@ -57,7 +57,8 @@ def child(method: str, level: int, steps: int) -> dict:
 
     lin.host_solve = traced
     t0 = time.perf_counter()
-    sol = solve_static(model, follower=load, constrained=False, steps=steps, solver=lin, line_search=False, cutbacks=8)
+    sol = solve_static(model, follower=load, constraint="none",
+                       options=StaticOptions(steps=steps, solver=lin, line_search=False, cutbacks=8))
     seconds = time.perf_counter() - t0
     f, r = np.array(trace).T
     growth = np.polyfit(f[f > 1], r[f > 1], 1)[0] if np.ptp(f[f > 1]) > 0 else 0.0

@@ -9,8 +9,9 @@ The curated API (see the README for a tour)::
     controls    BodyForce, ActiveStress, Region
     model       StateModel; mixed: TaylorHoodModel (P2-P1, quasi-static, incompressible allowed)
     dynamics    Scheme, TimeStepper, solve_state (monitor= sees each step's StepRecord), StateSolution,
-                StepStatus; statics: solve_static (-> StaticSolution) with state-dependent loads
-                FollowerPressure (pressure on the deformed boundary), FibreTension (active stress), and
+                StepStatus; statics: solve_static (-> StaticSolution; StaticOptions: load stepping, Newton, the
+                linear solver) with state-dependent loads FollowerPressure (pressure on the deformed boundary),
+                FibreTension (active stress), and
                 NewtonLog, a monitor that prints or keeps every Newton iteration; NewtonStatus, how a
                 Newton solve ended
     time        uniform_grid, TimeGrid, TimeTransform
@@ -18,8 +19,8 @@ The curated API (see the README for a tour)::
                 PressureAt, PressureRise, PressureMean
     gradients   ReducedFunctional, ControlPoint, ControlSpace (inner product, Riesz map), taylor_test
                 (-> TaylorResult)
-    optimizers  barzilai_borwein (the paper's Algorithm 1), lbfgsb, newton_cg -> OptimizationResult,
-                whose Termination says why the run stopped
+    optimizers  barzilai_borwein (the paper's Algorithm 1; BBOptions), lbfgsb, newton_cg (NewtonCGOptions)
+                -> OptimizationResult, whose Termination says why the run stopped
     config      load_config
 
 Importing hyperoc is cheap: the names above are imported on first use (PEP 562), so that the
@@ -101,6 +102,9 @@ _LAZY = {
     "ReducedFunctional": "control.reduced",
     "solve_static": "dynamics.statics",
     "StaticSolution": "dynamics.statics",
+    "StaticOptions": "dynamics.statics",
+    "BBOptions": "control.optimize",
+    "NewtonCGOptions": "control.optimize",
     "TimeGrid": "dynamics.timegrid",
     "TimeTransform": "dynamics.timegrid",
     "uniform_grid": "dynamics.timegrid",
@@ -132,5 +136,5 @@ __all__ = [
     "PressureRise", "PressureMean", "barzilai_borwein", "lbfgsb", "newton_cg", "OptimizationResult", "ControlPoint",
     "ControlSpace", "StepRecord", "StepStatus", "ReducedFunctional", "solve_static", "NewtonLog", "NewtonStatus",
     "FollowerPressure", "FibreTension", "TimeGrid", "TimeTransform", "uniform_grid", "taylor_test", "TaylorResult",
-    "StaticSolution", "Termination",
+    "StaticSolution", "StaticOptions", "Termination", "BBOptions", "NewtonCGOptions",
 ]

@@ -167,8 +167,7 @@ def write_time_series(
     directory,
     name: str,
     mesh_points,
-    cells,
-    cell_type: str,
+    cells: tuple,
     times,
     point_data: dict,
     cell_data: dict | None = None,
@@ -186,10 +185,9 @@ def write_time_series(
         Base file name, without directory or suffix.
     mesh_points : (nv, dim) array_like, dim <= 3
         Reference coordinates; padded with zeros to 3D.
-    cells : (nc, nodes) array_like of int
-        Connectivity, with ``nodes = NODES_PER_CELL[cell_type]``.
-    cell_type : str
-        meshio cell type: ``line, triangle, tetra, line3, triangle6, tetra10``.
+    cells : (str, (nc, nodes) array_like of int)
+        ``(cell_type, connectivity)``, as a meshio cell block: the meshio cell type (``line, triangle,
+        tetra, line3, triangle6, tetra10``) and the connectivity, ``nodes = NODES_PER_CELL[cell_type]``.
     times : (nt,) array_like
         Time levels.
     point_data : dict of str -> (nt, nv) or (nt, nv, k) array_like
@@ -213,7 +211,7 @@ def write_time_series(
         raise ValueError(f"write_time_series: unknown format {fmt!r}")
     if not name or Path(name).name != name or name.startswith("."):
         raise ValueError(f"write_time_series: invalid series name {name!r}")
-    series = _prepare_series(mesh_points, cells, cell_type, times, point_data, cell_data, static_point_data)
+    series = _prepare_series(mesh_points, cells, times, point_data, cell_data, static_point_data)
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{name}.", suffix=".tmp", dir=directory))
@@ -230,8 +228,9 @@ def write_time_series(
     return directory / files[-1]
 
 
-def _prepare_series(points, cells, cell_type, times, point_data, cell_data, static_point_data) -> dict:
-    """Validate shapes and pad points and vectors to 3 components."""
+def _prepare_series(points, cells: tuple, times, point_data, cell_data, static_point_data) -> dict:
+    """Validate shapes and pad points and vectors to 3 components; ``cells = (cell_type, connectivity)``."""
+    cell_type, cells = cells
     if cell_type not in NODES_PER_CELL:
         raise ValueError(f"write_time_series: unknown cell type {cell_type!r} (use one of {sorted(NODES_PER_CELL)})")
     points = np.asarray(points, dtype=np.float64)

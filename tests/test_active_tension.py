@@ -28,8 +28,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hyperoc.cardiac.land import CONTRACTION, contraction_problem, ventricle_apex
-from hyperoc.dynamics.statics import solve_static
+from hyperoc.cardiac.land import CONTRACTION, VentricleMesh, contraction_problem, ventricle_apex
+from hyperoc.dynamics.statics import StaticOptions, solve_static
 from hyperoc.dynamics.stepper import Scheme
 from hyperoc.errors import InputError
 from hyperoc.fem.mesh import box
@@ -106,7 +106,8 @@ def test_homogeneous_contraction_is_exact(degree):
     model = StateModel(box(2, 2, 2, size=(1.0, 0.8, 0.6)), SaintVenantKirchhoff(mu=mu, lam=lam), degree=degree,
                        frames=along_x, dirichlet=None,
                        dirichlet_components={"left": (0,), "bottom": (1,), "front": (2,)})
-    sol = solve_static(model, follower=FibreTension(model, T), constrained=False, steps=2, line_search=False)
+    sol = solve_static(model, follower=FibreTension(model, T), constraint="none",
+                       options=StaticOptions(steps=2, line_search=False))
     E_t = lam * T / (2 * mu * (2 * mu + 3 * lam))
     stretch = np.sqrt(1.0 + 2.0 * np.array([E_t - T / (2 * mu), E_t, E_t]))
     exact = model.space.nodes * (stretch - 1.0)
@@ -177,7 +178,7 @@ def test_profile_weights_the_energy():
 
 def test_taper_is_a_problem_3_variant_only():
     with pytest.raises(InputError, match="problem 3"):
-        ventricle_apex(6.0, problem=2, taper=4.0)
+        ventricle_apex(VentricleMesh(6.0), problem=2, taper=4.0)
 
 
 def test_fibre_tension_needs_fibres_and_a_finite_value():
@@ -212,7 +213,7 @@ def test_contraction_problem_is_land_problem_3(problem3):
 @pytest.mark.slow
 def test_activation_shortens_the_fibres_and_keeps_the_volume(problem3):
     model, (pressure, tension) = problem3
-    opts = dict(constrained=False, steps=10, line_search=False, cutbacks=8)
+    opts = dict(constraint="none", options=StaticOptions(steps=10, cutbacks=8, line_search=False))
     active = solve_static(model, follower=(pressure, tension), **opts)
     passive = solve_static(model, follower=pressure, **opts)
     volume = float(np.sum(model.quad.wdx))

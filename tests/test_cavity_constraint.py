@@ -27,7 +27,7 @@ from hyperoc.control.adjoint import Adjoint
 from hyperoc.control.verification import random_directions
 from hyperoc.dynamics.constraint import CavityVolumeConstraint
 from hyperoc.dynamics.laws import ExpressionLaw
-from hyperoc.dynamics.statics import solve_static
+from hyperoc.dynamics.statics import StaticOptions, solve_static
 from hyperoc.dynamics.stepper import TimeStepper
 from hyperoc.dynamics.terms import DynamicPressure, PrescribedTension, Viscosity
 from hyperoc.dynamics.timegrid import TimeGrid, uniform_grid
@@ -128,8 +128,9 @@ def test_an_isovolumic_contraction_approaches_the_quasi_static_pressure_as_it_sl
     model = cfg.model()
     cavity = CavityVolumeConstraint(model)
     A = 2e4  # Pa
-    rest = solve_static(model, constraint=cavity, solver="lu")
-    half = solve_static(model, u0=rest.u, follower=FibreTension(model, A / 2), constraint=cavity, solver="lu", steps=2)
+    rest = solve_static(model, constraint=cavity, options=StaticOptions(solver="lu"))
+    half = solve_static(model, u0=rest.u, follower=FibreTension(model, A / 2), constraint=cavity,
+                        options=StaticOptions(solver="lu", steps=2))
     V0 = float(cavity.value(jnp.asarray(rest.u)))
     assert abs(float(cavity.value(jnp.asarray(half.u))) / V0 - 1) < 1e-10
     differences = []

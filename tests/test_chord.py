@@ -108,7 +108,7 @@ def _chord_decisions(rows, rtol):
     for u, du, p, dp, *_ in rows:
         increment = np.max(np.abs(du))
         settled, rate = chord_stopping_test(u, du, np.float64(p), np.float64(dp), increment, previous, small,
-                                            rtol=rtol, atol=0.0, xp=np)
+                                            tol=(rtol, 0.0), xp=np)
         out.append((bool(settled), float(rate)))
         previous = increment
     return out
@@ -167,14 +167,14 @@ def test_the_newton_strategy_is_a_dynamics_setting_of_the_config():
 def test_static_solves_take_chord_newton_only_on_request(model):
     """`Scheme.chord_with`: time stepping uses chord Newton for "auto" where the solver can, static
     solves only for "chord"; "chord" with a solver that keeps no factorization is refused."""
-    from hyperoc.dynamics.statics import solve_static
+    from hyperoc.dynamics.statics import StaticOptions, solve_static
 
     lu, dense = SparseSolver(model, "lu"), DenseSolver(model)
     assert ho.Scheme().chord_with(lu, auto=True) and not ho.Scheme().chord_with(lu, auto=False)
     assert ho.Scheme(newton="chord").chord_with(lu, auto=False)
     assert not ho.Scheme(newton="full").chord_with(lu, auto=True)
     with pytest.raises(InputError, match="chord"):
-        solve_static(model, scheme=ho.Scheme(newton="chord"), solver="minres")
+        solve_static(model, options=StaticOptions(scheme=ho.Scheme(newton="chord"), solver="minres"))
     with pytest.raises(InputError, match="chord"):
         ho.Scheme(newton="chord").chord_with(dense, auto=True)
 
@@ -230,7 +230,7 @@ def test_the_chord_stopping_test_takes_the_same_decisions_on_numpy_and_jax():
         for xp in (np, jnp):
             small = lambda a, b, rt, at, xp=xp: small_increment(xp.asarray(a), xp.asarray(b), None, rt, at)
             settled, _ = chord_stopping_test(xp.asarray(u), xp.asarray(du), xp.asarray(p), xp.asarray(dp),
-                                             xp.asarray(inc), xp.asarray(prev), small, rtol=rtol, atol=atol, xp=xp)
+                                             xp.asarray(inc), xp.asarray(prev), small, tol=(rtol, atol), xp=xp)
             decisions.append(bool(settled))
         assert decisions == [expected, expected], (du[0], p, dp, inc, prev)
 
@@ -344,7 +344,7 @@ def test_the_serial_and_distributed_chord_loops_take_the_same_decisions(stiffeni
 
     from hyperoc.distributed.newton import KeptJacobian
     from hyperoc.distributed.newton import newton as distributed_newton
-    from hyperoc.solvers.newton import newton
+    from hyperoc.solvers.newton import NewtonOptions, newton
 
     n, rng = 6, np.random.default_rng(0)
     A = 3 * np.eye(n) + 0.3 * rng.standard_normal((n, n))
@@ -355,8 +355,8 @@ def test_the_serial_and_distributed_chord_loops_take_the_same_decisions(stiffeni
 
     solver = _DenseChordSolver(n)
     x_serial, it_serial, status_serial = newton(lambda x: rows(jnp, x[:-1], x[-1]), lambda x: tangent(jnp, x[:-1]),
-                                                solver, jnp.asarray(x0), rtol=rtol, atol=0.0, max_iter=50,
-                                                line_search=False, chord=True)
+                                                solver, jnp.asarray(x0),
+                                                NewtonOptions(rtol, 0.0, 50, line_search=False), chord=True)
     layout = _DenseLayout(n)
     x_dist, it_dist, status_dist = distributed_newton(lambda u, p: rows(np, u, p), lambda u, p: tangent(np, u), layout,
                                                       x0, rtol=rtol, atol=0.0, max_iter=50, kept=KeptJacobian())

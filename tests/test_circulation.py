@@ -34,7 +34,7 @@ from hyperoc.control.revolve import Binomial
 from hyperoc.control.verification import random_directions
 from hyperoc.dynamics.constraint import Circulation
 from hyperoc.dynamics.laws import ExpressionLaw, Periodic, bestel_activation
-from hyperoc.dynamics.resumable import run_resumable
+from hyperoc.dynamics.resumable import Segments, run_resumable
 from hyperoc.dynamics.stepper import TimeStepper
 from hyperoc.dynamics.terms import PrescribedTension
 from hyperoc.dynamics.timegrid import uniform_grid
@@ -122,10 +122,10 @@ def test_a_resumed_run_restores_the_carried_circulation_state(run, tmp_path):
     run that solved them all, and to the plain run's phases."""
     sol, con, _, _, stepper = run
     grid = uniform_grid(0.012, 0.001)
-    through = run_resumable(stepper, grid, folder=tmp_path / "segments", every=4)
+    through = run_resumable(stepper, grid, segments=Segments(tmp_path / "segments", 4))
     assert through.multiplier_states.shape == (12, 3)
     (tmp_path / "segments" / "segment_00002.npz").unlink()
-    resumed = run_resumable(stepper, grid, folder=tmp_path / "segments", every=4)
+    resumed = run_resumable(stepper, grid, segments=Segments(tmp_path / "segments", 4))
     np.testing.assert_array_equal(resumed.y0, through.y0)
     np.testing.assert_array_equal(resumed.multiplier_states, through.multiplier_states)
     np.testing.assert_array_equal(through.multiplier_states[:, 2], sol.multiplier_states[:, 2])

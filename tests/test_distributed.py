@@ -18,7 +18,7 @@ import pytest
 from hyperoc.app.distributed_statics import problem
 from hyperoc.cardiac.land import beam_problem
 from hyperoc.distributed.partition import Partition, local_dofs
-from hyperoc.dynamics.statics import solve_static
+from hyperoc.dynamics.statics import StaticOptions, solve_static
 from hyperoc.dynamics.stepper import Scheme
 from hyperoc.errors import InputError
 
@@ -150,8 +150,8 @@ def test_two_ranks_equal_the_serial_solve(mpiexec, tmp_path, args):
     dist = _on_two_ranks(mpiexec, tmp_path, "hyperoc.app.distributed_statics", args)
     opts = SimpleNamespace(problem=args[1], n=1, refinements=0)  # as run.problem reads them
     model, load, _ = problem(opts)
-    sol = solve_static(model, follower=load, constrained="--constrained" in args, steps=20, line_search=False,
-                       cutbacks=40)
+    sol = solve_static(model, follower=load, constraint=None if "--constrained" in args else "none",
+                       options=StaticOptions(steps=20, line_search=False, cutbacks=40))
     u = np.asarray(dist["u"])
     assert np.abs(u - sol.u).max() <= U_TOL * np.abs(sol.u).max()
     assert dist["p"] == pytest.approx(sol.p, rel=P_TOL, abs=0.0)

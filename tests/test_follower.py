@@ -19,7 +19,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hyperoc.dynamics.statics import solve_static
+from hyperoc.dynamics.constraint import NoConstraint
+from hyperoc.dynamics.statics import StaticOptions, solve_static
 from hyperoc.errors import InputError, SolverError
 from hyperoc.fem.mesh import box, rectangle
 from hyperoc.mechanics.follower import FollowerPressure
@@ -122,7 +123,7 @@ def inflated_plate():
 
 def test_unconstrained_static_solve_is_an_equilibrium(inflated_plate):
     model, fol = inflated_plate
-    sol = solve_static(model, follower=fol, constrained=False, steps=2, line_search=False)
+    sol = solve_static(model, follower=fol, constraint="none", options=StaticOptions(steps=2, line_search=False))
     r = np.asarray(model.internal_force(jnp.asarray(sol.u)) - fol.force(jnp.asarray(sol.u)))
     f = np.asarray(fol.force(jnp.asarray(sol.u)))
     assert sol.p == 0.0 and np.max(np.abs(sol.u)) > 1e-2
@@ -133,8 +134,8 @@ def test_constraint_at_the_unconstrained_volume_is_inactive(inflated_plate):
     """If the volume target is the volume of the unconstrained equilibrium, that equilibrium with p = 0
     solves the constrained problem too: both paths must agree (Newton tolerance 1e-11, condition O(10))."""
     model, fol = inflated_plate
-    free = solve_static(model, follower=fol, constrained=False, steps=2, line_search=False)
-    tied = solve_static(model, follower=fol, volume=free.volume, steps=2)
+    free = solve_static(model, follower=fol, constraint="none", options=StaticOptions(steps=2, line_search=False))
+    tied = solve_static(model, follower=fol, volume=free.volume, options=StaticOptions(steps=2))
     assert np.max(np.abs(tied.u - free.u)) <= 1e-9 * np.max(np.abs(free.u))
     assert abs(tied.p) <= 1e-9 * fol.pressure
 
@@ -144,7 +145,8 @@ def test_newton_failure_names_the_load_step(inflated_plate):
     # Start from the mirror image y -> -y (u = (0, -2y), det F = -1 everywhere): ln J is undefined there.
     mirrored = model.interpolate(lambda x: np.stack([0.0 * x[:, 0], -2.0 * x[:, 1]], axis=1))
     with pytest.raises(SolverError) as err:
-        solve_static(model, follower=fol, constrained=False, steps=2, line_search=False, u0=mirrored)
+        solve_static(model, follower=fol, constraint="none", u0=mirrored,
+                     options=StaticOptions(steps=2, line_search=False))
     assert err.value.step == 0 and err.value.cause in ("newton", "nonfinite", "detF")
     assert "load step 1 (load factor" in str(err.value) and "2 nominal steps" in str(err.value)
 
@@ -152,4 +154,17 @@ def test_newton_failure_names_the_load_step(inflated_plate):
 def test_volume_target_needs_the_constraint(inflated_plate):
     model, fol = inflated_plate
     with pytest.raises(InputError):
-        solve_static(model, follower=fol, constrained=False, volume=0.5)
+        solve_static(model, follower=fol, constraint="none", volume=0.5)
+
+
+def test_no_constraint_is_spelled_none_or_by_its_object(inflated_plate):
+    """``constraint="none"`` and a `NoConstraint` are the same unconstrained solve (no multiplier); another
+    name is refused."""
+    model, fol = inflated_plate
+    options = StaticOptions(steps=2, line_search=False)
+    by_name = solve_static(model, follower=fol, constraint="none", options=options)
+    by_object = solve_static(model, follower=fol, constraint=NoConstraint(model), options=options)
+    np.testing.assert_array_equal(by_object.u, by_name.u)
+    assert by_object.p == by_name.p == 0.0
+    with pytest.raises(InputError, match="constraint"):
+        solve_static(model, follower=fol, constraint="volume")

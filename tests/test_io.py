@@ -137,8 +137,7 @@ def _series_2d():
     rng = np.random.default_rng(1)
     return {
         "mesh_points": mesh.points,
-        "cells": mesh.cells,
-        "cell_type": "triangle",
+        "cells": ("triangle", mesh.cells),
         "times": times,
         "point_data": {"u": rng.normal(size=(3, nv, 2)), "p": rng.normal(size=(3, nv))},
         "cell_data": {"J": rng.normal(size=(3, nc))},
@@ -152,7 +151,7 @@ def _check_xdmf(path: Path, series: dict):
         points, cells = reader.read_points_cells()
         np.testing.assert_array_equal(points[:, :2], series["mesh_points"])
         np.testing.assert_array_equal(points[:, 2], 0.0)
-        np.testing.assert_array_equal(cells[0].data, series["cells"])
+        np.testing.assert_array_equal(cells[0].data, series["cells"][1])
         for n, t in enumerate(series["times"]):
             time, point_data, cell_data = reader.read_data(n)
             assert time == t
@@ -198,7 +197,7 @@ def test_pvd_series_read_back_with_meshio(tmp_path, monkeypatch):
     assert all((tmp_path / f).is_file() for _, f in entries)
     mesh = meshio.read(tmp_path / entries[1][1])
     np.testing.assert_array_equal(mesh.points[:, :2], series["mesh_points"])
-    np.testing.assert_array_equal(mesh.cells_dict["triangle"], series["cells"])
+    np.testing.assert_array_equal(mesh.cells_dict["triangle"], series["cells"][1])
     np.testing.assert_array_equal(mesh.point_data["u"], np.pad(series["point_data"]["u"][1], [(0, 0), (0, 1)]))
     np.testing.assert_array_equal(mesh.point_data["p"], series["point_data"]["p"][1])
     np.testing.assert_array_equal(mesh.point_data["marker"], series["static_point_data"]["marker"])
@@ -209,7 +208,7 @@ def test_pvd_series_read_back_with_meshio(tmp_path, monkeypatch):
 def test_pvd_1d_series_pads_points_and_vectors(tmp_path):
     mesh = interval(4)
     u = np.linspace(0, 1, 2 * 5).reshape(2, 5, 1)
-    path = hio.write_time_series(tmp_path, "bar", mesh.points, mesh.cells, "line", [0.0, 1.0], {"u": u}, fmt="pvd")
+    path = hio.write_time_series(tmp_path, "bar", mesh.points, ("line", mesh.cells), [0.0, 1.0], {"u": u}, fmt="pvd")
     piece = meshio.read(tmp_path / _pvd_entries(path)[1][1])
     assert piece.points.shape == (5, 3) and piece.point_data["u"].shape == (5, 3)
     np.testing.assert_array_equal(piece.point_data["u"][:, 0], u[1, :, 0])
@@ -245,7 +244,7 @@ def test_time_series_rejects_bad_shapes(tmp_path):
     with pytest.raises(ValueError, match="'p'"):
         hio.write_time_series(tmp_path, "s", **{**series, "point_data": {"p": np.zeros((2, 3))}}, fmt="pvd")
     with pytest.raises(ValueError, match="cell type"):
-        hio.write_time_series(tmp_path, "s", **{**series, "cell_type": "quad"}, fmt="pvd")
+        hio.write_time_series(tmp_path, "s", **{**series, "cells": ("quad", series["cells"][1])}, fmt="pvd")
     with pytest.raises(ValueError, match="name"):
         hio.write_time_series(tmp_path, "../s", **series, fmt="pvd")
     assert list(tmp_path.iterdir()) == []
@@ -262,7 +261,8 @@ def _png_size(path: Path) -> tuple:
 
 def test_plot_pressure(tmp_path):
     t = np.linspace(0, 1, 50)
-    path = plot_pressure(tmp_path / "p.png", t, np.sin(4 * t), tau=0.4, eps=0.1, volume=1 + 1e-6 * t, title="pressure")
+    path = plot_pressure(tmp_path / "p.png", t, np.sin(4 * t), volume=1 + 1e-6 * t, marks=TimeMarks(0.4, 0.1),
+                         title="pressure")
     assert path == tmp_path / "p.png" and _png_size(path) == (960, 960)
     assert _png_size(plot_pressure(tmp_path / "p1.png", t, np.cos(t))) == (960, 480)
     with pytest.raises(ValueError, match="p must have shape"):
@@ -271,6 +271,7 @@ def test_plot_pressure(tmp_path):
 
 
 MM_MS = Units(time="ms", length="mm", pressure="kPa", control="kPa/mm")
+TimeMarks = hyperoc.app.plotting.TimeMarks  # the pressure figure's tau, window and events
 
 
 def _figures(monkeypatch) -> list:
@@ -283,8 +284,8 @@ def _figures(monkeypatch) -> list:
 def test_plot_pressure_with_marks_and_units(tmp_path):
     t = np.linspace(0, 8, 81)
     marks = [(2.0, "filling ends"), (7.46, "snapshot"), (7.48, "snapshot")]
-    path = plot_pressure(tmp_path / "p.png", t, np.sin(t), tau=5.0, eps=0.5, volume=1 + 1e-6 * t,
-                         cavity=50 + np.sin(t), title="run: pressure", units=MM_MS, marks=marks)
+    path = plot_pressure(tmp_path / "p.png", t, np.sin(t), volume=1 + 1e-6 * t, cavity=50 + np.sin(t),
+                         marks=TimeMarks(5.0, 0.5, marks), title="run: pressure", units=MM_MS)
     assert _png_size(path) == (960, 1440) and _hidden(tmp_path) == []
 
 
@@ -292,8 +293,8 @@ def test_plot_pressure_labels(monkeypatch):
     figures = _figures(monkeypatch)
     t = np.linspace(0, 8, 81)
     marks = [(2.0, "filling ends"), (7.46, "snapshot"), (7.48, "snapshot")]
-    plot_pressure("p.png", t, np.sin(t), tau=5.0, volume=1 + 1e-6 * t, cavity=50 + np.sin(t), title="run: pressure",
-                  units=MM_MS, marks=marks)
+    plot_pressure("p.png", t, np.sin(t), volume=1 + 1e-6 * t, cavity=50 + np.sin(t), marks=TimeMarks(5.0, events=marks),
+                  title="run: pressure", units=MM_MS)
     plot_pressure("q.png", t, np.sin(t), cavity=np.ones_like(t))
     fig, plain = figures
     assert fig._suptitle.get_text() == "run: pressure"
@@ -311,8 +312,8 @@ def test_plot_labels_carry_units(monkeypatch):
     t, x = np.linspace(0, 1, 11), np.linspace(0, 1, 30)
     xi = np.outer(np.sin(np.pi * t), x - 0.5)
     plot_control_spacetime("c.png", t, x, xi, title="run: control xi", units=MM_MS)
-    plot_snapshots("s.png", x, t, xi, [0.5, 1.0], ylabel="u(x, t)", title="run: displacement u", units=MM_MS,
-                   field_unit="mm")
+    plot_snapshots("s.png", x, t, xi, [0.5, 1.0], ylabel="u(x, t) [mm]",
+                   title="run: displacement u", units=MM_MS)
     plot_snapshots("s0.png", x, t, xi, [0.5], ylabel="u")
     plot_history("h.png", {"objective": [3.0, 2.0], "tau": [0.5, 0.4]}, title="run: optimizer history")
     control, snapshots, plain, history = figures

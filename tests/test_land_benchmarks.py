@@ -24,6 +24,8 @@ from hyperoc.cardiac.land import (
     BEAM,
     PUBLISHED,
     VENTRICLE,
+    Formulation,
+    LoadStepping,
     beam_deflection,
     beam_problem,
     node_position,
@@ -71,7 +73,7 @@ def test_ventricle_pressure_resultant_is_the_lid_force():
 
 @pytest.mark.slow
 def test_coarse_beam_deflects_up_by_less_than_linear_beam_theory():
-    res = beam_deflection(1, bulk_modulus=BULK_MODULUS, steps=4)
+    res = beam_deflection(1, Formulation(BULK_MODULUS), LoadStepping(steps=4))
     C, bf, bt, bfs, p = (BEAM[k] for k in ("C", "bf", "bt", "bfs", "pressure"))
     E = C * bf + BULK_MODULUS * C * bt / (C * bt + 2 * BULK_MODULUS)
     G = C * bfs / 2

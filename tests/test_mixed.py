@@ -26,8 +26,9 @@ import numpy as np
 import pytest
 
 import hyperoc as ho
+from hyperoc.cardiac import land
 from hyperoc.cardiac.land import BEAM, PUBLISHED, VENTRICLE, beam_deflection, load_state, save_state, ventricle_apex
-from hyperoc.dynamics.statics import solve_static
+from hyperoc.dynamics.statics import StaticOptions, solve_static
 from hyperoc.errors import InputError, SolverError
 from hyperoc.fem.mesh import box, rectangle, refine
 from hyperoc.io import write_npz
@@ -74,7 +75,7 @@ def test_uniaxial_patch_test_is_exact():
     ``P = mu (F - F^-T) + p cof F``, lateral faces free)."""
     mu, stretch = 1.5, 1.2
     model = uniaxial_patch(box(2), mu, stretch)
-    sol = solve_static(model, load=model.traction_load, constrained=False, steps=4)
+    sol = solve_static(model, load=model.traction_load, constraint="none", options=StaticOptions(steps=4))
     F = np.asarray(model.deformation_gradient(jnp.asarray(sol.u)))
     exact = np.diag([stretch, stretch**-0.5, stretch**-0.5])
     # The error left is below Newton's last increment, <= rtol |x|_inf (Scheme: rtol = 1e-11, |x|_inf = 0.25
@@ -97,7 +98,8 @@ def test_newton_monitor_reports_the_pressure_field_apart():
     model = uniaxial_patch(box(1), mu=1.5, stretch=1.2)
     text = io.StringIO()
     log = ho.NewtonLog(text)
-    sol = solve_static(model, load=model.traction_load, constrained=False, steps=steps, monitor=log)
+    sol = solve_static(model, load=model.traction_load, constraint="none",
+                       options=StaticOptions(steps=steps, monitor=log))
     first = log.records[0]
     assert first.field_residual == 0.0 and first.field_increment > 0
     assert first.residual == pytest.approx(np.linalg.norm(model.traction_load[: model.n_u]) / steps, rel=1e-12)
@@ -108,7 +110,7 @@ def test_newton_monitor_reports_the_pressure_field_apart():
 @pytest.mark.slow
 def test_incompressible_beam_keeps_its_volume_and_does_not_lock():
     moduli = BEAM["C"] * max(BEAM["bf"], BEAM["bt"], BEAM["bfs"])  # kPa, the largest small-strain modulus
-    res = {k: beam_deflection(1, bulk_modulus=k, volumetric="taylor-hood") for k in (1e3, math.inf)}
+    res = {k: beam_deflection(1, land.Formulation(k, volumetric="taylor-hood")) for k in (1e3, math.inf)}
     z = {k: r.values["z_tip"] for k, r in res.items()}
     print(f"\nTaylor-Hood beam n = 1: z_tip {z[1e3]:.5f} (bulk modulus 1e3), {z[math.inf]:.5f} (inf)")
     assert abs(z[math.inf] - z[1e3]) <= moduli / 1e3 * abs(z[math.inf])
@@ -118,10 +120,14 @@ def test_incompressible_beam_keeps_its_volume_and_does_not_lock():
     assert abs(res[1e3].volume_change) > ROUNDOFF  # the compressible body does change its volume
 
 
+#: the benchmark's incompressible law: Taylor-Hood, bulk modulus inf, Guccione on the isochoric strain
+INCOMPRESSIBLE = land.Formulation(math.inf, volumetric="taylor-hood", isochoric=True)
+
+
 @pytest.fixture(scope="module")
 def incompressible_ventricle():
     """Land problem 2, h = 6 mm (1706 unknowns), bulk modulus inf, Guccione on the isochoric strain."""
-    return ventricle_apex(6.0, bulk_modulus=math.inf, volumetric="taylor-hood", isochoric=True, steps=20)
+    return ventricle_apex(land.VentricleMesh(6.0), INCOMPRESSIBLE, land.LoadStepping(steps=20))
 
 
 @pytest.mark.slow
@@ -130,7 +136,8 @@ def test_incompressible_ventricle_needs_the_isochoric_law(incompressible_ventric
     between the vertices although every hat-weighted mean of J - 1 vanishes; on the isochoric strain the
     10 kPa are reached with det F > 0 and the apex pushed down (z = -17 mm at rest; ~9 mm in the benchmark)."""
     with pytest.raises(SolverError) as failure:
-        ventricle_apex(6.0, bulk_modulus=math.inf, volumetric="taylor-hood", steps=20, cutbacks=8)
+        ventricle_apex(land.VentricleMesh(6.0), land.Formulation(math.inf, volumetric="taylor-hood"),
+                       land.LoadStepping(20, 8))
     assert failure.value.time < 0.5
     res = incompressible_ventricle
     print(f"\nTaylor-Hood, isochoric, k = inf: z_endo {res.values['z_endo']:.5f}, min det F {res.min_det_F:.3f}")
@@ -146,12 +153,12 @@ def test_ventricle_restarted_from_its_own_solution_needs_no_load_stepping(incomp
     once (one iteration: the step it computes is below the stopping test) with the same values (1e-9,
     `tests/test_static.py`); a coarse result on an unrelated mesh is an InputError."""
     res = incompressible_ventricle
-    again = ventricle_apex(6.0, bulk_modulus=math.inf, volumetric="taylor-hood", isochoric=True, steps=20, coarse=res)
+    again = ventricle_apex(land.VentricleMesh(6.0), INCOMPRESSIBLE, land.LoadStepping(steps=20), coarse=res)
     assert again.params["start"] == "prolonged" and again.newton_iterations.tolist() == [1]
     for key, value in res.values.items():
         assert again.values[key] == pytest.approx(value, rel=1e-9)
     with pytest.raises(InputError):
-        ventricle_apex(9.0, bulk_modulus=math.inf, volumetric="taylor-hood", isochoric=True, coarse=res)
+        ventricle_apex(land.VentricleMesh(9.0), INCOMPRESSIBLE, coarse=res)
 
 
 @pytest.mark.slow
@@ -186,7 +193,7 @@ def test_bad_arguments_are_input_errors():
     with pytest.raises(InputError, match="'degree' is fixed"):
         TaylorHoodModel(box(1), ho.Guccione(), degree=1)
     with pytest.raises(InputError, match="P2-P1"):
-        beam_deflection(1, volumetric="taylor-hood", degree=1)
+        beam_deflection(1, land.Formulation(1000.0, degree=1, volumetric="taylor-hood"))
     with pytest.raises(InputError, match="no mass on p"):
         TaylorHoodModel(box(1), ho.NeoHookean()).mass
 

@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hyperoc.solvers.newton import NewtonStatus, newton
+from hyperoc.solvers.newton import NewtonOptions, NewtonStatus, newton
 
 
 class DenseBordered:
@@ -38,9 +38,9 @@ def solve_log(c, *, max_iter=30, line_search=True, calls=None):
     parts = lambda x: (jnp.array([[1.0 / x[0]]]), jnp.zeros(1), jnp.zeros(1))
     steps = []
     record = lambda *values: steps.append(float(values[4]))  # the step length taken
-    x, it, status = newton(residual, parts, Decoupled(), jnp.array([1.0, 0.0]), rtol=1e-12, atol=0.0,
-                           max_iter=max_iter, line_search=line_search,
-                           monitor=lambda *values: jax.debug.callback(record, *values))
+    monitor = lambda *values: jax.debug.callback(record, *values)
+    x, it, status = newton(residual, parts, Decoupled(), jnp.array([1.0, 0.0]),
+                           NewtonOptions(1e-12, 0.0, max_iter, line_search=line_search, monitor=monitor))
     jax.effects_barrier()
     return np.asarray(x), int(it), NewtonStatus(int(status)), steps
 
@@ -105,8 +105,8 @@ def test_a_residual_nan_at_every_line_search_step_fails_in_that_iteration():
 def test_a_failed_linear_solve_is_non_finite_at_once(line_search):
     residual = lambda x: jnp.array([x[0] - 1.0, x[1]])
     parts = lambda x: (jnp.zeros((1, 1)), jnp.zeros(1), jnp.zeros(1))  # singular K: the solve gives NaN/Inf
-    _, it, status = newton(residual, parts, Decoupled(), jnp.array([0.0, 0.0]), rtol=1e-12, atol=0.0,
-                           max_iter=20, line_search=line_search)
+    _, it, status = newton(residual, parts, Decoupled(), jnp.array([0.0, 0.0]),
+                           NewtonOptions(1e-12, 0.0, 20, line_search=line_search))
     assert int(status) == NewtonStatus.NON_FINITE and int(it) == 1
 
 
@@ -119,8 +119,9 @@ def test_monitor_reports_displacement_and_pressure_field_apart():
     parts = lambda x: (jnp.eye(2), jnp.zeros(2), jnp.zeros(2))
     records = []
     record = lambda *values: records.append(tuple(float(v) for v in values))
-    _, it, status = newton(residual, parts, Decoupled(), jnp.zeros(3), rtol=1e-12, atol=0.0, max_iter=5, n_u=1,
-                           monitor=lambda *values: jax.debug.callback(record, *values))
+    monitor = lambda *values: jax.debug.callback(record, *values)
+    _, it, status = newton(residual, parts, Decoupled(), jnp.zeros(3),
+                           NewtonOptions(1e-12, 0.0, 5, monitor=monitor, n_u=1))
     assert int(status) == NewtonStatus.CONVERGED and int(it) == 2
     # (iteration, |r_u|, |r_p|, |du|, step, converged, |r_q|, |dq|)
     assert records == [(1.0, 2.0, 0.0, 2.0, 1.0, 0.0, 30.0, 30.0), (2.0, 0.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0)]
@@ -135,7 +136,7 @@ def test_each_block_of_unknowns_stops_against_its_own_scale(n_u, converged_u):
     rtol, u_star = 1e-12, 1e-3
     residual = lambda x: jnp.array([jnp.log(x[0] / u_star), x[1] - 1e6, x[2]])
     parts = lambda x: (jnp.diag(jnp.array([1.0 / x[0], 1.0])), jnp.zeros(2), jnp.zeros(2))
-    x, _, status = newton(residual, parts, Decoupled(), jnp.array([2 * u_star, 0.0, 0.0]), rtol=rtol, atol=0.0,
-                          max_iter=30, n_u=n_u)
+    x, _, status = newton(residual, parts, Decoupled(), jnp.array([2 * u_star, 0.0, 0.0]),
+                          NewtonOptions(rtol, 0.0, 30, n_u=n_u))
     assert int(status) == NewtonStatus.CONVERGED and float(x[1]) == 1e6
     assert (abs(float(x[0]) / u_star - 1.0) <= rtol) == converged_u

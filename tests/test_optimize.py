@@ -22,7 +22,15 @@ from hyperoc import (
 )
 from hyperoc.control.adjoint import Adjoint
 from hyperoc.control.objectives import ControlCost, PressureAt
-from hyperoc.control.optimize import BBStepRule, CurvaturePairs, newton_cg, tau_scaling
+from hyperoc.control.optimize import (
+    BBOptions,
+    BBStepRule,
+    BoxProblem,
+    CurvaturePairs,
+    NewtonCGOptions,
+    newton_cg,
+    tau_scaling,
+)
 from hyperoc.control.problems import vibrating_bar
 from hyperoc.dynamics.stepper import TimeStepper
 from hyperoc.errors import InputError
@@ -89,15 +97,15 @@ def _converges_to_the_reference(method, ref, lam, J):
         assert np.max(np.abs(res.point.xi)) < bound
     elif method.startswith("newton"):
         res = newton_cg(J, J.zero(2.0), max_iter=100, gtol=1e-6,
-                        tau_scale="curvature" if method.endswith("curvature") else 1.0)
+                        options=NewtonCGOptions(tau_scale="curvature" if method.endswith("curvature") else 1.0))
     elif method.startswith("lbfgsb"):
         res = lbfgsb(J, J.zero(2.0), max_iter=100, gtol=1e-6,
                      tau_scale=float(method.rpartition("x")[2]) if "tau" in method else "range")
     else:
         res = barzilai_borwein(J, J.zero(2.0), max_iter=300, gtol=1e-6,
-                               steps="blockwise" if method == "bb-blockwise" else "joint",
-                               bb_step="abbmin" if method == "bb-abbmin" else "bb1",
-                               nonmonotone=10 if method == "bb-spg" else 0)
+                               options=BBOptions(steps="blockwise" if method == "bb-blockwise" else "joint",
+                                                 bb_step="abbmin" if method == "bb-abbmin" else "bb1",
+                                                 nonmonotone=10 if method == "bb-spg" else 0))
     hist = res.history
     assert hist["objective"][1] > hist["objective"][0]
     assert res.converged and hist["grad_norm"][-1] <= 1e-6 * hist["grad_norm"][0]
@@ -129,7 +137,8 @@ def test_bounded_optimizers_reach_the_same_kkt_point(bar_reference):
     b = 0.5 * np.max(np.abs(ref.point.xi))
     runs = [lbfgsb(J, J.zero(2.0), max_iter=200, gtol=1e-6, xi_bounds=(-b, b)),
             barzilai_borwein(J, J.zero(2.0), max_iter=400, gtol=1e-6, xi_bounds=(-b, b)),
-            barzilai_borwein(J, J.zero(2.0), max_iter=400, gtol=1e-6, xi_bounds=(-b, b), nonmonotone=10),
+            barzilai_borwein(J, J.zero(2.0), max_iter=400, gtol=1e-6, xi_bounds=(-b, b),
+                             options=BBOptions(nonmonotone=10)),
             newton_cg(J, J.zero(2.0), max_iter=100, gtol=1e-6, xi_bounds=(-b, b))]
     for res in runs:
         assert res.converged and res.history["grad_norm"][-1] <= 1e-6 * res.history["grad_norm"][0]
@@ -247,7 +256,8 @@ def test_newton_cg_falls_back_to_the_gradient(monkeypatch):
     for nonconcave in (False, True):
         monkeypatch.setattr(newton, "_newton_direction", lambda box, m, G, *args: (G * -1.0, nonconcave))
         J = _J()
-        runs[nonconcave] = res = newton_cg(J, J.zero(1.0), max_iter=3, max_backtracks=4, xi_bounds=bounds)
+        runs[nonconcave] = res = newton_cg(J, J.zero(1.0), max_iter=3, options=NewtonCGOptions(max_backtracks=4),
+                                           xi_bounds=bounds)
         assert res.iterations == 3 and res.evaluations["gradient_steps"] == 3
         assert np.all(np.diff(res.history["objective"]) > 0)
     # a direction of nonconcavity extends full steps along itself only, never the fallback's full step
@@ -281,7 +291,7 @@ def test_bb_step_rules_on_a_quadratic():
         BBStepRule("bb3")
     for bad in (-1, 2.5, True):
         with pytest.raises(InputError, match="nonmonotone"):
-            barzilai_borwein(None, None, nonmonotone=bad)
+            BBOptions(nonmonotone=bad)
 
 
 @cache
@@ -389,7 +399,7 @@ def test_optimal_value_does_not_decrease_with_tau():
     values = []
     for tau in (0.8, 1.2, 1.6):
         J = _J(tau=tau, T=2.4, dt=0.05, alpha=10.0, omega=(0.25, 0.5), material=NeoHookean(0.05, 0.05))
-        res = barzilai_borwein(J, J.zero(tau), fix_tau=True, gtol=1e-6, max_iter=200)
+        res = barzilai_borwein(BoxProblem.around(J, tau, fix_tau=True), J.zero(tau), gtol=1e-6, max_iter=200)
         assert res.converged and res.point.tau == tau
         values.append(res.objective)
     assert values[0] > 0

@@ -15,10 +15,10 @@ SMALL_1D = small_1d_toml(n=10, dt=0.1, lower=0.5, value=None, max_iter=3)
 VALUES = [0.5, 1.0, 3.0, 2.0]  # J at iterations 0..3: the best is iteration 2, the last is below it
 
 
-def _non_monotone(J, m0, *, callback, max_iter, **options):
+def _non_monotone(problem, m0, *, callback, max_iter, **options):
     """Three iterates along a fixed direction whose recorded J rises, then falls (as Algorithm 1's
-    unguarded BB steps can)."""
-    direction = J.zero(0.0)
+    unguarded BB steps can); ``problem``: the `BoxProblem` the workflow passes."""
+    direction = problem.J.zero(0.0)
     direction.xi[:] = 1e-3
     points = [m0 + direction * k for k in range(max_iter + 1)]
     for k in range(1, max_iter + 1):

@@ -37,7 +37,7 @@ class Interrupted(Exception):
 
 def test_an_interrupted_run_resumes_bitwise_equal_to_an_uninterrupted_one(problem, tmp_path, monkeypatch):
     model, grid, xi = problem
-    through = resumable.run_resumable(stepper(model), grid, xi, folder=tmp_path / "through", every=6)
+    through = resumable.run_resumable(stepper(model), grid, xi, segments=resumable.Segments(tmp_path / "through", 6))
     solve, calls = resumable._solve_segment, []
 
     def dies_at_the_third_segment(*args):
@@ -48,10 +48,10 @@ def test_an_interrupted_run_resumes_bitwise_equal_to_an_uninterrupted_one(proble
 
     monkeypatch.setattr(resumable, "_solve_segment", dies_at_the_third_segment)
     with pytest.raises(Interrupted):
-        resumable.run_resumable(stepper(model), grid, xi, folder=tmp_path / "cut", every=6)
+        resumable.run_resumable(stepper(model), grid, xi, segments=resumable.Segments(tmp_path / "cut", 6))
     assert sorted(p.name for p in (tmp_path / "cut").glob("segment_*")) == ["segment_00000.npz", "segment_00001.npz"]
     monkeypatch.setattr(resumable, "_solve_segment", solve)
-    resumed = resumable.run_resumable(stepper(model), grid, xi, folder=tmp_path / "cut", every=6)
+    resumed = resumable.run_resumable(stepper(model), grid, xi, segments=resumable.Segments(tmp_path / "cut", 6))
     for name in ("y0", "y1", "p_steps", "pressure", "newton_iterations"):
         np.testing.assert_array_equal(getattr(resumed, name), getattr(through, name))
     # and it is the solve `run` makes, to the chord stopping test's tolerance (refreshed factorizations
@@ -67,28 +67,28 @@ def test_the_compiled_1d_path_resumes_bitwise_too(tmp_path):
     xi = 0.05 * np.sin(np.pi * grid.t)[:, None] * np.ones((1, model.control.size))
     st = ho.TimeStepper(model)
     assert st.solver.traced
-    through = resumable.run_resumable(st, grid, xi, folder=tmp_path / "a", every=13)
-    resumable.run_resumable(st, ho.TimeGrid(grid.t), xi, folder=tmp_path / "b", every=13)
+    through = resumable.run_resumable(st, grid, xi, segments=resumable.Segments(tmp_path / "a", 13))
+    resumable.run_resumable(st, ho.TimeGrid(grid.t), xi, segments=resumable.Segments(tmp_path / "b", 13))
     (tmp_path / "b" / "segment_00002.npz").unlink()  # as if stopped after two segments
-    resumed = resumable.run_resumable(st, grid, xi, folder=tmp_path / "b", every=13)
+    resumed = resumable.run_resumable(st, grid, xi, segments=resumable.Segments(tmp_path / "b", 13))
     np.testing.assert_array_equal(resumed.pressure, through.pressure)
     np.testing.assert_array_equal(resumed.y0, through.y0)
 
 
 def test_a_folder_of_another_solve_is_refused(problem, tmp_path):
     model, grid, xi = problem
-    resumable.run_resumable(stepper(model), grid, xi, folder=tmp_path, every=10)
+    resumable.run_resumable(stepper(model), grid, xi, segments=resumable.Segments(tmp_path, 10))
     with pytest.raises(InputError, match="another solve.*data_sha256"):
-        resumable.run_resumable(stepper(model), grid, 2 * xi, folder=tmp_path, every=10)
+        resumable.run_resumable(stepper(model), grid, 2 * xi, segments=resumable.Segments(tmp_path, 10))
     with pytest.raises(InputError, match="every"):
-        resumable.run_resumable(stepper(model), grid, xi, folder=tmp_path, every=5)
+        resumable.run_resumable(stepper(model), grid, xi, segments=resumable.Segments(tmp_path, 5))
 
 
 def test_a_failing_step_is_named_and_the_segments_before_it_stay(problem, tmp_path):
     model, grid, _ = problem
     crush = -50.0 * np.ones((grid.t.size, model.control.size))
     with pytest.raises(SolverError) as failure:
-        resumable.run_resumable(stepper(model), grid, crush, folder=tmp_path, every=2)
+        resumable.run_resumable(stepper(model), grid, crush, segments=resumable.Segments(tmp_path, 2))
     step = failure.value.step
     assert len(list(tmp_path.glob("segment_*.npz"))) == step // 2 + 1
 

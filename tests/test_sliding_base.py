@@ -20,7 +20,7 @@ import pytest
 import scipy.optimize
 
 import hyperoc as ho
-from hyperoc.dynamics.statics import solve_static
+from hyperoc.dynamics.statics import StaticOptions, solve_static
 from hyperoc.errors import InputError
 from hyperoc.fem.mesh import box
 
@@ -29,7 +29,8 @@ MU, T = 1.0, 0.1
 
 def compressed_box(**kw):
     model = ho.StateModel(box(2, dirichlet="front"), ho.NeoHookean(MU, 1.0), **kw)
-    return model, solve_static(model, load=model.load_vector(traction=(0.0, 0.0, -T), neumann="back"), steps=2)
+    return model, solve_static(model, load=model.load_vector(traction=(0.0, 0.0, -T), neumann="back"),
+                               options=StaticOptions(steps=2))
 
 
 @pytest.mark.slow
@@ -122,7 +123,7 @@ def test_prolonged_sliding_solution_is_moved_onto_the_refined_meshs_pins():
     pins = lambda model: {tuple(x) for x in model.space.nodes[model.pinned_dofs // 3]}
     assert pins(coarse) != pins(fine)
     load = fine.load_vector(traction=(0.0, 0.0, -T), neumann="back")
-    cold = solve_static(fine, load=load, steps=2)
+    cold = solve_static(fine, load=load, options=StaticOptions(steps=2))
     guess = fine.prolong(coarse, coarse_sol.u)
     scale = np.max(np.abs(cold.u))
     print(f"\nmax |prolonged - fine| = {np.max(np.abs(guess - cold.u)):.1e} (max |u| = {scale:.3f})")

@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hyperoc.dynamics.statics import solve_static
+from hyperoc.dynamics.statics import StaticOptions, solve_static
 from hyperoc.errors import InputError
 from hyperoc.fem.mesh import rectangle, refine
 from hyperoc.mechanics.controls import BodyForce, Region
@@ -65,8 +65,8 @@ def loaded_problem():
 def test_ramped_loading_reaches_the_same_equilibrium(loaded_problem):
     model, load, xi, V = loaded_problem
     steps = 4
-    one = solve_static(model, load=load, xi=xi, volume=V, steps=1)
-    ramp = solve_static(model, load=load, xi=xi, volume=V, steps=steps)
+    one = solve_static(model, load=load, xi=xi, volume=V, options=StaticOptions(steps=1))
+    ramp = solve_static(model, load=load, xi=xi, volume=V, options=StaticOptions(steps=steps))
     assert len(one.newton_iterations) == 1 and len(ramp.newton_iterations) == steps
     grad = float(model.jitted["max_grad"](jnp.asarray(one.u)))
     print(f"\nmax|grad u| = {grad:.3f}, p = {one.p:.6g}, Newton its 1 step {one.newton_iterations}, "
@@ -84,8 +84,8 @@ def test_secant_predictor_reaches_the_same_equilibrium_in_fewer_newton_iteration
     the second increment on Newton starts closer, so it needs no more iterations per increment."""
     model, load, xi, V = loaded_problem
     steps = 8
-    previous = solve_static(model, load=load, xi=xi, volume=V, steps=steps)
-    secant = solve_static(model, load=load, xi=xi, volume=V, steps=steps, predictor="secant")
+    previous = solve_static(model, load=load, xi=xi, volume=V, options=StaticOptions(steps=steps))
+    secant = solve_static(model, load=load, xi=xi, volume=V, options=StaticOptions(steps=steps, predictor="secant"))
     print(f"\nNewton its per increment: previous {previous.newton_iterations}, secant {secant.newton_iterations}")
     assert np.max(np.abs(secant.u - previous.u)) <= 1e-9 * np.max(np.abs(previous.u))
     assert abs(secant.p - previous.p) <= 1e-9 * max(abs(previous.p), 1.0)
@@ -97,7 +97,7 @@ def test_secant_predictor_reaches_the_same_equilibrium_in_fewer_newton_iteration
 def test_unknown_predictor_is_an_input_error(loaded_problem):
     model, load, xi, V = loaded_problem
     with pytest.raises(InputError, match="predictor"):
-        solve_static(model, load=load, steps=2, predictor="quadratic")
+        solve_static(model, load=load, options=StaticOptions(steps=2, predictor="quadratic"))
 
 
 def test_warm_start_from_a_nearby_equilibrium_converges_at_full_load(loaded_problem):
@@ -108,7 +108,7 @@ def test_warm_start_from_a_nearby_equilibrium_converges_at_full_load(loaded_prob
     V0 = model.mesh.volume()
     near = solve_static(model, load=0.9 * load, xi=0.9 * xi, volume=V0 + 0.9 * (V - V0))
     cold = solve_static(model, load=load, xi=xi, volume=V)
-    warm = solve_static(model, load=load, xi=xi, volume=V, steps=4, guess=near.u)
+    warm = solve_static(model, load=load, xi=xi, volume=V, guess=near.u, options=StaticOptions(steps=4))
     print(f"\nNewton its: from zero {cold.newton_iterations}, from the 0.9-load equilibrium {warm.newton_iterations}")
     assert warm.from_guess and not cold.from_guess
     assert len(warm.newton_iterations) == 1 and warm.newton_iterations[0] < cold.newton_iterations[0]
@@ -125,7 +125,7 @@ def test_newton_from_a_guess_starts_from_the_least_squares_multiplier(loaded_pro
     V0 = model.mesh.volume()
     near = solve_static(model, load=0.9 * load, xi=0.9 * xi, volume=V0 + 0.9 * (V - V0))
     log = NewtonLog()
-    solve_static(model, load=load, xi=xi, volume=V, guess=near.u, monitor=log)
+    solve_static(model, load=load, xi=xi, volume=V, guess=near.u, options=StaticOptions(monitor=log))
     u = jnp.asarray(near.u)
     r = np.asarray(model.internal_force(u) - load - model.jax_operators[2] @ jnp.asarray(xi))
     G = np.asarray(model.volume_gradient(u))
@@ -145,10 +145,11 @@ def test_a_guess_newton_cannot_start_from_falls_back_to_load_stepping(loaded_pro
     calls are the accepted plus the rejected iterations."""
     model, load, xi, V = loaded_problem
     inverted = inverted_guess(model)
-    plain = solve_static(model, load=load, xi=xi, volume=V, steps=2)
+    plain = solve_static(model, load=load, xi=xi, volume=V, options=StaticOptions(steps=2))
     lin = SparseSolver(model, "lu")
     with pytest.warns(RuntimeWarning, match="Newton from the guess failed"):
-        fallback = solve_static(model, load=load, xi=xi, volume=V, steps=2, guess=inverted, solver=lin)
+        fallback = solve_static(model, load=load, xi=xi, volume=V, guess=inverted,
+                                options=StaticOptions(steps=2, solver=lin))
     assert not fallback.from_guess and len(fallback.newton_iterations) == 2
     assert plain.guess_failure is None and fallback.guess_failure.split(",")[0] in ("detF", "nonfinite", "newton")
     assert np.max(np.abs(fallback.u - plain.u)) <= 1e-9 * np.max(np.abs(plain.u))
@@ -162,9 +163,9 @@ def test_halved_load_increments_count_their_newton_iterations_as_rejected(loaded
     iteration) is an accepted or a rejected iteration."""
     model, load, xi, V = loaded_problem
     lin = SparseSolver(model, "lu")
-    opts = dict(load=12 * load, xi=12 * xi, volume=V, line_search=False)
-    cut = solve_static(model, steps=1, cutbacks=8, solver=lin, **opts)
-    ramp = solve_static(model, steps=4, **opts)
+    opts = dict(load=12 * load, xi=12 * xi, volume=V)
+    cut = solve_static(model, **opts, options=StaticOptions(steps=1, cutbacks=8, line_search=False, solver=lin))
+    ramp = solve_static(model, **opts, options=StaticOptions(steps=4, line_search=False))
     assert len(cut.newton_iterations) > 1 and cut.rejected_iterations > 0
     assert lin.stats["calls"] == cut.newton_iterations.sum() + cut.rejected_iterations
     assert np.max(np.abs(cut.u - ramp.u)) <= 1e-9 * np.max(np.abs(ramp.u))
@@ -174,14 +175,14 @@ def test_a_named_solver_is_made_once_per_model_and_an_instance_is_the_one_called
     """Solves naming the same solver reuse one instance (and so its compiled Newton solve); a solver
     instance passed in is the one the compiled solve calls (its stats count the solves)."""
     model, load, xi, V = loaded_problem
-    solve_static(model, load=load, xi=xi, volume=V, solver="lu")
+    solve_static(model, load=load, xi=xi, volume=V, options=StaticOptions(solver="lu"))
     named = model.__dict__["_static_solvers"]["lu"]
     calls = named.stats["calls"]
-    again = solve_static(model, load=load, xi=xi, volume=V, solver="lu")
+    again = solve_static(model, load=load, xi=xi, volume=V, options=StaticOptions(solver="lu"))
     assert model.__dict__["_static_solvers"]["lu"] is named
     assert named.stats["calls"] == calls + again.newton_iterations.sum()
     mine = SparseSolver(model, "lu")
-    own = solve_static(model, load=load, xi=xi, volume=V, solver=mine)
+    own = solve_static(model, load=load, xi=xi, volume=V, options=StaticOptions(solver=mine))
     assert mine.stats["calls"] == own.newton_iterations.sum()
     assert named.stats["calls"] == calls + again.newton_iterations.sum()
 
@@ -235,8 +236,8 @@ def test_monitor_sees_every_newton_iteration_of_every_load_step(loaded_problem):
     model, load, xi, V = loaded_problem
     steps, text = 3, io.StringIO()
     log = NewtonLog(text)
-    plain = solve_static(model, load=load, xi=xi, volume=V, steps=steps)
-    watched = solve_static(model, load=load, xi=xi, volume=V, steps=steps, monitor=log)
+    plain = solve_static(model, load=load, xi=xi, volume=V, options=StaticOptions(steps=steps))
+    watched = solve_static(model, load=load, xi=xi, volume=V, options=StaticOptions(steps=steps, monitor=log))
     print("\n" + text.getvalue())
     assert np.array_equal(watched.newton_iterations, plain.newton_iterations)
     assert np.max(np.abs(watched.u - plain.u)) <= 1e-14 * np.max(np.abs(plain.u))
@@ -263,7 +264,8 @@ def test_monitor_counts_the_iterations_of_rejected_attempts(loaded_problem):
     inverted = inverted_guess(model)
     log = NewtonLog()
     with pytest.warns(RuntimeWarning, match="Newton from the guess failed"):
-        sol = solve_static(model, load=load, xi=xi, volume=V, steps=2, guess=inverted, monitor=log)
+        sol = solve_static(model, load=load, xi=xi, volume=V, guess=inverted,
+                           options=StaticOptions(steps=2, monitor=log))
     assert not sol.from_guess and sol.rejected_iterations > 0
     assert len(log.records) == sol.newton_iterations.sum() + sol.rejected_iterations
 
@@ -277,7 +279,7 @@ def test_a_solve_keeps_no_reference_to_its_monitor(loaded_problem):
         log = NewtonLog()
         ref = weakref.ref(log)
         with pytest.warns(expect_warning) if expect_warning else contextlib.nullcontext():
-            solve_static(model, load=load, xi=xi, volume=V, steps=2, guess=guess, monitor=log)
+            solve_static(model, load=load, xi=xi, volume=V, guess=guess, options=StaticOptions(steps=2, monitor=log))
         del log
         gc.collect()
         assert ref() is None
@@ -298,10 +300,10 @@ def test_a_failed_linear_solve_is_reported_not_converged(loaded_problem):
     failed before load stepping took over."""
     model, load, xi, V = loaded_problem
     log = NewtonLog()
-    plain = solve_static(model, load=load, xi=xi, volume=V, steps=2)
+    plain = solve_static(model, load=load, xi=xi, volume=V, options=StaticOptions(steps=2))
     with pytest.warns(RuntimeWarning, match="linear solve failed: injected failure"):
-        sol = solve_static(model, load=load, xi=xi, volume=V, steps=2, guess=plain.u, solver=_FailsOnce(model, "lu"),
-                           monitor=log)
+        sol = solve_static(model, load=load, xi=xi, volume=V, guess=plain.u,
+                           options=StaticOptions(steps=2, solver=_FailsOnce(model, "lu"), monitor=log))
     first = log.records[0]
     assert np.isnan(first.increment) and not first.converged and first.step == 1.0
     assert not sol.from_guess and sol.rejected_iterations == 1

@@ -12,7 +12,7 @@ import pytest
 from hyperoc.app.cardiac_benchmark import benchmark_config
 from hyperoc.app.config import parse_config, set_entries
 from hyperoc.dynamics.laws import ExpressionLaw, bestel_pressure
-from hyperoc.dynamics.statics import solve_static, spring_force
+from hyperoc.dynamics.statics import StaticOptions, solve_static, spring_force
 from hyperoc.dynamics.stepper import TimeStepper
 from hyperoc.dynamics.terms import DynamicPressure, RobinBoundary
 from hyperoc.dynamics.timegrid import uniform_grid
@@ -45,8 +45,8 @@ def test_the_springs_of_a_free_body_carry_the_applied_load(constrained):
     the deformed nodes (frame indifference), so at equilibrium the springs' reaction balances the applied
     loads, the dead traction and the follower pressure on the deformed face: net force and moment."""
     model, robin, load, pressure = _free_box()
-    sol = solve_static(model, load=load, follower=pressure, robin=robin, constrained=constrained, steps=2,
-                       solver="lu")
+    sol = solve_static(model, load=load, follower=pressure, robin=robin, constraint=None if constrained else "none",
+                       options=StaticOptions(steps=2, solver="lu"))
     u = jnp.asarray(sol.u)
     applied = np.asarray(load) + np.asarray(pressure.force(u, 1.0))
     reaction = -np.asarray(spring_force(robin, u))
@@ -63,7 +63,7 @@ def test_robin_must_be_springs_of_the_model():
     model, robin, load, _ = _free_box()
     other = StateModel(box(1, 1, 1), NeoHookean(1.0, 1.0), dirichlet=None)
     with pytest.raises(InputError, match="robin"):
-        solve_static(model, load=load, robin=(robin[0], RobinBoundary(other, "left", 1.0)), constrained=False)
+        solve_static(model, load=load, robin=(robin[0], RobinBoundary(other, "left", 1.0)), constraint="none")
 
 
 @pytest.mark.slow
@@ -81,7 +81,7 @@ def test_the_static_end_diastolic_inflation_is_the_limit_of_slower_dynamic_infla
     model = cfg.model()
     P = float(bestel_pressure()(0.17))
     static = solve_static(model, follower=FollowerPressure(model, "endocardium", P), robin=cfg.robin(model),
-                          constrained=False, solver="lu")
+                          constraint="none", options=StaticOptions(solver="lu"))
     terms = [term for term in cfg.step_terms(model) if not isinstance(term, DynamicPressure)]
     scale, differences = np.max(np.abs(static.u)), []
     for T in (0.1, 0.2, 0.4):

@@ -57,8 +57,8 @@ def test_one_thread_pool_on_request():
 def test_pinned_host_solve_of_the_ventricle_completes():
     """The case that hung (no CPU use, forever) before the backend was started on every CPU."""
     out = run_pinned("""
-        from hyperoc.cardiac.land import ventricle_apex
-        r = ventricle_apex(9.0, bulk_modulus=1000.0, steps=5)
+        from hyperoc.cardiac.land import Formulation, LoadStepping, VentricleMesh, ventricle_apex
+        r = ventricle_apex(VentricleMesh(9.0), Formulation(1000.0), LoadStepping(steps=5))
         print(r.dofs, r.values["z_endo"])
     """, timeout=600)
     dofs, z_endo = out.split()

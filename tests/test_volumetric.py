@@ -25,7 +25,15 @@ import numpy as np
 import pytest
 
 import hyperoc as ho
-from hyperoc.cardiac.land import BEAM, VENTRICLE, beam_deflection, ventricle_apex
+from hyperoc.cardiac.land import (
+    BEAM,
+    VENTRICLE,
+    Formulation,
+    LoadStepping,
+    VentricleMesh,
+    beam_deflection,
+    ventricle_apex,
+)
 from hyperoc.errors import InputError, SolverError
 from hyperoc.fem.mesh import box, rectangle
 
@@ -71,7 +79,7 @@ def test_cell_mean_beam_does_not_lock():
     bound = moduli / 1e3
     change = {}
     for volumetric in ("pointwise", "cell-mean"):
-        z = [beam_deflection(1, bulk_modulus=k, volumetric=volumetric).values["z_tip"] for k in (1e3, 1e5)]
+        z = [beam_deflection(1, Formulation(k, volumetric=volumetric)).values["z_tip"] for k in (1e3, 1e5)]
         change[volumetric] = abs(z[1] - z[0]) / abs(z[0])
         print(f"\n{volumetric}: z_tip {z[0]:.5f} (bulk modulus 1e3), {z[1]:.5f} (1e5): relative change "
               f"{change[volumetric]:.2e}, bound {bound:.2e}")
@@ -85,10 +93,11 @@ def test_cell_mean_ventricle_needs_the_isochoric_law():
     stops before 0.4 of the load (20 increments, halved up to 8 times). Isochoric strain: 10 kPa is
     reached with det F > 0 at every quadrature point and the apex pushed down (z = -17 mm at rest)."""
     with pytest.raises(SolverError) as failure:
-        ventricle_apex(6.0, volumetric="cell-mean", steps=20, cutbacks=8)
+        ventricle_apex(VentricleMesh(6.0), Formulation(1000.0, volumetric="cell-mean"), LoadStepping(20, 8))
     print(f"\nfull strain, cell-mean: {failure.value}")
     assert failure.value.time < 0.4
-    res = ventricle_apex(6.0, volumetric="cell-mean", isochoric=True, steps=20, cutbacks=40)
+    res = ventricle_apex(VentricleMesh(6.0), Formulation(1000.0, volumetric="cell-mean", isochoric=True),
+                         LoadStepping(20, 40))
     print(f"\nisochoric, cell-mean: z_endo {res.values['z_endo']:.5f}, min det F {res.min_det_F:.3f}, "
           f"{res.newton_iterations.sum()} Newton iterations")
     assert res.min_det_F > 0

@@ -56,14 +56,14 @@ def run_benchmark(step: str, out, *, degree: int = 1, mesh: str = "reference", T
     record `benchmark_curves` makes of it, with the comparison `compare_with_codes` under ``"comparison"``
     and the run's cost. A run started again on the same ``out`` resumes from its last segment. ``model``: the
     configuration's model if already built (`hyperoc.app.workflows.check_run`)."""
-    from ..dynamics.resumable import SEGMENTS_DIR, run_resumable, segment_costs
+    from ..dynamics.resumable import SEGMENTS_DIR, Segments, run_resumable, segment_costs
 
     cfg = benchmark_config(step, degree=degree, mesh=mesh, T=T)
     model = model or cfg.model()
     stepper, grid = cfg.stepper(model), cfg.grid()
-    segments = Path(out) / SEGMENTS_DIR
-    sol = run_resumable(stepper, grid, None, folder=segments, every=CHECKPOINT_EVERY, progress=progress,
-                        on_segment=on_segment, identity=cfg.sections)
+    folder = Path(out) / SEGMENTS_DIR
+    sol = run_resumable(stepper, grid, None, segments=Segments(folder, CHECKPOINT_EVERY, cfg.sections),
+                        progress=progress, on_segment=on_segment)
     record = benchmark_curves(sol, stepper)
     record.update(step=_step(step), mesh={"variant": mesh, "vertices": int(len(model.mesh.points)),
                                           "cells": int(len(model.mesh.cells))},
@@ -72,6 +72,6 @@ def run_benchmark(step: str, out, *, degree: int = 1, mesh: str = "reference", T
                   newton_iterations={"total": int(np.sum(sol.newton_iterations)),
                                      "mean": float(np.mean(sol.newton_iterations)),
                                      "max": int(np.max(sol.newton_iterations))},
-                  **segment_costs(segments))
+                  **segment_costs(folder))
     record["comparison"] = compare_with_codes(record)
     return record

@@ -27,7 +27,7 @@ import time
 import numpy as np
 
 from ..cardiac.land import BEAM, VENTRICLE, beam_problem, contraction_problem, node_position, ventricle_problem
-from ..dynamics.statics import solve_static
+from ..dynamics.statics import StaticOptions, solve_static
 from ..io import write_json
 
 
@@ -65,8 +65,8 @@ def main(argv=None):
     setup = time.perf_counter() - t0
     if args.serial:
         t0 = time.perf_counter()
-        sol = solve_static(model, follower=load, constrained=args.constrained, steps=args.steps, line_search=False,
-                           cutbacks=args.cutbacks)
+        sol = solve_static(model, follower=load, constraint=None if args.constrained else "none",
+                           options=StaticOptions(steps=args.steps, line_search=False, cutbacks=args.cutbacks))
         u, p, iters, rejected, seconds = sol.u, sol.p, sol.newton_iterations, sol.rejected_iterations, \
             time.perf_counter() - t0
         rank, size, memory, split = 0, 1, [peak_mb()], {}

@@ -302,7 +302,7 @@ def value_profile(cfg: Config, taus, *, warm_start: SampledControl | None = None
     steps on [0, tau] are ``tau / N1``, at most the configured dt. Returns one row per tau (J*, whether the
     stopping test was met, the relative projected gradient, iterations, dt on [0, tau], min det F up to tau,
     max |xi| and the wall time, compilations included) and the maximizers as `SampledControl`, in the same order."""
-    from ..control.optimize import newton_cg
+    from ..control.optimize import BoxProblem, NewtonCGOptions, newton_cg
     from ..control.reduced import ControlPoint
     from .workflows import build_reduced
 
@@ -314,9 +314,10 @@ def value_profile(cfg: Config, taus, *, warm_start: SampledControl | None = None
         started = time.perf_counter()
         cold = cold_stationarity(J, tau, (tau, tau), bounds)
         xi0 = J.zero(tau).xi if previous is None else previous.on(J, tau)
-        res = newton_cg(J, ControlPoint(np.clip(xi0, *bounds) if bounds != (None, None) else xi0, tau),
-                        xi_bounds=bounds, gtol=0.0, gtol_abs=float(o["gtol"]) * cold, max_iter=int(o["max_iter"]),
-                        max_cg=int(o["max_cg"]), fix_tau=True)
+        res = newton_cg(BoxProblem.around(J, tau, xi_bounds=bounds, fix_tau=True),
+                        ControlPoint(np.clip(xi0, *bounds) if bounds != (None, None) else xi0, tau),
+                        gtol=0.0, gtol_abs=float(o["gtol"]) * cold, max_iter=int(o["max_iter"]),
+                        options=NewtonCGOptions(max_cg=int(o["max_cg"])))
         sol = J.state(res.point)
         k = J.transform.tau_index
         rows.append({"tau": tau, "h": 1.0 / cfg["mesh"]["n"], "J": res.objective, "converged": res.converged,

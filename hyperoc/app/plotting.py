@@ -23,8 +23,8 @@ from matplotlib.ticker import MaxNLocator
 
 from ..io import atomic_write_bytes
 
-__all__ = ["Units", "axis_label", "plot_pressure", "plot_control_spacetime", "plot_snapshots", "plot_history",
-           "plot_value_profile", "plot_pressure_comparison", "plot_pv_loops"]
+__all__ = ["Units", "TimeMarks", "axis_label", "plot_pressure", "plot_control_spacetime", "plot_snapshots",
+           "plot_history", "plot_value_profile", "plot_pressure_comparison", "plot_pv_loops"]
 
 _DPI = 150
 _MARK_COLOR = "C3"  # the vertical markers of `plot_pressure`: dotted, apart from p (C0) and tau (black)
@@ -72,6 +72,34 @@ class Units:
         return f"1/{self.time}" if self.pressure == "-" else f"{self.pressure}/{self.time}"
 
 
+@dataclass(frozen=True)
+class TimeMarks:
+    """What a figure marks on its time axis [units.time].
+
+    Attributes
+    ----------
+    tau : float, optional
+        The free time: a dashed vertical line.
+    eps : float, optional
+        With ``tau``, the window ``[tau, tau + eps]`` after it, shaded.
+    events : sequence of (float, str)
+        ``(time, label)`` pairs: dotted vertical lines, each distinct label once in the legend.
+    """
+
+    tau: float | None = None
+    eps: float | None = None
+    events: tuple = ()
+
+    def draw(self, axes) -> None:
+        """The tau line and its window on every axis of ``axes``, the events on the first."""
+        if self.tau is not None:
+            for ax in axes:
+                ax.axvline(self.tau, color="k", linestyle="--", linewidth=1.0, label=r"$\tau$")
+                if self.eps is not None:
+                    ax.axvspan(self.tau, self.tau + self.eps, color="0.85", label=r"$[\tau, \tau+\varepsilon]$")
+        _draw_events(axes[0], self.events)
+
+
 def axis_label(name: str, unit: str = "-") -> str:
     """An axis label ``"name [unit]"``, e.g. ``axis_label("x", "mm") == "x [mm]"``."""
     return f"{name} [{unit}]"
@@ -112,8 +140,8 @@ def _as_spacetime(name: str, values, nt: int, nx: int) -> np.ndarray:
     return array
 
 
-def plot_pressure(path, t, p, *, tau=None, eps=None, volume=None, cavity=None, title=None, units=None,
-                  marks=None) -> Path:
+def plot_pressure(path, t, p, *, volume=None, cavity=None, marks: TimeMarks = TimeMarks(), title=None,
+                  units=None) -> Path:
     """Plot the pressure p(t), with the free time tau marked, and optionally the volume drift and the
     cavity volume.
 
@@ -125,22 +153,17 @@ def plot_pressure(path, t, p, *, tau=None, eps=None, volume=None, cavity=None, t
         Time levels [units.time].
     p : (nt,) array_like
         Pressure (Lagrange multiplier of the volume constraint) at each time level [units.pressure].
-    tau : float, optional
-        Free time [units.time]; a dashed vertical line. With ``eps``, the window [tau, tau + eps] is shaded.
-    eps : float, optional
-        Width of the window after tau [units.time].
     volume : (nt,) array_like, optional
         Body volume ``int det F``; adds a panel with the relative drift ``volume / volume[0] - 1`` [-].
     cavity : (nt,) array_like, optional
         Cavity volume (e.g. of a ventricle, `hyperoc.mechanics.cavity.CavityVolume`) [units.length^3]; adds a
         panel with it.
+    marks : TimeMarks, optional
+        The free time tau and its window on every panel, the events on the pressure panel.
     title : str, optional
         Figure title (e.g. the run's name).
     units : Units, optional
         Units of the axes (default: all dimensionless).
-    marks : sequence of (float, str), optional
-        ``(time, label)`` pairs: dotted vertical lines on the pressure panel, each distinct label
-        once in the legend.
 
     Returns
     -------
@@ -154,12 +177,7 @@ def plot_pressure(path, t, p, *, tau=None, eps=None, volume=None, cavity=None, t
     axes = fig.subplots(panels, 1, sharex=True, squeeze=False)[:, 0]
     axes[0].plot(t, p, color="C0", label="p(t)")
     axes[0].set_ylabel(axis_label("pressure p", units.pressure))
-    if tau is not None:
-        for ax in axes:
-            ax.axvline(tau, color="k", linestyle="--", linewidth=1.0, label=r"$\tau$")
-            if eps is not None:
-                ax.axvspan(tau, tau + eps, color="0.85", label=r"$[\tau, \tau+\varepsilon]$")
-    _draw_marks(axes[0], marks)
+    marks.draw(axes)
     axes[0].legend(loc="best")
     if volume is not None:
         volume = _as_1d("volume", volume, len(t))
@@ -174,11 +192,11 @@ def plot_pressure(path, t, p, *, tau=None, eps=None, volume=None, cavity=None, t
     return save_figure(fig, path)
 
 
-def _draw_marks(ax, marks) -> None:
-    """Dotted vertical lines (gid ``"mark"``) at the times of ``marks`` = [(t, label), ...]; a
+def _draw_events(ax, events) -> None:
+    """Dotted vertical lines (gid ``"mark"``) at the times of ``events`` = [(t, label), ...]; a
     label already drawn is not repeated in the legend."""
     seen = set()
-    for time, label in marks or ():
+    for time, label in events or ():
         label = str(label) if label else ""
         shown = label if label and label not in seen else "_nolegend_"
         seen.add(label)
@@ -236,8 +254,7 @@ def _nearest_levels(t: np.ndarray, times) -> np.ndarray:
     return np.abs(t[None, :] - requested[:, None]).argmin(axis=1)
 
 
-def plot_snapshots(path, x, t, values, times, *, ylabel, title=None, ncols: int = 4, units=None,
-                   field_unit=None) -> Path:
+def plot_snapshots(path, x, t, values, times, *, ylabel, title=None, ncols: int = 4, units=None) -> Path:
     """Small multiples of a 1D field at selected times, with shared axes.
 
     Parameters
@@ -249,19 +266,17 @@ def plot_snapshots(path, x, t, values, times, *, ylabel, title=None, ncols: int 
     t : (nt,) array_like
         Time levels [units.time].
     values : (nt, nx) array_like
-        Field values per time level [field_unit].
+        Field values per time level.
     times : sequence of float
         Requested times; each panel shows the nearest time level (its actual time in the title).
     ylabel : str
-        Label of the field axis (``[field_unit]`` is appended when given).
+        Label of the field axis, with its unit (e.g. ``axis_label("u(x, t)", units.length)``).
     title : str, optional
         Figure title (e.g. the run's name).
     ncols : int
         Panels per row.
     units : Units, optional
         Units of the space and time axes (default: all dimensionless).
-    field_unit : str, optional
-        Unit of the field, e.g. ``units.length`` for a displacement.
 
     Returns
     -------
@@ -285,7 +300,6 @@ def plot_snapshots(path, x, t, values, times, *, ylabel, title=None, ncols: int 
                         top=1 - (0.3 + 0.25 * lines) / height, wspace=0.15, hspace=0.35)
     axes = fig.subplots(nrows, ncols, sharex=True, sharey=True, squeeze=False).ravel()
     time_unit = "" if units.time == "-" else f" {units.time}"
-    ylabel = ylabel if field_unit is None else axis_label(ylabel, field_unit)
     for ax, n in zip(axes, levels):
         ax.plot(x, values[n], color="C0")
         # A fixed title height: matplotlib otherwise places each panel's title past its tick labels,

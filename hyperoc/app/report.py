@@ -18,7 +18,16 @@ from ..errors import InputError
 from ..io import write_json, write_npz, write_time_series
 from ..mechanics.cavity import CavityVolume
 from ..mechanics.materials import det
-from .plotting import Units, plot_control_spacetime, plot_history, plot_pressure, plot_pv_loops, plot_snapshots
+from .plotting import (
+    TimeMarks,
+    Units,
+    axis_label,
+    plot_control_spacetime,
+    plot_history,
+    plot_pressure,
+    plot_pv_loops,
+    plot_snapshots,
+)
 
 __all__ = ["write_state_outputs", "cell_det_F", "PAPER_STATE_TIMES", "PAPER_CONTROL_TIMES"]
 
@@ -185,8 +194,8 @@ def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = No
         plot_pv_loops(out / "pv_loop.png", {"p(V)": (loop_volume, sol.pressure)},
                       title=f"{title}: pressure-volume loop", units=units)
         files["pv_loop_plot"] = "pv_loop.png"
-    plot_pressure(out / "pressure.png", sol.t, sol.pressure, tau=tau, eps=eps, volume=sol.volume, cavity=cavity_values,
-                  title=f"{title}: pressure", units=units, marks=pressure_marks)
+    plot_pressure(out / "pressure.png", sol.t, sol.pressure, volume=sol.volume, cavity=cavity_values,
+                  marks=TimeMarks(tau, eps, tuple(pressure_marks or ())), title=f"{title}: pressure", units=units)
     cells, cell_type = _vtk_cells(sol)
     levels = _series_levels(sol.t.size, series_every)
     point_data = {"displacement": u[levels], "velocity": v[levels]}
@@ -194,7 +203,7 @@ def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = No
         full = np.zeros((levels.size, model.space.num_nodes, xi_nodal.shape[-1]))
         full[:, model.control.nodes] = xi_nodal[levels]
         point_data["control"] = full[..., 0] if full.shape[-1] == 1 else full
-    series = write_time_series(out / "paraview", "state", model.space.nodes, cells, cell_type, sol.t[levels],
+    series = write_time_series(out / "paraview", "state", model.space.nodes, (cell_type, cells), sol.t[levels],
                                point_data, cell_data=_cell_series(sol, levels, frames))
     files["time_series"] = str(Path(series).relative_to(out))
     if model.dim == 1:
@@ -271,10 +280,10 @@ def _write_1d_figures(out: Path, sol: StateSolution, u, v, xi_nodal, times, titl
     order = np.argsort(x)
     state_times = [t for t in times or PAPER_STATE_TIMES if sol.t[0] <= t <= sol.t[-1]]
     control_times = [t for t in times or PAPER_CONTROL_TIMES if sol.t[0] <= t <= sol.t[-1]]
-    plot_snapshots(out / "displacement.png", x[order], sol.t, u[:, order, 0], state_times, ylabel="u(x, t)",
-                   title=f"{title}: displacement u", units=units, field_unit=units.length)
-    plot_snapshots(out / "velocity.png", x[order], sol.t, v[:, order, 0], state_times, ylabel="u_t(x, t)",
-                   title=f"{title}: velocity u_t", units=units, field_unit=units.velocity)
+    plot_snapshots(out / "displacement.png", x[order], sol.t, u[:, order, 0], state_times,
+                   ylabel=axis_label("u(x, t)", units.length), title=f"{title}: displacement u", units=units)
+    plot_snapshots(out / "velocity.png", x[order], sol.t, v[:, order, 0], state_times,
+                   ylabel=axis_label("u_t(x, t)", units.velocity), title=f"{title}: velocity u_t", units=units)
     files = {"displacement_plot": "displacement.png", "velocity_plot": "velocity.png"}
     if xi_nodal is not None:
         xc = sol.model.control.coordinates(sol.model.space)[:, 0]
@@ -282,7 +291,6 @@ def _write_1d_figures(out: Path, sol: StateSolution, u, v, xi_nodal, times, titl
         plot_control_spacetime(out / "control.png", sol.t, xc[o], xi_nodal[:, o, 0], tau=tau,
                                title=f"{title}: control xi", units=units)
         plot_snapshots(out / "control_snapshots.png", xc[o], sol.t, xi_nodal[:, o, 0], control_times,
-                       ylabel="xi(x, t)",
-                       title=f"{title}: control xi", units=units, field_unit=units.control)
+                       ylabel=axis_label("xi(x, t)", units.control), title=f"{title}: control xi", units=units)
         files.update(control_plot="control.png", control_snapshots_plot="control_snapshots.png")
     return files

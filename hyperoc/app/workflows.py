@@ -14,7 +14,16 @@ import numpy as np
 
 from ..control.adjoint import Adjoint
 from ..control.continuous_adjoint import ContinuousReducedFunctional
-from ..control.optimize import EvaluationCache, OptimizationResult, barzilai_borwein, lbfgsb, newton_cg
+from ..control.optimize import (
+    BBOptions,
+    BoxProblem,
+    EvaluationCache,
+    NewtonCGOptions,
+    OptimizationResult,
+    barzilai_borwein,
+    lbfgsb,
+    newton_cg,
+)
 from ..control.reduced import ControlPoint, ReducedFunctional
 from ..control.revolve import checkpoint_schedule
 from ..control.verification import random_directions, taylor_test
@@ -80,15 +89,15 @@ def simulate(cfg: Config, out, *, progress: bool = False, monitor=None, on_segme
     resumes from them (`hyperoc.dynamics.resumable.run_resumable`, ``on_segment`` called after each);
     ``model``: the config's model if already built (`check_run`); ``title``: the run's name in the
     figures (default `run_title`)."""
-    from ..dynamics.resumable import SEGMENTS_DIR, run_resumable
+    from ..dynamics.resumable import SEGMENTS_DIR, Segments, run_resumable
 
     model = model or cfg.model()
     grid = cfg.grid()
     xi = cfg.prescribed_control(model, grid.t)
     stepper, o = cfg.stepper(model), cfg["output"]
     if o.get("checkpoint_every"):
-        sol = run_resumable(stepper, grid, xi, folder=Path(out) / SEGMENTS_DIR, every=o["checkpoint_every"],
-                            progress=progress, on_segment=on_segment, identity=cfg.sections)
+        segments = Segments(Path(out) / SEGMENTS_DIR, o["checkpoint_every"], cfg.sections)
+        sol = run_resumable(stepper, grid, xi, segments=segments, progress=progress, on_segment=on_segment)
     else:
         sol = stepper.run(grid, xi, progress=progress, monitor=monitor)
     return write_state_outputs(Path(out), sol, snapshot_times=o.get("snapshot_times"),
@@ -138,20 +147,19 @@ def optimize_single(cfg: Config, tau0: float, *, cache_dir=None, progress: bool 
             bar.update(1)
             bar.set_postfix(J=f"{value:.5g}", tau=f"{m.tau:.4f}", G=f"{measure:.2e}")
 
-    kwargs = dict(gtol=float(o["gtol"]), max_iter=int(o["max_iter"]), cache_dir=cache_dir, callback=callback,
-                  tau_margin=o.get("tau_margin"), xi_bounds=cfg.xi_bounds())
+    kwargs = dict(gtol=float(o["gtol"]), max_iter=int(o["max_iter"]), cache_dir=cache_dir, callback=callback)
     m0 = J.zero(tau0) if start is None else start
+    box = BoxProblem.around(J, m0.tau, xi_bounds=cfg.xi_bounds(), tau_margin=o.get("tau_margin"))
     if gradient_scale is not None:
         if o["method"] not in ("bb", "newton"):
             raise ValueError(f"optimize_single: {o['method']} has no absolute stopping test (gradient_scale)")
         kwargs.update(gtol=0.0, gtol_abs=float(o["gtol"]) * gradient_scale)
     if o["method"] == "bb":
-        res = barzilai_borwein(J, m0, steps=o["steps"], bb_step=o["bb_step"], nonmonotone=o["nonmonotone"],
-                               **kwargs)
+        res = barzilai_borwein(box, m0, options=BBOptions(o["steps"], o["bb_step"], o["nonmonotone"]), **kwargs)
     elif o["method"] == "newton":
-        res = newton_cg(J, m0, max_cg=o["max_cg"], tau_scale=o["tau_scale"], **kwargs)
+        res = newton_cg(box, m0, options=NewtonCGOptions(o["max_cg"], o["tau_scale"]), **kwargs)
     else:
-        res = lbfgsb(J, m0, tau_scale=o["tau_scale"], **kwargs)
+        res = lbfgsb(box, m0, tau_scale=o["tau_scale"], **kwargs)
     if bar is not None:
         bar.close()
     if res.history["objective"] and res.history["objective"][0] > best["objective"]:

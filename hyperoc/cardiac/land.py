@@ -26,7 +26,7 @@ Reported: the same apex positions.
 What is solved and what it converges to. The benchmark material is incompressible; here it is
 the compressible Guccione law of `hyperoc.mechanics.materials.Guccione` with the volumetric penalty
 ``bulk_modulus/4 (J^2 - 1 - 2 ln J)`` (``bulk_modulus`` = small-strain bulk modulus k, kPa) and *no*
-global volume constraint (``solve_static(..., constrained=False)``). For a fixed k the P2 solutions
+global volume constraint (``solve_static(..., constraint="none")``). For a fixed k the P2 solutions
 converge as h -> 0 to the solution ``u_k`` of that compressible problem; ``u_k`` tends to the
 incompressible solution as ``k -> infinity``, at first order in ``1 / k`` (the volume change is
 ``O(p / k)``). Pure-displacement elements lock as ``k / C`` grows (P1 severely, P2 mildly), so a
@@ -47,7 +47,7 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from ..dynamics.statics import solve_static
+from ..dynamics.statics import StaticOptions, solve_static
 from ..errors import InputError
 from ..fem.geometry import ventricle
 from ..fem.mesh import Mesh, box
@@ -184,6 +184,12 @@ class LoadStepping:
     predictor: str = "previous"
     monitor: object = None
 
+    def options(self) -> StaticOptions:
+        """The `StaticOptions` of the benchmark's solves: this stepping with full Newton steps (the penalty's
+        merit grows after the first step although Newton then converges: `hyperoc.dynamics.statics`)."""
+        return StaticOptions(self.steps, self.cutbacks, self.predictor, line_search=False, solver=self.solver,
+                             monitor=self.monitor)
+
     def params(self) -> dict:
         """The stepping's entries of a result's ``params``."""
         return {"steps": self.steps, "cutbacks": self.cutbacks, "predictor": self.predictor}
@@ -211,7 +217,12 @@ def beam_problem(n: int, *, bulk_modulus: float, degree: int = 2, volumetric: st
     """Problem 1 on `beam_mesh` (n): the model and its follower pressure on the bottom face
     (``volumetric``: how the penalty enters, `StateModel`; ``isochoric``: `Guccione` on the isochoric
     strain; ``"taylor-hood"``: `hyperoc.mechanics.mixed.TaylorHoodModel`, bulk_modulus may then be ``math.inf``)."""
-    model = Formulation(bulk_modulus, degree, volumetric, isochoric).model(beam_mesh(n), BEAM)
+    return _beam_setup(n, Formulation(bulk_modulus, degree, volumetric, isochoric))
+
+
+def _beam_setup(n: int, formulation: Formulation) -> tuple[StateModel, FollowerPressure]:
+    """`beam_problem` (n) in ``formulation``: the model and its follower pressure."""
+    model = formulation.model(beam_mesh(n), BEAM)
     return model, FollowerPressure(model, "z_bottom", BEAM["pressure"])
 
 
@@ -234,9 +245,8 @@ def ventricle_problem(h: float, *, bulk_modulus: float, degree: int = 2, curved:
     pressure on the cavity has no net in-plane force or moment about z). With ``bf = bt = bfs = 1``
     the Guccione law is isotropic (``Q = tr(E^2)``): the constant frame it is given does not matter.
     ``volumetric``, ``isochoric``: as in `beam_problem`."""
-    model = VentricleMesh(h, curved, base, refinements).model(Formulation(bulk_modulus, degree, volumetric, isochoric),
-                                                               VENTRICLE)
-    return model, FollowerPressure(model, "endocardium", VENTRICLE["pressure"])
+    return _ventricle_setup(2, VentricleMesh(h, curved, base, refinements),
+                            Formulation(bulk_modulus, degree, volumetric, isochoric))
 
 
 def contraction_problem(h: float, *, bulk_modulus: float, degree: int = 2, curved: bool = True,
@@ -248,12 +258,8 @@ def contraction_problem(h: float, *, bulk_modulus: float, degree: int = 2, curve
     and the active fibre tension, for ``solve_static(..., follower=loads)``. ``taper > 0`` (mm): not the
     benchmark but a variant, the tension tapered to zero on the long axis (`hyperoc.mechanics.active.axis_taper`),
     where the fibres are singular."""
-    fibres = prolate_fibres(helix_endo=CONTRACTION["helix"][0], helix_epi=CONTRACTION["helix"][1])
-    model = VentricleMesh(h, curved, base, refinements).model(Formulation(bulk_modulus, degree, volumetric, isochoric),
-                                                               CONTRACTION, fibres)
-    profile = axis_taper(taper) if taper else None
-    return model, (FollowerPressure(model, "endocardium", CONTRACTION["pressure"]),
-                   FibreTension(model, CONTRACTION["tension"], profile))
+    return _ventricle_setup(3, VentricleMesh(h, curved, base, refinements),
+                            Formulation(bulk_modulus, degree, volumetric, isochoric), taper)
 
 
 def node_position(model: StateModel, u, point, tol: float = 1e-9) -> np.ndarray:
@@ -274,9 +280,7 @@ def _solve(model, follower, stepping: LoadStepping, points: dict, params: dict, 
     Newton's first try at the full load (`solve_static`'s ``guess``)."""
     t0 = time.perf_counter()
     guess = None if coarse is None else model.prolong(coarse.model, coarse.u)
-    sol = solve_static(model, follower=follower, constrained=False, steps=stepping.steps, solver=stepping.solver,
-                       line_search=False, cutbacks=stepping.cutbacks, predictor=stepping.predictor, guess=guess,
-                       monitor=stepping.monitor)
+    sol = solve_static(model, follower=follower, constraint="none", guess=guess, options=stepping.options())
     seconds = time.perf_counter() - t0
     if coarse is not None:
         params["start"] = "prolonged" if sol.from_guess else f"prolonged, failed ({sol.guess_failure}): load stepping"
@@ -291,30 +295,27 @@ def _solve(model, follower, stepping: LoadStepping, points: dict, params: dict, 
                            sol.rejected_iterations, model, sol.u)
 
 
-def beam_deflection(n: int, *, bulk_modulus: float = 1000.0, degree: int = 2, steps: int = 10, cutbacks: int = 8,
-                    solver="auto", volumetric: str = "pointwise", isochoric: bool = False,
-                    predictor: str = "previous", monitor=None) -> BenchmarkResult:
-    """Problem 1: ``values["z_tip"]`` = z of the deformed point (10, 0.5, 1) (mm; 1 at rest).
-    ``monitor``: `solve_static`'s (e.g. ``hyperoc.solvers.newton.NewtonLog(sys.stderr)``)."""
-    model, load = beam_problem(n, bulk_modulus=bulk_modulus, degree=degree, volumetric=volumetric, isochoric=isochoric)
-    stepping = LoadStepping(steps, cutbacks, solver, predictor, monitor)
-    params = {"problem": 1, "n": n, **Formulation(bulk_modulus, degree, volumetric, isochoric).params(),
-              **stepping.params()}
+def beam_deflection(n: int, formulation: Formulation = Formulation(1000.0),
+                    stepping: LoadStepping = LoadStepping()) -> BenchmarkResult:
+    """Problem 1 on `beam_mesh` (n) in ``formulation``, its load stepped by ``stepping``: ``values["z_tip"]`` = z
+    of the deformed point (10, 0.5, 1) (mm; 1 at rest). ``stepping.monitor``: `solve_static`'s (e.g.
+    ``hyperoc.solvers.newton.NewtonLog(sys.stderr)``)."""
+    model, load = _beam_setup(n, formulation)
+    params = {"problem": 1, "n": n, **formulation.params(), **stepping.params()}
     return _solve(model, load, stepping, {"z_tip": BEAM["point"]}, params)
 
 
-def ventricle_apex(h: float, *, bulk_modulus: float = 1000.0, degree: int = 2, steps: int = 10, cutbacks: int = 8,
-                   solver="auto", curved: bool = True, base: str = "clamped", refinements: int = 0,
-                   volumetric: str = "pointwise", isochoric: bool = False, predictor: str = "previous",
-                   problem: int = 2, taper: float = 0.0, coarse: BenchmarkResult | None = None,
-                   monitor=None) -> BenchmarkResult:
-    """Problem 2 (`ventricle_problem`) or 3 (``problem=3``, `contraction_problem`): ``values["z_endo"]``,
+def ventricle_apex(mesh: VentricleMesh, formulation: Formulation = Formulation(1000.0),
+                   stepping: LoadStepping = LoadStepping(), *, problem: int = 2, taper: float = 0.0,
+                   coarse: BenchmarkResult | None = None) -> BenchmarkResult:
+    """Problem 2 (`ventricle_problem`) or 3 (``problem=3``, `contraction_problem`) on ``mesh`` in ``formulation``,
+    its load stepped by ``stepping``: ``values["z_endo"]``,
     ``values["z_epi"]`` = z of the deformed endocardial and epicardial apex (mm; -17 and -20 at rest),
     ``values["V_cavity"]`` the deformed cavity volume (mm^3, `hyperoc.mechanics.cavity.CavityVolume` with
     ``apex="rim"``: the endocardium closed by the base plane). ``taper``: problem 3 only, `contraction_problem`.
     ``coarse``: this problem's result on the mesh of ``refinements - 1`` (nested iteration: Newton
     starts at the full load from its prolonged solution, and steps the load only if that fails;
-    ``params["start"]`` says which). ``monitor``: `solve_static`'s, e.g.
+    ``params["start"]`` says which). ``stepping.monitor``: `solve_static`'s, e.g.
     ``hyperoc.solvers.newton.NewtonLog(sys.stderr)`` to follow a long solve. Raises `InputError` if
     this mesh does not refine its mesh."""
 
@@ -322,22 +323,26 @@ def ventricle_apex(h: float, *, bulk_modulus: float = 1000.0, degree: int = 2, s
         raise InputError(f"ventricle_apex: the ventricle problems are 2 and 3, got {problem!r}")
     if taper and problem != 3:
         raise InputError("ventricle_apex: taper (of the active tension) applies to problem 3 only")
-    model, load = _ventricle_setup(problem, h, bulk_modulus=bulk_modulus, degree=degree, curved=curved, base=base,
-                                   refinements=refinements, volumetric=volumetric, isochoric=isochoric, taper=taper)
+    model, load = _ventricle_setup(problem, mesh, formulation, taper)
     cavity = lambda model, u: {"V_cavity": float(CavityVolume(model, "endocardium", apex="rim").volume(u))}
-    stepping = LoadStepping(steps, cutbacks, solver, predictor, monitor)
-    params = {"problem": problem, "mesh_size": h, **Formulation(bulk_modulus, degree, volumetric, isochoric).params(),
-              **stepping.params(), "curved": curved, "base": base, "refinements": refinements,
+    params = {"problem": problem, "mesh_size": mesh.h, **formulation.params(), **stepping.params(),
+              "curved": mesh.curved, "base": mesh.base, "refinements": mesh.refinements,
               **({"taper": taper} if taper else {})}
     return _solve(model, load, stepping, {"z_endo": VENTRICLE["endo_apex"], "z_epi": VENTRICLE["epi_apex"]}, params,
                   cavity, coarse)
 
 
-def _ventricle_setup(problem: int, h: float, *, taper: float = 0.0, **kwargs):
-    """`ventricle_problem` (problem 2) or `contraction_problem` (3, with ``taper``)."""
+def _ventricle_setup(problem: int, mesh: VentricleMesh, formulation: Formulation, taper: float = 0.0):
+    """`ventricle_problem` (problem 2) or `contraction_problem` (3, with ``taper``) on ``mesh`` in ``formulation``:
+    the model and its loads."""
     if problem == 2:
-        return ventricle_problem(h, **kwargs)
-    return contraction_problem(h, taper=taper, **kwargs)
+        model = mesh.model(formulation, VENTRICLE)
+        return model, FollowerPressure(model, "endocardium", VENTRICLE["pressure"])
+    fibres = prolate_fibres(helix_endo=CONTRACTION["helix"][0], helix_epi=CONTRACTION["helix"][1])
+    model = mesh.model(formulation, CONTRACTION, fibres)
+    profile = axis_taper(taper) if taper else None
+    return model, (FollowerPressure(model, "endocardium", CONTRACTION["pressure"]),
+                   FibreTension(model, CONTRACTION["tension"], profile))
 
 
 def save_state(result: BenchmarkResult, path) -> Path:
@@ -366,8 +371,9 @@ def load_state(path) -> BenchmarkResult:
     if missing:
         raise InputError(f"load_state: {path} lacks the parameter(s) {', '.join(missing)} of ventricle_apex "
                          f"(it has {', '.join(params)})")
-    model, _ = _ventricle_setup(params["problem"], params["mesh_size"], taper=params.get("taper", 0.0),
-                                **{k: params[k] for k in keys})
+    mesh = VentricleMesh(params["mesh_size"], params["curved"], params["base"], params["refinements"])
+    formulation = Formulation(params["bulk_modulus"], params["degree"], params["volumetric"], params["isochoric"])
+    model, _ = _ventricle_setup(params["problem"], mesh, formulation, params.get("taper", 0.0))
     if model.n != u.size:
         raise InputError(f"load_state: {path} holds {u.size} unknowns, its rebuilt model has {model.n}")
     nan = float("nan")

@@ -91,8 +91,8 @@ def newton(residual, jacobian, layout: Layout, x0: np.ndarray, *, rtol: float, a
         small = lambda u, v, rt, at: bool(small_increment(u, v, layout.n_u, rt, at, inf_norm=layout.inf_norm))
         if chord:
             p, dp = (x[m_o], dx[m_o]) if constrained else (0.0, 0.0)
-            settled, rate = chord_stopping_test(x[:m_o], du, p, dp, increment, previous, small, rtol=rtol,
-                                                atol=atol, xp=np)
+            settled, rate = chord_stopping_test(x[:m_o], du, p, dp, increment, previous, small, tol=(rtol, atol),
+                                                xp=np)
         else:
             settled, rate = small(x[:m_o], du, rtol, atol), np.inf
         converged = solved and bool(settled)

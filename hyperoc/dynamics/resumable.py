@@ -20,6 +20,7 @@ import json
 import os
 import resource
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -31,7 +32,7 @@ if TYPE_CHECKING:  # annotations only: the CLI reads SEGMENTS_DIR before any JAX
     from .stepper import StateSolution, TimeStepper
     from .timegrid import TimeGrid
 
-__all__ = ["run_resumable", "segment_costs", "SEGMENTS_DIR", "SEGMENT_OUTPUTS", "SEGMENT_COST"]
+__all__ = ["run_resumable", "Segments", "segment_costs", "SEGMENTS_DIR", "SEGMENT_OUTPUTS", "SEGMENT_COST"]
 
 #: the per-step outputs of `TimeStepper.march_levels` a segment file holds, in its order
 SEGMENT_OUTPUTS = ("y0", "y1", "p", "newton_iterations", "status", "min_det_F", "max_grad")
@@ -41,20 +42,29 @@ SEGMENTS_DIR = "segments"
 SEGMENT_COST = ("wall_time", "peak_memory_mib")
 
 
-def run_resumable(stepper: TimeStepper, grid: TimeGrid, xi=None, *, folder, every: int, u0=None, v0=None,
-                  external=None, progress: bool = False, on_segment=None, identity: dict | None = None
-                  ) -> StateSolution:
-    """`TimeStepper.run` in segments of ``every`` steps saved to ``folder`` (created if needed), resuming
-    from the segments already there. Same arguments and result as `TimeStepper.run` (multiplier "step"
-    only: the "theta" weighting carries p across steps as a state the segments would have to agree on).
-    `hyperoc.errors.SolverError` names the first failed step as `run` does; the segments before it stay
-    saved.
-
+@dataclass(frozen=True)
+class Segments:
+    """Where and how a resumable run is saved: segments of ``every`` steps in ``folder`` (created if needed);
     ``identity``: JSON data naming the problem beyond what the fingerprint digests (e.g. a configuration's
-    sections), compared on resume. ``on_segment(index, count, segment, solved)``: called after each segment
+    sections), compared on resume."""
+
+    folder: Path | str
+    every: int
+    identity: dict | None = None
+
+
+def run_resumable(stepper: TimeStepper, grid: TimeGrid, xi=None, *, segments: Segments, u0=None, v0=None,
+                  external=None, progress: bool = False, on_segment=None) -> StateSolution:
+    """`TimeStepper.run` in the `Segments` ``segments``, resuming from the segments already saved. Same
+    arguments and result as `TimeStepper.run` (multiplier "step" only: the "theta" weighting carries p across
+    steps as a state the segments would have to agree on). `hyperoc.errors.SolverError` names the first failed
+    step as `run` does; the segments before it stay saved.
+
+    ``on_segment(index, count, segment, solved)``: called after each segment
     (``solved`` False for one read back), e.g. to log progress to a file. The result's ``wall_time`` is the
     sum over all segments, those solved by an earlier process included (`SEGMENT_COST`); `segment_costs`
     reads them back."""
+    every = segments.every
     if every < 1:
         raise InputError(f"checkpoint segments need every >= 1 step, got {every}")
     if stepper.scheme.multiplier != "step":
@@ -64,8 +74,8 @@ def run_resumable(stepper: TimeStepper, grid: TimeGrid, xi=None, *, folder, ever
     y1 = np.zeros(m.n) if v0 is None else np.asarray(v0, dtype=np.float64)
     xis, fs = stepper._controls(xi, N), stepper.external_loads(external, grid)
     stepper._check_initial_velocity(y0, y1, grid.t[0])
-    folder = Path(folder)
-    _claim(folder, _fingerprint(stepper, grid, xis, fs, y0, y1, every) | {"identity": _as_json(identity)})
+    folder = Path(segments.folder)
+    _claim(folder, _fingerprint(stepper, grid, xis, fs, y0, y1, every) | {"identity": _as_json(segments.identity)})
     V0 = stepper.constraint_reference(y0, grid.t)
     state, outputs = (y0, y1, stepper.constraint.carried(0.0)), []
     starts = range(0, N, every)

@@ -15,7 +15,7 @@ stiffness ``-df_j/du`` enters the Newton tangent. ``k_k S_k u`` are the springs 
 tangent ``dA/dy0``; the dashpot has no static part): part of the stiffness, not ramped. Springs make a body
 without Dirichlet boundary statically determinate (the benchmark's unclamped ventricle).
 
-Unconstrained (``constrained=False``, e.g. the Land et al. 2015 benchmarks, where only the material's
+Unconstrained (``constraint="none"``, e.g. the Land et al. 2015 benchmarks, where only the material's
 volumetric penalty controls the volume): find u with ``R(u) + sum_k k_k S_k u = B xi + f + sum_j f_j(u)``. The bordered
 solvers of `hyperoc.solvers.linsolve` are reused exactly: the unknown is written ``u = w + t e`` with the
 fixed unit vector ``e = (1, ..., 1) / sqrt(n)`` and the gauge ``e . w = 0``, so Newton solves
@@ -27,17 +27,17 @@ whose Schur complement ``e^T K^-1 K e = 1`` never vanishes, and ``du = dw + dt e
 Newton step ``K du = -r``. (Newton's stopping test looks at ``dw`` only; ``dt`` is the mean of
 ``du`` times sqrt(n).)
 
-All loads (``load``, ``xi``, the state-dependent loads) are ramped linearly over ``steps`` load steps,
-as is the target volume; each step starts from the previous equilibrium. With ``cutbacks > 0`` a
-failed increment is halved and retried (adaptive load stepping).
+All loads (``load``, ``xi``, the state-dependent loads) are ramped linearly over ``steps`` load steps
+(`StaticOptions`), as is the target volume; each step starts from the previous equilibrium. With
+``cutbacks > 0`` a failed increment is halved and retried (adaptive load stepping).
 
 Newton globalization. `hyperoc.solvers.newton.newton` backtracks on ``|r|^2``. For nearly incompressible
 laws (``bulk_modulus >> C``) that merit is badly suited: a Newton step of size ``|du|`` leaves a
 volumetric residual ``~ bulk_modulus |grad du|^2`` that can exceed the residual it corrects by orders of
 magnitude although the next iterate is much closer to the solution (Land problem 1: ``bulk_modulus / C =
 500``, |r| grows 2000x after the first step, after which Newton converges quadratically), so the
-backtracking stalls at its smallest step. ``line_search=False`` takes full Newton steps instead
-(`hyperoc.solvers.newton.newton(..., line_search=False)`), as is common in cardiac mechanics codes with load stepping.
+backtracking stalls at its smallest step. ``StaticOptions(line_search=False)`` takes full Newton steps
+instead (`hyperoc.solvers.newton.NewtonOptions`), as is common in cardiac mechanics codes with load stepping.
 """
 
 from __future__ import annotations
@@ -53,12 +53,46 @@ from .. import _jax  # noqa: F401
 from ..errors import InputError, SolverError
 from ..mechanics.model import StateModel
 from ..solvers.linsolve import make_solver
-from ..solvers.newton import NewtonIteration, NewtonStatus, newton
-from .constraint import TissueVolume
+from ..solvers.newton import NewtonIteration, NewtonOptions, NewtonStatus, newton
+from .constraint import NoConstraint, TissueVolume
 from .stepper import Scheme, StepStatus
 from .terms import RobinBoundary
 
-__all__ = ["StaticSolution", "solve_static"]
+__all__ = ["StaticSolution", "StaticOptions", "solve_static"]
+
+
+@dataclass(frozen=True)
+class StaticOptions:
+    """How `solve_static` walks the load from 0 to 1 and solves each increment.
+
+    steps : nominal load increments (the load factor grows by ``1 / steps``).
+    cutbacks : how many times in total a failed load increment may be halved and retried from the
+        last equilibrium (the increment then grows back, doubling after each success, up to
+        ``1 / steps``); 0 = fail at once.
+    predictor : Newton's starting point at each load increment: ``"previous"`` (default), the last
+        equilibrium; ``"secant"``, the linear extrapolation of the last two equilibria (u and p) to
+        the new load factor, first-order accurate in the increment where the previous one is
+        zeroth-order: fewer Newton iterations on a smooth path, but on a response that stiffens
+        along the path it overshoots (Land problem 2: more halved increments).
+    line_search : backtracking Newton (`hyperoc.solvers.newton.newton`, default) or full Newton steps (see the
+        module docstring: needed for nearly incompressible penalties).
+    scheme : the `Scheme` whose Newton tolerances (``rtol``, ``atol``, ``max_iter``) and chord policy apply.
+    solver : a linear solver or its name (`hyperoc.solvers.linsolve.make_solver`: made once per model and name,
+        and reused by later solves, with its compiled Newton solve); with follower pressures the
+        tangent is not symmetric, so ``"minres"`` is refused.
+    monitor : a callable given a `hyperoc.solvers.newton.NewtonIteration` after every Newton iteration, of
+        the guess and of every load increment, rejected ones included (``NewtonLog(sys.stderr)``
+        prints them as they come). A host callback from the compiled loop: the solve is compiled once
+        with it (for any monitor) and once without.
+    """
+
+    steps: int = 1
+    cutbacks: int = 0
+    predictor: str = "previous"
+    line_search: bool = True
+    scheme: Scheme = Scheme()
+    solver: object = "auto"
+    monitor: object = None
 
 
 @dataclass(eq=False)
@@ -150,10 +184,10 @@ def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, co
         if constrained:  # traced flag: the guess path and the load steps share one compilation
             x0 = jax.lax.cond(fit_multiplier, lambda: fitted_multiplier(x0, fk, s), lambda: x0)
         monitor = (lambda *values: jax.debug.callback(report, s, *values)) if monitored else None
-        x, it, status = newton(lambda x: residual(x, fk, Vk, s), lambda x: jacobian_parts(x, fk, s), lin, x0,
-                               rtol=scheme.rtol, atol=scheme.atol, max_iter=scheme.max_iter, line_search=line_search,
-                               chord=chord,
-                               monitor=monitor, n_u=getattr(model, "n_u", None))
+        options = NewtonOptions(scheme.rtol, scheme.atol, scheme.max_iter, line_search, monitor,
+                                getattr(model, "n_u", None))
+        x, it, status = newton(lambda x: residual(x, fk, Vk, s), lambda x: jacobian_parts(x, fk, s), lin, x0, options,
+                               chord=chord)
         return x, it, status, model.min_det_F(displacement(x))
 
     cache[key] = solve, slot
@@ -177,11 +211,10 @@ def initial_unknown(model: StateModel, u: np.ndarray, constrained: bool) -> jnp.
     return jnp.concatenate([jnp.asarray(u - t * model.n ** -0.5), jnp.full(1, t)])
 
 
-def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None = None, steps: int = 1,
-                 scheme: Scheme = Scheme(), solver="auto", u0=None, follower=(), constrained: bool = True,
-                 line_search: bool = True, cutbacks: int = 0, predictor: str = "previous",
-                 guess=None, monitor=None, constraint=None, robin=()) -> StaticSolution:
-    """Equilibrium under the load vector ``load`` (n,), control ``xi`` and follower pressures, ramped in ``steps``.
+def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None = None, u0=None, follower=(),
+                 robin=(), constraint=None, guess=None, options: StaticOptions = StaticOptions()) -> StaticSolution:
+    """Equilibrium under the load vector ``load`` (n,), control ``xi`` and follower pressures, ramped in
+    ``options.steps`` (`StaticOptions`: the load stepping, Newton, the linear solver and the monitor).
 
     Parameters
     ----------
@@ -190,22 +223,11 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
     follower : a state-dependent load or a sequence of them: `hyperoc.mechanics.follower.FollowerPressure`
         (pressure on the deformed boundary), `hyperoc.mechanics.active.FibreTension` (active stress along the
         fibres); each is ramped as ``s * pressure`` (``s * tension``) at load step ``s = k / steps``.
-    constrained : True (default): global constraint ``c(u) = volume`` with multiplier p;
-        False: no constraint, no multiplier (``volume`` must then be None).
-    constraint : the constrained quantity c when ``constrained``: None, the tissue volume ``int det F``;
-        or a `hyperoc.dynamics.constraint.CavityVolumeConstraint`, the cavity volume, p the cavity pressure
-        (its volume change law is not read: ``volume`` is the target). ``volume`` defaults to c(u0).
-    line_search : backtracking Newton (`hyperoc.solvers.newton.newton`, default) or full Newton steps (see the
-        module docstring: needed for nearly incompressible penalties).
-    cutbacks : how many times in total a failed load increment may be halved and retried from the
-        last equilibrium (the increment then grows back, doubling after each success, up to
-        ``1 / steps``); 0 = fail at once. ``newton_iterations`` has one entry per accepted increment
-        (the iterations of the rejected ones: ``rejected_iterations``).
-    predictor : Newton's starting point at each load increment: ``"previous"`` (default), the last
-        equilibrium; ``"secant"``, the linear extrapolation of the last two equilibria (u and p) to
-        the new load factor, first-order accurate in the increment where the previous one is
-        zeroth-order: fewer Newton iterations on a smooth path, but on a response that stiffens
-        along the path it overshoots (Land problem 2: more halved increments).
+    constraint : the global constraint ``c(u) = volume`` with multiplier p: None (default), the tissue volume
+        ``int det F``; a `hyperoc.dynamics.constraint.CavityVolumeConstraint`, the cavity volume, p the cavity
+        pressure (its volume change law is not read: ``volume`` is the target); or ``"none"`` (or a
+        `hyperoc.dynamics.constraint.NoConstraint`): no constraint, no multiplier (``volume`` must then be None).
+        ``volume`` defaults to c(u0).
     guess : a starting point (n,) for Newton directly at the full load, e.g. the solution on the
         next coarser mesh carried over by `StateModel.prolong` (nested iteration: the guess is off
         by the coarse discretization error only, so Newton converges in a few iterations and the
@@ -217,13 +239,8 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
         than from 0 on the test plate from its 0.9-load equilibrium, as from the exact one). If
         Newton fails from it, a `RuntimeWarning` says why and the load stepping from ``u0`` runs as
         without a guess (``StaticSolution.from_guess`` and ``guess_failure`` tell what happened).
-    solver : a linear solver or its name (`hyperoc.solvers.linsolve.make_solver`: made once per model and name,
-        and reused by later solves, with its compiled Newton solve); with follower pressures the
-        tangent is not symmetric, so ``"minres"`` is refused.
-    monitor : a callable given a `hyperoc.solvers.newton.NewtonIteration` after every Newton iteration, of
-        the guess and of every load increment, rejected ones included (``NewtonLog(sys.stderr)``
-        prints them as they come). A host callback from the compiled loop: the solve is compiled once
-        with it (for any monitor) and once without.
+    options : `StaticOptions`. ``newton_iterations`` has one entry per accepted increment (the iterations
+        of the rejected ones: ``rejected_iterations``).
 
     Raises
     ------
@@ -235,11 +252,13 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
     robin = (robin,) if not isinstance(robin, (tuple, list)) else tuple(robin)
     if not all(isinstance(term, RobinBoundary) and term.n == model.n for term in robin):
         raise InputError("solve_static: robin must hold RobinBoundary terms of this model")
-    if predictor not in ("previous", "secant"):
-        raise InputError(f"solve_static: predictor must be 'previous' or 'secant', got {predictor!r}")
-    if not constrained and (volume is not None or constraint is not None):
-        raise InputError("solve_static: a target volume or a constraint needs constrained=True")
-    lin = _static_solver(model, solver)
+    if options.predictor not in ("previous", "secant"):
+        raise InputError(f"solve_static: predictor must be 'previous' or 'secant', got {options.predictor!r}")
+    constrained, constraint = _constraint(constraint)
+    if not constrained and volume is not None:
+        raise InputError("solve_static: a target volume needs a constraint")
+    lin = _static_solver(model, options.solver)
+    scheme, monitor = options.scheme, options.monitor
     if followers and getattr(lin, "method", None) == "minres":
         raise InputError("solve_static: follower pressures make the tangent non-symmetric; MINRES does not apply")
     f = jnp.zeros(model.n) if load is None else jnp.asarray(load)
@@ -266,12 +285,23 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
                 return solution
             warnings.warn(f"solve_static: Newton from the guess failed ({guess_failure}); stepping the load instead",
                           RuntimeWarning, stacklevel=2)
-        x, iters, cut = step_load(lin, compiled(line_search), initial_unknown(model, u, constrained), f, V_start, V,
-                                   steps=steps, cutbacks=cutbacks, predictor=predictor)
+        x, iters, cut = step_load(lin, compiled(options.line_search), initial_unknown(model, u, constrained), f,
+                                  V_start, V, steps=options.steps, cutbacks=options.cutbacks,
+                                  predictor=options.predictor)
         return _solution(model, x, constrained, iters, rejected=rejected + cut, guess_failure=guess_failure)
     finally:  # the cached solve must not keep the caller's monitor (and all it holds) alive
         for slot in slots:
             slot[0] = None
+
+
+def _constraint(constraint) -> tuple[bool, object]:
+    """``(constrained, constraint)`` of `solve_static`'s ``constraint``: ``"none"`` or a `NoConstraint` is
+    ``(False, None)``, anything else is held by a multiplier (None: the tissue volume)."""
+    if isinstance(constraint, str) and constraint != "none":
+        raise InputError(f"solve_static: constraint must be None, 'none' or a constraint object, got {constraint!r}")
+    if isinstance(constraint, (str, NoConstraint)):
+        return False, None
+    return True, constraint
 
 
 def step_load(lin, solve, x, f, V_start: float, V: float, *, steps: int, cutbacks: int, predictor: str):

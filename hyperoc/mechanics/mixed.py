@@ -20,7 +20,7 @@ lock as the bulk modulus grows and the pressure converges too, unlike the pure d
 mean J. The saddle-point tangent is symmetric and indefinite; the sparse LU of `hyperoc.solvers.linsolve`
 (threshold pivoting) factors it.
 
-The model plugs into `hyperoc.dynamics.statics.solve_static` (``constrained=False``) and
+The model plugs into `hyperoc.dynamics.statics.solve_static` (``constraint="none"``) and
 `hyperoc.mechanics.follower.FollowerPressure` as a `StateModel` whose unknown vector has ``n = n_u + n_p``
 entries, the pressures last; it has no dynamics (no mass on p) and no control.
 """

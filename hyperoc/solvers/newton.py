@@ -103,7 +103,7 @@ class NewtonLog:
 class NewtonOptions:
     """The options of one Newton solve (`newton`): tolerances ``rtol``, ``atol`` of the increment test,
     ``max_iter`` (may be traced), ``line_search``, the per-iteration ``monitor`` and ``n_u`` (the
-    displacement unknowns before a pressure field, None without one)."""
+    displacement unknowns before a pressure field, None without one); `newton` says what each does."""
 
     rtol: float
     atol: float
@@ -113,9 +113,12 @@ class NewtonOptions:
     n_u: int | None = None
 
 
-def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, max_iter,
-           line_search: bool = True, monitor=None, n_u: int | None = None, chord: bool = False):
+def newton(residual, jacobian_parts, solver, x0, options: NewtonOptions | None = None, *, rtol: float | None = None,
+           atol: float | None = None, max_iter=None, chord: bool = False):
     """Solve ``residual(x) = 0``; returns ``(x, iterations, status)``.
+
+    ``options``: the `NewtonOptions` of the solve; or, without them, the tolerances ``rtol``, ``atol``,
+    ``max_iter`` as keywords, the other options at their defaults.
 
     ``jacobian_parts(x)``: the bordered Jacobian at x as ``(blocks, col, row)`` or ``(blocks, col, row,
     corner)`` (`hyperoc.solvers.linsolve`; the corner is 0 when not given), passed to the solver's solves.
@@ -149,9 +152,10 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
     theta, for u and, on its own scale, for the multiplier p, with the tolerances scaled by
     `CHORD_MARGIN`; or at the round-off floor.
     """
+    options = options or NewtonOptions(rtol, atol, max_iter)
     if chord:
-        return _chord_newton(residual, jacobian_parts, solver, x0,
-                             NewtonOptions(rtol, atol, max_iter, line_search, monitor, n_u))
+        return _chord_newton(residual, jacobian_parts, solver, x0, options)
+    rtol, atol, max_iter, n_u, monitor = options.rtol, options.atol, options.max_iter, options.n_u, options.monitor
 
     def body(state):
         # r = residual(x) is carried: the line search evaluates it at the point it accepts, which
@@ -167,7 +171,7 @@ def newton(residual, jacobian_parts, solver, x0, *, rtol: float, atol: float, ma
         # backtracking on it would only stall.
         converged = solved & small_increment(x[:-1], du, n_u, rtol, atol)
         r_full = residual(x + dx)
-        if line_search:
+        if options.line_search:
             alpha, r1 = _backtrack(residual, x, dx, _merit(r), r_full, ~(converged | ~solved))
         else:
             alpha, r1 = 1.0, r_full
@@ -210,7 +214,7 @@ def _chord_newton(residual, jacobian_parts, solver, x0, options: NewtonOptions):
         solved = jnp.all(jnp.isfinite(dx))
         increment = jnp.where(solved, jnp.max(jnp.abs(du)), jnp.inf)
         small = lambda u, v, rt, at: small_increment(u, v, n_u, rt, at)
-        settled, rate = chord_stopping_test(x[:-1], du, x[-1], dp, increment, previous, small, rtol=rtol, atol=atol)
+        settled, rate = chord_stopping_test(x[:-1], du, x[-1], dp, increment, previous, small, tol=(rtol, atol))
         converged = solved & settled
         r_full = residual(x + dx)
         # A fresh (full Newton) step backtracks (with ``line_search``); a chord step is taken whole or rejected.
@@ -238,13 +242,14 @@ def _chord_newton(residual, jacobian_parts, solver, x0, options: NewtonOptions):
     return x, it, status
 
 
-def chord_stopping_test(u, du, p, dp, increment, previous, small, *, rtol, atol, xp=jnp):
+def chord_stopping_test(u, du, p, dp, increment, previous, small, *, tol: tuple, xp=jnp):
     """The stopping test of a chord iteration and its contraction rate, ``(settled, rate)``, on JAX or
     NumPy values (``xp``): the one policy of the serial and the distributed chord Newton.
 
     ``u, du``: the iterate's displacements and their increment; ``p, dp``: its multiplier and increment
     (0 and 0 unconstrained); ``increment = |du|_inf`` and ``previous``, the last accepted one (inf if
-    none); ``small(u, du, rtol, atol)``: the block test of `small_increment`. A linearly converging iteration
+    none); ``tol = (rtol, atol)``: the tolerances of the increment test; ``small(u, du, rtol, atol)``: the block
+    test of `small_increment`. A linearly converging iteration
     leaves an error of about ``left |dx|`` after the update dx, ``left = rate / (1 - rate)``,
     ``rate = increment / previous`` (1 while the rate is unknown or above `CHORD_RATE`). Settled: what
     is left of u meets the tolerances scaled by `CHORD_MARGIN`, and what is left of p meets
@@ -252,6 +257,7 @@ def chord_stopping_test(u, du, p, dp, increment, previous, small, *, rtol, atol,
     stopped on u alone can leave p wrong in its eighth digit), so it gets its own test on its own scale.
     Or the increment meets the unscaled test while the contraction fails: the iteration is at
     round-off (which also ends it when p is 0 to round-off)."""
+    rtol, atol = tol
     rate = increment / previous
     left = xp.where(xp.isfinite(previous) & (rate < CHORD_RATE), rate / (1 - rate), 1.0)
     u_settled = small(u, left * du, CHORD_MARGIN * rtol, CHORD_MARGIN * atol)

@@ -10,18 +10,19 @@ One module a concept: `result` (the frozen `OptimizationResult` and its `Termina
 `EvaluationCache`, with which a resumed run replays its evaluations and ends where an uninterrupted run
 ends), `box` (the `BoxProblem`: bounds, projection, metric, stationarity, tau scaling), `run` (the set-up
 and wrap-up the optimizers share), `search` (the projected Armijo line search), and one module a method:
-`bb` (`barzilai_borwein`), `quasi_newton` (`lbfgsb`), `newton` (`newton_cg`, preconditioned by the
-`CurvaturePairs` of `curvature`).
-"""
+`bb` (`barzilai_borwein`, its `BBOptions`), `quasi_newton` (`lbfgsb`), `newton` (`newton_cg`, its
+`NewtonCGOptions`; preconditioned by the `CurvaturePairs` of `curvature`). Each takes the problem (a reduced
+functional, or a `BoxProblem`), the start, its stopping test and budget, and its method's options."""
 
-from .bb import BBStepRule, barzilai_borwein
+from .bb import BBOptions, BBStepRule, barzilai_borwein
 from .box import BoxProblem, stationarity, tau_scaling
 from .cache import EvaluationCache
 from .curvature import CurvaturePairs
-from .newton import newton_cg
+from .newton import NewtonCGOptions, newton_cg
 from .quasi_newton import lbfgsb
 from .result import OptimizationResult, Termination
 from .search import VALUE_RESOLUTION, increase
 
 __all__ = ["OptimizationResult", "Termination", "EvaluationCache", "BoxProblem", "BBStepRule", "CurvaturePairs",
-           "barzilai_borwein", "lbfgsb", "newton_cg", "stationarity", "tau_scaling", "increase", "VALUE_RESOLUTION"]
+           "barzilai_borwein", "BBOptions", "lbfgsb", "newton_cg", "NewtonCGOptions", "stationarity", "tau_scaling",
+           "increase", "VALUE_RESOLUTION"]

@@ -13,7 +13,7 @@ from ..control_space import ControlSpace, TauWeighted
 from ..reduced import ControlPoint, ReducedFunctional
 from ..tau_scale import is_tau_scale
 
-__all__ = ["BoxProblem", "stationarity", "tau_scaling"]
+__all__ = ["BoxProblem", "as_box", "stationarity", "tau_scaling"]
 
 
 @dataclass(frozen=True)
@@ -114,6 +114,16 @@ class BoxProblem:
         if lo is None or hi is None or width <= 0:
             return 1.0
         return float((hi - lo) * np.sqrt(self.J.s_weights.sum() * self.J.model.control.mass.sum()) / width)
+
+
+def as_box(problem: ReducedFunctional | BoxProblem, tau0: float, xi_bounds=(None, None)) -> BoxProblem:
+    """The optimizers' ``problem`` as a `BoxProblem`: a box as given, or for a reduced functional J the box
+    `BoxProblem.around` J with ``xi_bounds`` and tau in its default range (``tau0``: the start's tau)."""
+    if not isinstance(problem, BoxProblem):
+        return BoxProblem.around(problem, tau0, xi_bounds=xi_bounds)
+    if tuple(xi_bounds) != (None, None):
+        raise InputError("xi_bounds belong to the BoxProblem when one is given")
+    return problem
 
 
 def _tau_range(J: ReducedFunctional, tau_margin: float | None, fix_tau: bool, tau0: float) -> tuple:

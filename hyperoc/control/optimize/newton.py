@@ -3,28 +3,42 @@ Hessian-vector products, CG preconditioned by the curvature pairs of the earlier
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ...errors import SolverError
 from ..reduced import ControlPoint, ReducedFunctional
-from .box import BoxProblem
+from .box import BoxProblem, as_box
 from .curvature import CurvaturePairs
 from .result import OptimizationResult, Termination
 from .run import Run
 from .search import Backtracking
 
-__all__ = ["newton_cg"]
+__all__ = ["newton_cg", "NewtonCGOptions"]
 
 
-def newton_cg(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gtol: float = 1e-6,
-              gtol_abs: float = 0.0, max_iter: int = 100, max_cg: int = 20, tau_margin: float | None = None,
-              fix_tau: bool = False, tau_scale: float | str = 1.0,
-              armijo: float = 0.5, max_backtracks: int = 30, cache_dir=None, callback=None) -> OptimizationResult:
+@dataclass(frozen=True)
+class NewtonCGOptions:
+    """The steps of `newton_cg`: at most ``max_cg`` Hessian-vector products per CG solve, tau's scale
+    ``tau_scale`` in the metric, and the Armijo search's sufficient increase ``armijo`` and halvings
+    ``max_backtracks``; `newton_cg` says what each does."""
+
+    max_cg: int = 20
+    tau_scale: float | str = 1.0
+    armijo: float = 0.5
+    max_backtracks: int = 30
+
+
+def newton_cg(problem: ReducedFunctional | BoxProblem, m0: ControlPoint, *, xi_bounds=(None, None),
+              gtol: float = 1e-6, gtol_abs: float = 0.0, max_iter: int = 100,
+              options: NewtonCGOptions = NewtonCGOptions(), cache_dir=None, callback=None) -> OptimizationResult:
     """Projected truncated Newton-CG (the projected Newton method of Bertsekas, SIAM J. Control Optim.
     20, 1982, with CG stopped at nonconcavity as in Steihaug's method): second-order steps from
     Hessian-vector products.
+
+    ``problem``: a reduced functional J with the bounds ``xi_bounds``, or a `BoxProblem`, as in
+    `barzilai_borwein`; ``options``: CG's budget, tau's scale and the search (`NewtonCGOptions`).
 
     Each iteration splits the values into binding ones (within ``w`` of a bound that G pushes against,
     ``w`` the largest component of the projected step ``P(m + G) - m`` per block: Bertsekas's
@@ -66,11 +80,11 @@ def newton_cg(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None),
     Hessian-vector products, the iterations where CG met nonconcavity and the gradient steps taken where the
     Newton direction's search failed.
     """
-    box = BoxProblem.around(J, m0.tau, xi_bounds=xi_bounds, tau_margin=tau_margin, fix_tau=fix_tau)
+    box, tau_scale, max_cg = as_box(problem, m0.tau, xi_bounds), options.tau_scale, options.max_cg
     if tau_scale != "curvature":
         box = replace(box, tau_weight=box.tau_scale(tau_scale) ** 2)
     run = Run(box, cache_dir, callback)
-    search = Backtracking(run, armijo, max_backtracks)
+    search = Backtracking(run, options.armijo, options.max_backtracks)
     counts = {"hessian_products": 0, "nonconcave_iterations": 0, "gradient_steps": 0}
     m, current, measure = run.start(m0)
     if tau_scale == "curvature":

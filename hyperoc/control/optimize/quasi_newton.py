@@ -10,7 +10,7 @@ import scipy.optimize as sopt
 
 from ...errors import SolverError
 from ..reduced import ControlPoint, ReducedFunctional
-from .box import BoxProblem
+from .box import BoxProblem, as_box
 from .result import OptimizationResult, Termination
 from .run import Run
 from .search import increase
@@ -18,11 +18,12 @@ from .search import increase
 __all__ = ["lbfgsb"]
 
 
-def lbfgsb(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gtol: float = 1e-6,
-           max_iter: int = 200, tau_margin: float | None = None, memory: int = 10, fix_tau: bool = False,
-           cache_dir=None, callback=None, tau_scale: float | str = "range") -> OptimizationResult:
+def lbfgsb(problem: ReducedFunctional | BoxProblem, m0: ControlPoint, *, xi_bounds=(None, None), gtol: float = 1e-6,
+           max_iter: int = 200, memory: int = 10, tau_scale: float | str = "range", cache_dir=None,
+           callback=None) -> OptimizationResult:
     """L-BFGS-B (scipy) on ``-J`` with bounds ``xi_bounds`` on every control value and tau in
-    ``[tau_margin, T - eps - tau_margin]``.
+    ``[tau_margin, T - eps - tau_margin]``; ``problem``: a reduced functional J with those bounds, or a
+    `BoxProblem`, as in `barzilai_borwein`. ``memory``: the correction pairs L-BFGS keeps.
 
     Variables are the coordinates of `ControlSpace.to_coordinates` (``z = U xi D^(1/2)``, U the Cholesky
     factor of the time part of the metric, D the lumped L2(omega) weights, positive also for P2), so
@@ -37,7 +38,8 @@ def lbfgsb(J: ReducedFunctional, m0: ControlPoint, *, xi_bounds=(None, None), gt
     when the projected gradient norm is ``<= gtol`` times its initial value.
     ``callback(k, m, J(m), measure)`` after iteration k, with that norm (as in ``history["grad_norm"]``).
     """
-    box = BoxProblem.around(J, m0.tau, xi_bounds=xi_bounds, tau_margin=tau_margin, fix_tau=fix_tau)
+    box = as_box(problem, m0.tau, xi_bounds)
+    J = box.J
     variables = _Variables(box, box.tau_scale(tau_scale), m0.xi.shape)
     run = Run(box, cache_dir, callback)
     # last: (m, evaluation, J as judged) of the last evaluation; anchor: the same of scipy's current iterate
