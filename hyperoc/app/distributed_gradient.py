@@ -11,7 +11,8 @@ The point: tau = ``optimize.tau0`` (or ``--tau``), xi uniform in [-a, a] at ever
 `hyperoc.distributed.dynamics.DistributedStepper` (Newton on PETSc, MUMPS) and
 `DistributedAdjoint`; ``--serial`` with the package's serial `ReducedFunctional` (the config's solver). Both
 take the config's step terms (``[[dynamics.robin]]``, ``[dynamics] pressure, activation``, ``[material]
-viscosity``); a constraint other than the tissue volume is refused.
+viscosity``) and its constraint (``[dynamics] constraint``: "tissue_volume", or "cavity_volume" with
+``[dynamics.cavity]``); the others (the circulation, none) are refused.
 ``--snapshots s``: binomial checkpointing with s snapshots (`hyperoc.control.revolve.Binomial`).
 ``--taylor``: the Taylor test along the joint (xi, tau) direction of
 `hyperoc.control.verification.random_directions`. ``--optimize``: then the config's optimization from
@@ -33,6 +34,7 @@ import time
 
 import numpy as np
 
+from ..dynamics.constraint import DISTRIBUTED_CONSTRAINTS
 from ..errors import InputError
 from ..io import write_json
 from .distributed_statics import peak_mb
@@ -71,16 +73,18 @@ def reduced_functional(args):
     transform = cfg.transform(tau)
     model = cfg.model()
     terms = cfg.step_terms(model)
-    if cfg["dynamics"]["constraint"] != "tissue_volume":
+    if cfg["dynamics"]["constraint"] not in DISTRIBUTED_CONSTRAINTS:
         raise InputError(f"the distributed gradient does not yet take [dynamics] constraint = "
-                         f"{cfg['dynamics']['constraint']!r} (only 'tissue_volume')")
+                         f"{cfg['dynamics']['constraint']!r} (only {' or '.join(map(repr, DISTRIBUTED_CONSTRAINTS))})")
+    constraint = cfg.constraint(model, transform.grid(tau).t)  # a volume change not finite on the grid: here
     comm, options = None, {"schedule": checkpoint_schedule(snapshots=args.snapshots),
                            "horizon": cfg["optimize"]["horizon"]}
     if args.serial:
         from ..control.adjoint import Adjoint
         from ..dynamics.stepper import TimeStepper
 
-        options["adjoint"] = Adjoint(TimeStepper(model, cfg.scheme(), cfg["dynamics"]["solver"], terms=terms))
+        options["adjoint"] = Adjoint(TimeStepper(model, cfg.scheme(), cfg["dynamics"]["solver"], terms=terms,
+                                                 constraint=constraint))
     else:
         from mpi4py import MPI
 
@@ -88,7 +92,8 @@ def reduced_functional(args):
 
         comm = MPI.COMM_WORLD
         options["adjoint"] = DistributedAdjoint(DistributedStepper(model, cfg.scheme(), comm=comm,
-                                                                   solver=args.solver, terms=terms))
+                                                                   solver=args.solver, terms=terms,
+                                                                   constraint=constraint))
     J = ReducedFunctional(model, transform, cfg.objective(), **options)
     xi = np.random.default_rng(args.seed).uniform(-args.amplitude, args.amplitude, (J.N + 1, model.control.size))
     return J, ControlPoint(xi, tau), comm, cfg

@@ -4,16 +4,21 @@ each rank's cells, Newton and the adjoint's transposed solves on PETSc.
 Step ``n -> n+1`` is the serial one (`hyperoc.dynamics.stepper`): with ``x = (y0', p')``,
 
     F_u(x) = sum_e F_u^e(y0', p'; y0, y1, dt) - dt (theta L(xi', f') + (1 - theta) L(xi, f)) = 0,
-    F_c(x) = sum_e vol^e(y0') - V0 = 0,
+    F_c(x) = sum_r c_r(y0') - target(V0, t') = 0,
 
 the element parts ``F_u^e`` (inertia, damping, internal force, multiplier, the step terms: Robin boundaries
 and follower pressure on the facets of the rank's cells, prescribed tension, viscosity, their time laws at
 the step's levels) computed by the serial `TimeStepper.residual_at` of the model restricted to the rank's
 cells, summed into the owners' rows, the loads ``L = B xi + f`` applied on the owned rows (B and f are
-assembled already), the volumes summed over the ranks. The adjoint step (`hyperoc.control.adjoint`) solves
+assembled already). The constraint (`hyperoc.dynamics.constraint`: the tissue volume ``c = int det F`` or the
+cavity volume ``c = V_cav``, held at ``V0 + dV(t)``) is the serial one restricted to the rank's cells: its
+share ``c_r`` of the value (the cavity: the wall facets the rank's cells own, the lid's apex the serial fixed
+point), its force and tangent on those cells; the shares are summed over the ranks and the target subtracted
+once. The adjoint step (`hyperoc.control.adjoint`) solves
 the transposed bordered step matrix by the same Schur elimination with ``col`` and ``row`` swapped (and the
 element blocks transposed when a term is not symmetric), and takes the vector-Jacobian products of the same
-local residual, in the states, dt and the level t0, summed over the ranks.
+local residual, in the states, dt and the level t0, summed over the ranks, plus the target's, in dt and t0
+(``-dtarget/dt`` at the new level, once).
 
 States cross this module's boundary in the serial numbering, the same vector on every rank (each
 step ends with an allgather of the new state): `Adjoint.record`, the checkpointing schedules and
@@ -32,7 +37,7 @@ import numpy as np
 from mpi4py import MPI
 
 from ..control.adjoint import Adjoint
-from ..dynamics.constraint import TissueVolume
+from ..dynamics.constraint import DISTRIBUTED_CONSTRAINTS, make_constraint
 from ..dynamics.stepper import Scheme, StepStatus, TimeStepper
 from ..errors import InputError
 from ..mechanics import operators
@@ -53,6 +58,11 @@ class DistributedStepper(TimeStepper):
     steps (no line search). `run`, `march_stepwise`, `solution` and the monitors are the serial ones,
     driven one `advance` at a time.
 
+    constraint : "tissue_volume" (default), "cavity_volume" (the endocardium's cavity held at its initial
+        volume) or a constraint object of one of those kinds (`hyperoc.dynamics.constraint`, e.g.
+        ``CavityVolumeConstraint(model, "endocardium", change=law)``); `InputError` for the others
+        (the circulation, none).
+
     terms : the step terms of the serial model (`hyperoc.dynamics.terms`: Robin boundaries, follower pressure,
         prescribed tension, viscosity), each on the rank's cells (a boundary term on the facets whose owner
         cell is the rank's); their time laws are evaluated at the step's levels, and when one is not
@@ -63,7 +73,7 @@ class DistributedStepper(TimeStepper):
     """
 
     def __init__(self, model: StateModel, scheme: Scheme = Scheme(), *, comm=MPI.COMM_WORLD, solver: str = "mumps",
-                 terms=()):
+                 terms=(), constraint="tissue_volume"):
         self.terms = tuple(terms)
         if hasattr(model, "n_u"):
             raise InputError("DistributedStepper: the dynamics of a Taylor-Hood model is not implemented")
@@ -73,7 +83,10 @@ class DistributedStepper(TimeStepper):
             raise InputError("DistributedStepper: a control's time profile is not implemented on the distributed "
                              "path")
         self.model, self.scheme = model, scheme
-        self.constraint = TissueVolume(model)  # the distributed step holds the tissue volume
+        self.constraint = make_constraint(model, constraint)
+        if self.constraint.kind not in DISTRIBUTED_CONSTRAINTS:
+            raise InputError(f"DistributedStepper: the {self.constraint.kind!r} constraint is not implemented on the "
+                             f"distributed path (only {', '.join(map(repr, DISTRIBUTED_CONSTRAINTS))})")
         self.layout = self.solver = Layout(model, comm, solver)
         self.chord = scheme.chord_with(self.layout, auto=True)
         self._kept = KeptJacobian()  # chord Newton's Jacobian, kept across iterations and steps
@@ -81,7 +94,8 @@ class DistributedStepper(TimeStepper):
         cells, dofs = self.layout.cells, self.layout.dofs
         local = model.restricted(cells, dofs)
         self.local = TimeStepper(local, scheme, solver=None,
-                                 terms=tuple(term.restricted(model, local, cells, dofs) for term in self.terms))
+                                 terms=tuple(term.restricted(model, local, cells, dofs) for term in self.terms),
+                                 constraint=self.constraint.restricted(model, local, cells, dofs))
         owned = self.layout.owned_serial
         self._B = model.control.load[owned] if model.control is not None else None
 
@@ -98,7 +112,8 @@ class DistributedStepper(TimeStepper):
         zero = jnp.zeros(st.model.n)
 
         def residual(yl0, yl1, dt, t0, x):
-            """The element rows (m,) and the local volume of ``x = (y0' (m,), p')``, the step from level t0."""
+            """The element rows (m,) and the rank's share of the constraint's value at ``x = (y0' (m,), p')``, the
+            step from level t0."""
             return st.residual(x, (yl0, yl1, 0.0), (None, None), (zero, zero), dt, 0.0, t0)
 
         def residual_vjp(yl0, yl1, dt, t0, x, w):
@@ -110,7 +125,8 @@ class DistributedStepper(TimeStepper):
                 "jacobian": jax.jit(lambda x, yl0, yl1, dt, t0: st.jacobian_parts(x, yl0, dt, yl1, t0)),
                 "residual_vjp": jax.jit(residual_vjp),
                 "velocity_vjp": jax.jit(lambda a, b, c, dt, w: jax.vjp(st.velocity, a, b, c, dt)[1](w)),
-                "volume": jax.jit(st.model.volume), "min_det_F": jax.jit(st.model.min_det_F),
+                "volume": jax.jit(st.model.volume), "constraint_value": jax.jit(st.constraint.value),
+                "target_rate": jax.jit(self.constraint.target_rate), "min_det_F": jax.jit(st.model.min_det_F),
                 "max_grad": jax.jit(st.model.max_grad)}
 
     def owned_load(self, xi0, xi1, f0, f1, dt) -> np.ndarray:
@@ -126,7 +142,8 @@ class DistributedStepper(TimeStepper):
         return np.array([self.deformed_volume(y) for y in Y0])
 
     def constraint_value(self, y0) -> float:
-        return self.deformed_volume(y0)
+        """The constrained quantity ``c(y0)`` of a serial state (n,): the ranks' shares summed."""
+        return self.layout.sum(self._kernels["constraint_value"](jnp.asarray(np.asarray(y0)[self.layout.dofs])))
 
     def advance(self, carry, inputs):
         """One step, as `TimeStepper.advance`: carry ``(y0, y1, p, failed)``, inputs ``(xi0, xi1, f0, f1,
@@ -143,15 +160,16 @@ class DistributedStepper(TimeStepper):
         with L.clock("kernels"):
             known = k["known"](yl0, yl1, dt, t0)
         load = self.owned_load(xi0, xi1, f0, f1, dt)
+        target = float(self.constraint.target(V0, t0 + dt))
 
         def residual(xl, q):
             with L.clock("kernels"):
                 r = np.asarray(k["residual_at"](jnp.append(jnp.asarray(xl), q), known, yl0, yl1, dt, t0))
-            return np.append(L.add(r[:-1]) + load, L.sum(r[-1]) - V0)
+            return np.append(L.add(r[:-1]) + load, L.sum(r[-1]) - target)
 
         def jacobian(xl, q):
             with L.clock("kernels"):
-                # the corner is 0: the distributed step holds the tissue volume
+                # the corner is 0: the row of the tissue or the cavity volume does not read p'
                 blocks, col, row, _ = (np.asarray(a) for a in k["jacobian"](jnp.append(jnp.asarray(xl), q), yl0, yl1,
                                                                              dt, t0))
             return blocks, L.add(col), L.add(row)
@@ -192,7 +210,8 @@ class DistributedAdjoint(Adjoint):
         L, k, th = st.layout, st._kernels, st.scheme.theta
         d, o = L.dofs, L.owned_serial
         lam0, lam1, lam_p = (np.asarray(c) for c in carry)
-        # the tissue volume's carried state is p' itself, in no residual: lam_p is J's partial in p' alone
+        # the carried state of the tissue and the cavity volume is p' itself, in no residual: lam_p is J's partial
+        # in p' alone
         y0n, pn, _, y0, y1, xi0, xi1, f0, f1, dt, V0, t0, gp = inputs
         y0n, y0, y1, pn, dt = np.asarray(y0n), np.asarray(y0), np.asarray(y1), float(pn), float(dt)
         gp = float(gp) + float(lam_p)
@@ -214,6 +233,9 @@ class DistributedAdjoint(Adjoint):
         # the loads' part -dt (th L1 + (1 - th) L0), L = B xi + f, on the owned rows
         load_dt = st.owned_load(xi0, xi1, f0, f1, 1.0) @ w_u
         Bw = L.sum_array(st._B.T @ w_u) if st._B is not None else np.zeros(0)
+        # the row's target(V0, t0 + dt), subtracted once after the sum: -w_p dtarget/dt in dt and in t0
+        target = w_p * float(k["target_rate"](t0 + dt))
         lam = (L.serial(v_y0 - L.add(r_y0)), L.serial(v_y1 - L.add(r_y1)))
-        return (*lam, np.float64(0.0)), (dt * (1 - th) * Bw, dt * th * Bw, L.sum(float(v_dt) - float(r_dt) - load_dt),
-                                          -L.sum(float(r_t0)))
+        return (*lam, np.float64(0.0)), (dt * (1 - th) * Bw, dt * th * Bw,
+                                          L.sum(float(v_dt) - float(r_dt) - load_dt) + target,
+                                          target - L.sum(float(r_t0)))

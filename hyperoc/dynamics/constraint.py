@@ -13,6 +13,12 @@ The step carries the constraint's multiplier state from one step to the next (`c
 A row may read the step's previous level (y0, the carried state, dt) and depend on p' (`corner`, the
 bordered Jacobian's ``dF_c/dp'``, 0 but for the circulation).
 
+On MPI ranks (`hyperoc.distributed.dynamics`) a constraint is ``restricted(model, local, cells, dofs)`` to a
+rank's cells, as the step terms are: its value the part of ``c`` on those cells (or on the wall facets they
+own), its force direction and tangent those of the part, its target 0; the distributed step sums the rows
+over the ranks and subtracts the serial target once. The tissue and the cavity volume restrict so; the
+circulation's row (its 0D part) and the gauge of `NoConstraint` (a vector over all unknowns) do not.
+
 A constraint with a multiplier holds ``c(y0') = target(V0, t')`` with a force ``-p' G`` on the momentum
 rows, ``G`` the *force direction* (`force_direction`) and ``c`` the constrained quantity; step weighting
 (default): ``dt p' (theta G(y0') + (1 - theta) G(y0))``; "theta": ``dt (theta p' G' + (1 - theta) p G)``.
@@ -61,6 +67,8 @@ rows, ``G`` the *force direction* (`force_direction`) and ``c`` the constrained 
 
 from __future__ import annotations
 
+import copy
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -70,7 +78,8 @@ from ..mechanics.cavity import CavityVolume
 from ..mechanics.kernels import gather, scatter
 from .laws import TimeLaw
 
-__all__ = ["TissueVolume", "CavityVolumeConstraint", "Circulation", "NoConstraint", "make_constraint", "CONSTRAINTS"]
+__all__ = ["TissueVolume", "CavityVolumeConstraint", "Circulation", "NoConstraint", "make_constraint", "CONSTRAINTS",
+           "DISTRIBUTED_CONSTRAINTS"]
 
 
 class _ScalarState:
@@ -157,6 +166,11 @@ class TissueVolume(_HeldByMultiplier):
     def target(self, V0, t):
         return V0 + 0.0 * t
 
+    def restricted(self, model, local, cells, dofs):
+        """The tissue volume of ``local = model.restricted(cells, dofs)``: the part of ``int det F`` on ``cells``
+        (`restricted` of the family: module docstring)."""
+        return TissueVolume(local)
+
     def tangent_weight(self, x):
         """The weight b of ``det F``'s Hessian in the element tangent (`StateModel.tangent_blocks`)."""
         return x[-1]
@@ -207,6 +221,15 @@ class CavityVolumeConstraint(_HeldByMultiplier):
             raise InputError(f"cavity volume change is {values[k]} at t = {t[k]:g} (it must be finite on the whole "
                              "time grid)")
 
+    def restricted(self, model, local, cells, dofs):
+        """The part of the cavity volume from the wall facets whose owner cell is among ``cells``, on
+        ``local = model.restricted(cells, dofs)`` (`CavityVolume.restricted`: the serial apex), with target 0
+        (module docstring)."""
+        out = copy.copy(self)
+        out.model, out.change = local, None
+        out.cavity = self.cavity.restricted(model, local, cells, dofs)
+        return out
+
     def tangent_weight(self, x):
         return 0.0
 
@@ -249,6 +272,10 @@ class Circulation(CavityVolumeConstraint):
         self.p_atrial, self.R_mitral = float(atrial_pressure), float(mitral_resistance)
         self.Pa0 = float(aortic_pressure)
         self.phase0 = self.PHASES.index(phase)
+
+    def restricted(self, model, local, cells, dofs):
+        """Not implemented: the row's 0D part is not a sum over the wall's facets."""
+        raise InputError("the circulation constraint is not implemented on the distributed path")
 
     def carried(self, p):
         """The carried state ``(p, Pa, phase)`` (3,) at the first level: the multiplier p, Pa(0), the phase (its
@@ -353,6 +380,9 @@ class NoConstraint(_ScalarState):
         Ke = jnp.einsum("ckl,cl->ck", blocks, gather(self.e, index))
         return scatter(Ke, index, self.model.n), self.e
 
+
+#: the kinds that restrict to a rank's cells (`restricted`, module docstring): the distributed path's
+DISTRIBUTED_CONSTRAINTS = ("tissue_volume", "cavity_volume")
 
 CONSTRAINTS = {"tissue_volume": TissueVolume, "cavity_volume": CavityVolumeConstraint, "none": NoConstraint}
 
