@@ -18,10 +18,11 @@ viscosity``) and its constraint (``[dynamics] constraint``: "tissue_volume", or 
 `hyperoc.control.verification.random_directions`. ``--optimize``: then the config's optimization from
 (0, tau) (`hyperoc.app.workflows.optimize_single`: its method, ``max_iter`` and bounds), the optimizer
 running unchanged on every rank with the same values. The JSON (rank 0) holds J, the gradient (dJ/dxi as a
-dual vector, dJ/dtau), the wall time of the value and gradient (compilation included) and of each later
-evaluation, the Newton iterations, the peak resident memory of each rank (MB), the Taylor result, the
-optimization's iterates (J, tau) and result, and
-on the distributed path the split of the two evaluations (`hyperoc.distributed.layout.Layout.split`).
+dual vector, dJ/dtau), the state at the point (the step multipliers p, the last kept level's displacement),
+the wall time of the value and gradient (compilation included) and of each later evaluation, the Newton
+iterations, the peak resident memory of each rank (MB), the Taylor result, the optimization's iterates (J, tau)
+and result, and on the distributed path the split of the two evaluations
+(`hyperoc.distributed.layout.Layout.split`).
 Bad input: one line on standard error (from rank 0), exit status 2, nothing written.
 """
 
@@ -111,17 +112,20 @@ def optimization(cfg, J, tau: float) -> dict:
 
 
 def evaluate(J, m) -> dict:
-    """J(m) and its derivative, timed (first evaluation: compilation included; then a second one at a
-    new point next to m, the cost of an optimizer's iteration)."""
+    """J(m), its derivative and the state (the step multipliers, the last kept level's displacement), timed
+    (first evaluation: compilation included; then a second one at a new point next to m, the cost of an
+    optimizer's iteration)."""
     t0 = time.perf_counter()
     value, d = J.value_and_derivative(m)
     first = time.perf_counter() - t0
+    state = J.record(m)  # the solve of the evaluation, cached
+    state = {"p_steps": state.p_steps.tolist(), "state_level": int(state.levels[-1]), "state": state.y0[-1].tolist()}
     t0 = time.perf_counter()
     J.value_and_derivative(m * (1 + 1e-6))
     again = time.perf_counter() - t0
     rec = J.record(m * (1 + 1e-6))
     return {"J": value, "dJ_dtau": d.tau, "dJ_dxi": d.xi.ravel().tolist(), "dJ_dxi_norm": float(np.linalg.norm(d.xi)),
-            "seconds_first": first, "seconds": again, "newton_iterations": int(np.sum(rec.newton_iterations))}
+            "seconds_first": first, "seconds": again, "newton_iterations": int(np.sum(rec.newton_iterations)), **state}
 
 
 def main(argv=None) -> int:
