@@ -326,6 +326,28 @@ def test_two_rank_gradient_with_the_cavity_constraint_equals_the_serial_one_and_
     assert abs(dist["taylor"]["rate"] - 2.0) <= 0.05
 
 
+# The control scaled in time, g(t) = 1 + sin(t) / 2 (t in ms): the load B (g(t) xi) of every level.
+PROFILE = ["--set", 'control.profile="1+0.5*sin(t)"']
+
+
+def test_two_rank_gradient_with_a_control_time_profile_equals_the_serial_one_and_passes_the_taylor_test(
+        mpiexec, tmp_path, serial_gradient):
+    """`ControlData.profile` on the distributed path: the owned rows' load ``B (g(t) xi)`` at each level, its
+    vector-Jacobian product in xi, dt and t0 (g's rate: dJ/dtau) summed over the ranks. J and dJ on 2 ranks
+    equal the serial path's with the same profile, which changes J, and the Taylor remainder falls at rate
+    2.00 +- 0.05."""
+    from hyperoc.app.distributed_gradient import main
+
+    out = tmp_path / "serial-profile.json"
+    assert main([*SMALL_VENTRICLE, *PROFILE, "--serial", "--out", str(out)]) == 0
+    serial = json.loads(out.read_text())
+    assert abs(serial["J"] - serial_gradient["J"]) > 1e-3 * abs(serial_gradient["J"])
+    dist = _on_two_ranks(mpiexec, tmp_path, "hyperoc.app.distributed_gradient",
+                         [*SMALL_VENTRICLE, *PROFILE, "--taylor"])
+    _assert_same_gradient(dist, serial)
+    assert abs(dist["taylor"]["rate"] - 2.0) <= 0.05
+
+
 def test_the_distributed_gradient_refuses_a_constraint_other_than_the_tissue_and_the_cavity_volume(tmp_path, capsys):
     """The distributed step holds the tissue or the cavity volume: ``constraint = "none"`` is refused in one line,
     status 2, nothing written (before any rank starts a solve; the circulation: tests/test_circulation.py)."""

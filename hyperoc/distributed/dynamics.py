@@ -10,14 +10,16 @@ the element parts ``F_u^e`` (inertia, damping, internal force, multiplier, the s
 and follower pressure on the facets of the rank's cells, prescribed tension, viscosity, their time laws at
 the step's levels) computed by the serial `TimeStepper.residual_at` of the model restricted to the rank's
 cells, summed into the owners' rows, the loads ``L = B xi + f`` applied on the owned rows (B and f are
-assembled already). The constraint (`hyperoc.dynamics.constraint`: the tissue volume ``c = int det F`` or the
+assembled already; ``L(xi, f, t) = B (g(t) xi) + f`` with the control's time profile g, as in
+`TimeStepper.load`). The constraint (`hyperoc.dynamics.constraint`: the tissue volume ``c = int det F`` or the
 cavity volume ``c = V_cav``, held at ``V0 + dV(t)``) is the serial one restricted to the rank's cells: its
 share ``c_r`` of the value (the cavity: the wall facets the rank's cells own, the lid's apex the serial fixed
 point), its force and tangent on those cells; the shares are summed over the ranks and the target subtracted
 once. The adjoint step (`hyperoc.control.adjoint`) solves
 the transposed bordered step matrix by the same Schur elimination with ``col`` and ``row`` swapped (and the
 element blocks transposed when a term is not symmetric), and takes the vector-Jacobian products of the same
-local residual, in the states, dt and the level t0, summed over the ranks, plus the target's, in dt and t0
+local residual and of the owned rows' loads, in the states, the controls, dt and the level t0 (g's rate
+through the loads), summed over the ranks, plus the target's, in dt and t0
 (``-dtarget/dt`` at the new level, once).
 
 States cross this module's boundary in the serial numbering, the same vector on every rank (each
@@ -79,9 +81,6 @@ class DistributedStepper(TimeStepper):
             raise InputError("DistributedStepper: the dynamics of a Taylor-Hood model is not implemented")
         if scheme.multiplier != "step":
             raise InputError("DistributedStepper: multiplier must be 'step' (the adjoint's scheme)")
-        if model.control is not None and model.control.profile is not None:
-            raise InputError("DistributedStepper: a control's time profile is not implemented on the distributed "
-                             "path")
         self.model, self.scheme = model, scheme
         self.constraint = make_constraint(model, constraint)
         if self.constraint.kind not in DISTRIBUTED_CONSTRAINTS:
@@ -96,8 +95,9 @@ class DistributedStepper(TimeStepper):
         self.local = TimeStepper(local, scheme, solver=None,
                                  terms=tuple(term.restricted(model, local, cells, dofs) for term in self.terms),
                                  constraint=self.constraint.restricted(model, local, cells, dofs))
-        owned = self.layout.owned_serial
-        self._B = model.control.load[owned] if model.control is not None else None
+        # B's owned rows (JAX sparse) and the control's time profile g: the load B (g(t) xi) of `TimeStepper.load`
+        self._B = operators.to_bcoo(model.control.load[self.layout.owned_serial]) if model.control is not None else None
+        self._profile = model.control.profile if model.control is not None else None
 
     @cached_property
     def mass(self):
@@ -125,15 +125,24 @@ class DistributedStepper(TimeStepper):
                 "jacobian": jax.jit(lambda x, yl0, yl1, dt, t0: st.jacobian_parts(x, yl0, dt, yl1, t0)),
                 "residual_vjp": jax.jit(residual_vjp),
                 "velocity_vjp": jax.jit(lambda a, b, c, dt, w: jax.vjp(st.velocity, a, b, c, dt)[1](w)),
+                "owned_load": jax.jit(self.owned_load),
+                "owned_load_vjp": jax.jit(lambda xi0, xi1, f0, f1, dt, t0, w: jax.vjp(
+                    lambda a, b, c, d: self.owned_load(a, b, f0, f1, c, d), xi0, xi1, dt, t0)[1](w)),
                 "volume": jax.jit(st.model.volume), "constraint_value": jax.jit(st.constraint.value),
                 "target_rate": jax.jit(self.constraint.target_rate), "min_det_F": jax.jit(st.model.min_det_F),
                 "max_grad": jax.jit(st.model.max_grad)}
 
-    def owned_load(self, xi0, xi1, f0, f1, dt) -> np.ndarray:
-        """``-dt (theta L(xi1, f1) + (1 - theta) L(xi0, f0))`` on the owned rows (m_o,), ``L = B xi + f``."""
+    def owned_load(self, xi0, xi1, f0, f1, dt, t0):
+        """``-dt (theta L(xi1, f1, t0 + dt) + (1 - theta) L(xi0, f0, t0))`` on the owned rows (m_o,), traced:
+        ``L(xi, f, t) = B (g(t) xi) + f`` (`TimeStepper.load`; g the control's time profile, 1 without one)."""
         o, th = self.layout.owned_serial, self.scheme.theta
-        load = lambda xi, f: np.asarray(f)[o] + (self._B @ np.asarray(xi) if self._B is not None else 0.0)
-        return -dt * (th * load(xi1, f1) + (1 - th) * load(xi0, f0))
+
+        def load(xi, f, t):
+            if self._B is None:
+                return f[o]
+            return f[o] + self._B @ (xi if self._profile is None else self._profile(t) * xi)
+
+        return -dt * (th * load(xi1, f1, t0 + dt) + (1 - th) * load(xi0, f0, t0))
 
     def deformed_volume(self, y0) -> float:
         return self.layout.sum(self._kernels["volume"](jnp.asarray(np.asarray(y0)[self.layout.dofs])))
@@ -159,7 +168,8 @@ class DistributedStepper(TimeStepper):
         yl0, yl1 = jnp.asarray(y0[d]), jnp.asarray(y1[d])
         with L.clock("kernels"):
             known = k["known"](yl0, yl1, dt, t0)
-        load = self.owned_load(xi0, xi1, f0, f1, dt)
+        with L.clock("kernels"):
+            load = np.asarray(k["owned_load"](*(jnp.asarray(a) for a in (xi0, xi1, f0, f1)), dt, t0))
         target = float(self.constraint.target(V0, t0 + dt))
 
         def residual(xl, q):
@@ -207,7 +217,7 @@ class DistributedAdjoint(Adjoint):
         solve on PETSc, the vector-Jacobian products of the local residual summed into the owned rows,
         the control's and dt's parts reduced over the ranks."""
         st = self.stepper
-        L, k, th = st.layout, st._kernels, st.scheme.theta
+        L, k = st.layout, st._kernels
         d, o = L.dofs, L.owned_serial
         lam0, lam1, lam_p = (np.asarray(c) for c in carry)
         # the carried state of the tissue and the cavity volume is p' itself, in no residual: lam_p is J's partial
@@ -230,12 +240,12 @@ class DistributedAdjoint(Adjoint):
             w = jnp.append(jnp.asarray(L.local_of_owned(w_u)), w_p)
             r_y0, r_y1, r_dt, r_t0 = (np.asarray(a) for a in k["residual_vjp"](jnp.asarray(y0[d]), jnp.asarray(y1[d]),
                                                                                dt, t0, x, w))
-        # the loads' part -dt (th L1 + (1 - th) L0), L = B xi + f, on the owned rows
-        load_dt = st.owned_load(xi0, xi1, f0, f1, 1.0) @ w_u
-        Bw = L.sum_array(st._B.T @ w_u) if st._B is not None else np.zeros(0)
+            # the loads' part -dt (th L1 + (1 - th) L0) on the owned rows, in the controls, dt and t0
+            l_xi0, l_xi1, l_dt, l_t0 = (np.asarray(a) for a in k["owned_load_vjp"](
+                *(jnp.asarray(a) for a in (xi0, xi1, f0, f1)), dt, t0, jnp.asarray(w_u)))
         # the row's target(V0, t0 + dt), subtracted once after the sum: -w_p dtarget/dt in dt and in t0
         target = w_p * float(k["target_rate"](t0 + dt))
         lam = (L.serial(v_y0 - L.add(r_y0)), L.serial(v_y1 - L.add(r_y1)))
-        return (*lam, np.float64(0.0)), (dt * (1 - th) * Bw, dt * th * Bw,
-                                          L.sum(float(v_dt) - float(r_dt) - load_dt) + target,
-                                          target - L.sum(float(r_t0)))
+        return (*lam, np.float64(0.0)), (-L.sum_array(l_xi0), -L.sum_array(l_xi1),
+                                          L.sum(float(v_dt) - float(r_dt) - float(l_dt)) + target,
+                                          target - L.sum(float(r_t0) + float(l_t0)))
