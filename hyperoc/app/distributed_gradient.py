@@ -11,8 +11,8 @@ The point: tau = ``optimize.tau0`` (or ``--tau``), xi uniform in [-a, a] at ever
 `hyperoc.distributed.dynamics.DistributedStepper` (Newton on PETSc, MUMPS) and
 `DistributedAdjoint`; ``--serial`` with the package's serial `ReducedFunctional` (the config's solver). Both
 take the config's step terms (``[[dynamics.robin]]``, ``[dynamics] pressure, activation``, ``[material]
-viscosity``) and its constraint (``[dynamics] constraint``: "tissue_volume", or "cavity_volume" with
-``[dynamics.cavity]``); the others (the circulation, none) are refused.
+viscosity``) and its constraint (``[dynamics] constraint``: "tissue_volume", "cavity_volume" with
+``[dynamics.cavity]``, "circulation" with ``[dynamics.circulation]``); "none" is refused.
 ``--snapshots s``: binomial checkpointing with s snapshots (`hyperoc.control.revolve.Binomial`).
 ``--taylor``: the Taylor test along the joint (xi, tau) direction of
 `hyperoc.control.verification.random_directions`. ``--optimize``: then the config's optimization from
