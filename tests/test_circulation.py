@@ -13,7 +13,7 @@ isovolumic contraction and ejection.
 - The exact gradient through an ejection (the adjoint of the carried aortic pressure): Taylor rates 2.00 +- 0.05
   in xi, tau and jointly (1.00 without the adjoint of the carried state), the same with binomial checkpointing.
 - Bad input: a negative resistance or compliance, an atrial pressure that is not finite, a circulation table
-  without the constraint: one line, exit 2, nothing written; the distributed gradient refuses the circulation.
+  without the constraint: one line, exit 2, nothing written (the circulation on MPI ranks: tests/test_distributed.py).
 - Resumable runs save and restore the carried state: a resumed run equals one that ran through, bitwise.
 - Two beats of the benchmark ventricle (slow): the PV loop closes, the second beat repeats the first.
 """
@@ -210,17 +210,6 @@ def test_exact_gradient_through_an_ejection():
     kept = J.derivative(m)
     for a, b in ((full.xi, kept.xi), (full.tau, kept.tau)):
         np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12 * np.abs(a).max())
-
-
-def test_the_distributed_gradient_refuses_the_circulation(tmp_path, capsys):
-    from hyperoc.app.distributed_gradient import main as gradient
-
-    out = tmp_path / "g.json"
-    settings = circulation_settings()
-    assert gradient([str(BENCHMARK), "--serial", "--out", str(out), *(a for s in settings for a in ("--set", s))]) == 2
-    err = capsys.readouterr().err.strip()
-    assert "tissue_volume" in err and "\n" not in err, err
-    assert not out.exists()
 
 
 @pytest.mark.slow

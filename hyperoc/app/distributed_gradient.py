@@ -11,16 +11,18 @@ The point: tau = ``optimize.tau0`` (or ``--tau``), xi uniform in [-a, a] at ever
 `hyperoc.distributed.dynamics.DistributedStepper` (Newton on PETSc, MUMPS) and
 `DistributedAdjoint`; ``--serial`` with the package's serial `ReducedFunctional` (the config's solver). Both
 take the config's step terms (``[[dynamics.robin]]``, ``[dynamics] pressure, activation``, ``[material]
-viscosity``); a constraint other than the tissue volume is refused.
+viscosity``) and its constraint (``[dynamics] constraint``: "tissue_volume", "cavity_volume" with
+``[dynamics.cavity]``, "circulation" with ``[dynamics.circulation]``); "none" is refused.
 ``--snapshots s``: binomial checkpointing with s snapshots (`hyperoc.control.revolve.Binomial`).
 ``--taylor``: the Taylor test along the joint (xi, tau) direction of
 `hyperoc.control.verification.random_directions`. ``--optimize``: then the config's optimization from
 (0, tau) (`hyperoc.app.workflows.optimize_single`: its method, ``max_iter`` and bounds), the optimizer
 running unchanged on every rank with the same values. The JSON (rank 0) holds J, the gradient (dJ/dxi as a
-dual vector, dJ/dtau), the wall time of the value and gradient (compilation included) and of each later
-evaluation, the Newton iterations, the peak resident memory of each rank (MB), the Taylor result, the
-optimization's iterates (J, tau) and result, and
-on the distributed path the split of the two evaluations (`hyperoc.distributed.layout.Layout.split`).
+dual vector, dJ/dtau), the state at the point (the step multipliers p, the last kept level's displacement),
+the wall time of the value and gradient (compilation included) and of each later evaluation, the Newton
+iterations, the peak resident memory of each rank (MB), the Taylor result, the optimization's iterates (J, tau)
+and result, and on the distributed path the split of the two evaluations
+(`hyperoc.distributed.layout.Layout.split`).
 Bad input: one line on standard error (from rank 0), exit status 2, nothing written.
 """
 
@@ -33,6 +35,7 @@ import time
 
 import numpy as np
 
+from ..dynamics.constraint import DISTRIBUTED_CONSTRAINTS
 from ..errors import InputError
 from ..io import write_json
 from .distributed_statics import peak_mb
@@ -71,16 +74,18 @@ def reduced_functional(args):
     transform = cfg.transform(tau)
     model = cfg.model()
     terms = cfg.step_terms(model)
-    if cfg["dynamics"]["constraint"] != "tissue_volume":
+    if cfg["dynamics"]["constraint"] not in DISTRIBUTED_CONSTRAINTS:
         raise InputError(f"the distributed gradient does not yet take [dynamics] constraint = "
-                         f"{cfg['dynamics']['constraint']!r} (only 'tissue_volume')")
+                         f"{cfg['dynamics']['constraint']!r} (only {' or '.join(map(repr, DISTRIBUTED_CONSTRAINTS))})")
+    constraint = cfg.constraint(model, transform.grid(tau).t)  # a volume change not finite on the grid: here
     comm, options = None, {"schedule": checkpoint_schedule(snapshots=args.snapshots),
                            "horizon": cfg["optimize"]["horizon"]}
     if args.serial:
         from ..control.adjoint import Adjoint
         from ..dynamics.stepper import TimeStepper
 
-        options["adjoint"] = Adjoint(TimeStepper(model, cfg.scheme(), cfg["dynamics"]["solver"], terms=terms))
+        options["adjoint"] = Adjoint(TimeStepper(model, cfg.scheme(), cfg["dynamics"]["solver"], terms=terms,
+                                                 constraint=constraint))
     else:
         from mpi4py import MPI
 
@@ -88,7 +93,8 @@ def reduced_functional(args):
 
         comm = MPI.COMM_WORLD
         options["adjoint"] = DistributedAdjoint(DistributedStepper(model, cfg.scheme(), comm=comm,
-                                                                   solver=args.solver, terms=terms))
+                                                                   solver=args.solver, terms=terms,
+                                                                   constraint=constraint))
     J = ReducedFunctional(model, transform, cfg.objective(), **options)
     xi = np.random.default_rng(args.seed).uniform(-args.amplitude, args.amplitude, (J.N + 1, model.control.size))
     return J, ControlPoint(xi, tau), comm, cfg
@@ -106,17 +112,20 @@ def optimization(cfg, J, tau: float) -> dict:
 
 
 def evaluate(J, m) -> dict:
-    """J(m) and its derivative, timed (first evaluation: compilation included; then a second one at a
-    new point next to m, the cost of an optimizer's iteration)."""
+    """J(m), its derivative and the state (the step multipliers, the last kept level's displacement), timed
+    (first evaluation: compilation included; then a second one at a new point next to m, the cost of an
+    optimizer's iteration)."""
     t0 = time.perf_counter()
     value, d = J.value_and_derivative(m)
     first = time.perf_counter() - t0
+    state = J.record(m)  # the solve of the evaluation, cached
+    state = {"p_steps": state.p_steps.tolist(), "state_level": int(state.levels[-1]), "state": state.y0[-1].tolist()}
     t0 = time.perf_counter()
     J.value_and_derivative(m * (1 + 1e-6))
     again = time.perf_counter() - t0
     rec = J.record(m * (1 + 1e-6))
     return {"J": value, "dJ_dtau": d.tau, "dJ_dxi": d.xi.ravel().tolist(), "dJ_dxi_norm": float(np.linalg.norm(d.xi)),
-            "seconds_first": first, "seconds": again, "newton_iterations": int(np.sum(rec.newton_iterations))}
+            "seconds_first": first, "seconds": again, "newton_iterations": int(np.sum(rec.newton_iterations)), **state}
 
 
 def main(argv=None) -> int:

@@ -5,13 +5,14 @@ time stepper, chord Newton with a kept factorization.
 The unknown is ``x = (owned values (m_o,), q)`` with q the multiplier of the volume constraint
 (``constrained``) or ``x = owned values`` alone. Each iteration solves
 
-    [ K     col ] [du]   [ -r_u ]
-    [ row^T  0  ] [dq] = [ -r_c ]
+    [ K     col  ] [du]   [ -r_u ]
+    [ row^T  c   ] [dq] = [ -r_c ]
 
 as `hyperoc.solvers.linsolve.eliminate_border` does (``K a = -r_u``, ``K b = col`` against one factorization),
-unconstrained ``K du = -r_u``. Full Newton (``kept=None``) factors K at every iteration, takes full steps
-and stops when ``|du_b|_inf <= rtol |u_b + du_b|_inf + atol`` on each block b (displacements, then
-Taylor-Hood pressures: `hyperoc.solvers.newton.small_increment`). Chord Newton (a `KeptJacobian`) is the serial
+unconstrained ``K du = -r_u``; the corner c (``dr_c/dq``, 0 but for a row that reads q) is constant in a solve.
+Full Newton (``kept=None``) factors K at every iteration, takes full steps and stops when
+``|du_b|_inf <= rtol |u_b + du_b|_inf + atol`` on each block b (displacements, then Taylor-Hood pressures:
+`hyperoc.solvers.newton.small_increment`). Chord Newton (a `KeptJacobian`) is the serial
 ``newton(..., chord=True)`` (`hyperoc.solvers.newton`): it solves with the Jacobian of an earlier
 iterate, of this solve or of an earlier one, takes the step if it decreases ``|r|^2`` (sufficient
 decrease 1e-4), refreshes the Jacobian after a rejected step or when the contraction rate exceeds
@@ -61,7 +62,7 @@ class KeptJacobian:
 
 
 def newton(residual, jacobian, layout: Layout, x0: np.ndarray, *, rtol: float, atol: float, max_iter: int,
-           constrained: bool = True, kept: KeptJacobian | None = None):
+           constrained: bool = True, kept: KeptJacobian | None = None, corner: float = 0.0):
     """Solve ``residual(x) = 0`` from x0; ``(x, iterations, NewtonStatus)``.
 
     ``residual(xl, q)`` and ``jacobian(xl, q)`` take the local values xl (m,) of the iterate's owned
@@ -69,6 +70,7 @@ def newton(residual, jacobian, layout: Layout, x0: np.ndarray, *, rtol: float, a
     r_u (m_o,) and, constrained, the constraint's value r_c (so (m_o + 1,)); ``jacobian`` the element
     blocks (nc_local, k, k) of K on the rank's cells and the owned parts of ``col`` and ``row`` (None
     unconstrained). ``kept``: chord Newton with this kept Jacobian (updated in place), else full Newton.
+    ``corner``: the bordered Jacobian's corner ``dr_c/dq``.
     """
     m_o = layout.owned_size
     x = np.array(x0, dtype=np.float64)
@@ -78,9 +80,9 @@ def newton(residual, jacobian, layout: Layout, x0: np.ndarray, *, rtol: float, a
     refresh = kept is None or not kept.current(layout)
     while it < max_iter:
         if refresh:
-            dx = _fresh_step(jacobian, layout, at(x), r, constrained, kept)
+            dx = _fresh_step(jacobian, layout, at(x), r, constrained, kept, corner)
         else:
-            dx = _kept_step(layout, r, constrained, kept)
+            dx = _kept_step(layout, r, constrained, kept, corner)
         du = dx[:m_o]
         solved = layout.all_finite(dx)
         it += 1 if chord_counts(refresh, solved, xp=np) else 0
@@ -110,7 +112,8 @@ def newton(residual, jacobian, layout: Layout, x0: np.ndarray, *, rtol: float, a
     return x, max_iter, NewtonStatus.MAX_ITERATIONS
 
 
-def _fresh_step(jacobian, layout: Layout, xl_q, r, constrained: bool, kept: KeptJacobian | None) -> np.ndarray:
+def _fresh_step(jacobian, layout: Layout, xl_q, r, constrained: bool, kept: KeptJacobian | None,
+                corner: float) -> np.ndarray:
     """The Newton step with the Jacobian at the iterate, factored now (and kept, for chord Newton)."""
     m_o = layout.owned_size
     blocks, col, row = jacobian(*xl_q)
@@ -122,15 +125,15 @@ def _fresh_step(jacobian, layout: Layout, xl_q, r, constrained: bool, kept: Kept
     ab = layout.solve(-r[:m_o], col)
     if kept is not None:
         kept.b, kept.row = ab[:, 1].copy(), row
-    du, dq = eliminate_border(ab, row, -r[m_o], dot=layout.dot)
+    du, dq = eliminate_border(ab, row, -r[m_o], dot=layout.dot, corner=corner)
     return np.append(du, dq)
 
 
-def _kept_step(layout: Layout, r, constrained: bool, kept: KeptJacobian) -> np.ndarray:
+def _kept_step(layout: Layout, r, constrained: bool, kept: KeptJacobian, corner: float) -> np.ndarray:
     """The chord step with the kept factorization and border."""
     m_o = layout.owned_size
     a = layout.solve(-r[:m_o])
     if not constrained:
         return a[:, 0]
-    du, dq = eliminate_border(np.column_stack([a[:, 0], kept.b]), kept.row, -r[m_o], dot=layout.dot)
+    du, dq = eliminate_border(np.column_stack([a[:, 0], kept.b]), kept.row, -r[m_o], dot=layout.dot, corner=corner)
     return np.append(du, dq)

@@ -13,6 +13,14 @@ The step carries the constraint's multiplier state from one step to the next (`c
 A row may read the step's previous level (y0, the carried state, dt) and depend on p' (`corner`, the
 bordered Jacobian's ``dF_c/dp'``, 0 but for the circulation).
 
+A row is ``share(x, y0) + row_offset(p', V0, t', p_prev, dt)``: the part that is a sum over the cells (or the
+wall's facets) and the rest. On MPI ranks (`hyperoc.distributed.dynamics`) a constraint is
+``restricted(model, local, cells, dofs)`` to a rank's cells, as the step terms are: its row the share of
+those cells (or of the wall facets they own), its force direction and tangent those of the part, its corner
+0; the distributed step sums the shares over the ranks and adds the serial `row_offset` and corner once. The
+tissue volume, the cavity volume and the circulation restrict so; the gauge of `NoConstraint` (a vector over
+all unknowns) does not.
+
 A constraint with a multiplier holds ``c(y0') = target(V0, t')`` with a force ``-p' G`` on the momentum
 rows, ``G`` the *force direction* (`force_direction`) and ``c`` the constrained quantity; step weighting
 (default): ``dt p' (theta G(y0') + (1 - theta) G(y0))``; "theta": ``dt (theta p' G' + (1 - theta) p G)``.
@@ -49,7 +57,7 @@ rows, ``G`` the *force direction* (`force_direction`) and ``c`` the constrained 
   aortic valve opens when ``p' > Pa'``, the mitral one when ``p' < p_a``; ejection ends when ``Q <= 0``,
   filling when the inflow reverses (``p' >= p_a``). A switch therefore lags the condition by at most one
   step, and the phase sequence of a run is piecewise constant in the data. The exact adjoint
-  (`hyperoc.control.adjoint`) does not carry the 0D state and refuses this constraint.
+  (`hyperoc.control.adjoint`) carries the 0D state's total with the phase sequence held fixed.
 - `NoConstraint` (``"none"``): only the material's own volumetric term controls the volume. The bordered
   solvers are reused through the gauge of `hyperoc.dynamics.statics`: ``y0' = w + s e`` with the unit
   vector ``e = (1, ..., 1) / sqrt(n)``, ``x = (w, s)``, ``F_c = e . w``, border ``(K e, e)``; the Schur
@@ -61,6 +69,8 @@ rows, ``G`` the *force direction* (`force_direction`) and ``c`` the constrained 
 
 from __future__ import annotations
 
+import copy
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -70,7 +80,27 @@ from ..mechanics.cavity import CavityVolume
 from ..mechanics.kernels import gather, scatter
 from .laws import TimeLaw
 
-__all__ = ["TissueVolume", "CavityVolumeConstraint", "Circulation", "NoConstraint", "make_constraint", "CONSTRAINTS"]
+__all__ = ["TissueVolume", "CavityVolumeConstraint", "Circulation", "NoConstraint", "make_constraint", "CONSTRAINTS",
+           "DISTRIBUTED_CONSTRAINTS"]
+
+
+class _Part:
+    """A constraint restricted to a rank's cells (`restricted`, module docstring): ``part``'s methods, but the
+    row is its share alone and the corner 0 (the offset and the corner enter once, on the distributed step)."""
+
+    def __init__(self, part):
+        self.part = part
+
+    def __getattr__(self, name):
+        if name == "part":  # not yet set (a copy being built): no recursion
+            raise AttributeError(name)
+        return getattr(self.part, name)
+
+    def row(self, x, V0, t, y0=None, p_prev=None, dt=None):
+        return self.part.share(x, y0)
+
+    def corner(self, p_prev, dt):
+        return 0.0
 
 
 class _ScalarState:
@@ -112,9 +142,18 @@ class _HeldByMultiplier(_ScalarState):
         return theta * x[-1] * G_new + (1 - theta) * p_prev * G_old
 
     def row(self, x, V0, t, y0=None, p_prev=None, dt=None):
-        """The constraint's residual ``c(y0') - target(V0, t)`` at the step's new level t (the step's previous
-        level ``y0``, multiplier state ``p_prev`` and ``dt`` enter no row of this family)."""
-        return self.value(x[:-1]) - self.target(V0, t)
+        """The constraint's residual ``share + row_offset`` at the step's new level t: ``c(y0') - target(V0, t)``
+        (the step's previous level ``y0``, multiplier state ``p_prev`` and ``dt`` enter no row of this family but
+        the circulation's)."""
+        return self.share(x, y0) + self.row_offset(x[-1], V0, t, p_prev, dt)
+
+    def share(self, x, y0=None):
+        """The row's part that is a sum over the cells (or the wall's facets): ``c(y0')``."""
+        return self.value(x[:-1])
+
+    def row_offset(self, p, V0, t, p_prev=None, dt=None):
+        """The row's other part, of the new multiplier p, at the new level t: ``-target(V0, t)``."""
+        return -self.target(V0, t)
 
     def next_state(self, state, x, y0, dt):
         """The state carried to the next step from the converged unknown x: its multiplier p'."""
@@ -156,6 +195,11 @@ class TissueVolume(_HeldByMultiplier):
 
     def target(self, V0, t):
         return V0 + 0.0 * t
+
+    def restricted(self, model, local, cells, dofs):
+        """The tissue volume of ``local = model.restricted(cells, dofs)``: the part of ``int det F`` on ``cells``
+        (`restricted` of the family: module docstring)."""
+        return _Part(TissueVolume(local))
 
     def tangent_weight(self, x):
         """The weight b of ``det F``'s Hessian in the element tangent (`StateModel.tangent_blocks`)."""
@@ -206,6 +250,14 @@ class CavityVolumeConstraint(_HeldByMultiplier):
             k = int(bad[0])
             raise InputError(f"cavity volume change is {values[k]} at t = {t[k]:g} (it must be finite on the whole "
                              "time grid)")
+
+    def restricted(self, model, local, cells, dofs):
+        """The part of the cavity volume from the wall facets whose owner cell is among ``cells``, on
+        ``local = model.restricted(cells, dofs)`` (`CavityVolume.restricted`: the serial apex; module docstring)."""
+        out = copy.copy(self)
+        out.model = local
+        out.cavity = self.cavity.restricted(model, local, cells, dofs)
+        return _Part(out)
 
     def tangent_weight(self, x):
         return 0.0
@@ -276,10 +328,14 @@ class Circulation(CavityVolumeConstraint):
         p_ref = jnp.where(phase == 1, p_ej, jnp.where(phase == 2, self.p_atrial, 0.0))
         return g, p_ref
 
-    def row(self, x, V0, t, y0=None, p_prev=None, dt=None):
-        """``V_cav(y0') - V_cav(y0) + g (p' - p_ref)`` (length^3), ``(g, p_ref)`` those of the carried phase."""
+    def share(self, x, y0=None):
+        """The volume change ``V_cav(y0') - V_cav(y0)`` (length^3), a sum over the wall's facets."""
+        return self.value(x[:-1]) - self.value(y0)
+
+    def row_offset(self, p, V0, t, p_prev=None, dt=None):
+        """``g (p - p_ref)`` (length^3), ``(g, p_ref)`` those of the carried phase (the row: ``share + row_offset``)."""
         g, p_ref = self._conductance(p_prev, dt)
-        return self.value(x[:-1]) - self.value(y0) + g * (x[-1] - p_ref)
+        return g * (p - p_ref)
 
     def corner(self, p_prev, dt):
         return self._conductance(p_prev, dt)[0]
@@ -353,6 +409,9 @@ class NoConstraint(_ScalarState):
         Ke = jnp.einsum("ckl,cl->ck", blocks, gather(self.e, index))
         return scatter(Ke, index, self.model.n), self.e
 
+
+#: the kinds that restrict to a rank's cells (`restricted`, module docstring): the distributed path's
+DISTRIBUTED_CONSTRAINTS = ("tissue_volume", "cavity_volume", "circulation")
 
 CONSTRAINTS = {"tissue_volume": TissueVolume, "cavity_volume": CavityVolumeConstraint, "none": NoConstraint}
 

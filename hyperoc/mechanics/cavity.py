@@ -31,6 +31,7 @@ V is a sum over facets of the facet's nodal positions, so its gradient (the load
 
 from __future__ import annotations
 
+import copy
 from functools import cached_property
 
 import jax
@@ -125,6 +126,19 @@ class CavityVolume:
     @cached_property
     def _volumes(self):
         return jax.jit(jax.vmap(self.volume))
+
+    def restricted(self, model, local, cells: np.ndarray, dofs: np.ndarray) -> "CavityVolume":
+        """The part of V from the facets whose owner cell is among ``cells`` of the serial ``model``, on the
+        unknowns ``dofs`` (m,) of ``local = model.restricted(cells, dofs)`` (`FollowerPressure.restricted`):
+        its `volume`, `gradient` (m,) and `add_hessian` (into ``local``'s element blocks) summed over a
+        partition of the cells are the serial ones. The apex stays the serial one (the lid is not a sum
+        over facets: every part uses the same fixed point); `InputError` for the moving apex."""
+        self._fixed_apex()
+        out = copy.copy(self)
+        out.__dict__.pop("_volumes", None)  # compiled for the serial unknowns
+        out.surface = self.surface.restricted(model, local, cells, dofs)
+        out.n = local.n
+        return out
 
     def _fixed_apex(self) -> None:
         if self.moving:
