@@ -359,7 +359,7 @@ def test_the_serial_and_distributed_chord_loops_take_the_same_decisions(stiffeni
                                                 NewtonOptions(rtol, 0.0, 50, line_search=False), chord=True)
     layout = _DenseLayout(n)
     x_dist, it_dist, status_dist = distributed_newton(lambda u, p: rows(np, u, p), lambda u, p: tangent(np, u), layout,
-                                                      x0, rtol=rtol, atol=0.0, max_iter=50, kept=KeptJacobian())
+                                                      x0, NewtonOptions(rtol, 0.0, 50), kept=KeptJacobian())
     assert int(status_serial) == int(status_dist) == 0
     assert (int(it_serial), solver.factorizations) == (it_dist, layout.factorizations)
     assert layout.factorizations > 1  # the sequence refreshes: a decision the two loops take alike

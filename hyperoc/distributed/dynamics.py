@@ -48,7 +48,7 @@ from ..errors import InputError
 from ..mechanics import operators
 from ..mechanics.model import StateModel
 from ..solvers.linsolve import eliminate_border
-from ..solvers.newton import NewtonStatus
+from ..solvers.newton import NewtonOptions, NewtonStatus
 from .layout import Layout
 from .newton import KeptJacobian, newton
 
@@ -203,9 +203,9 @@ class DistributedStepper(TimeStepper):
             return blocks, L.add(col), L.add(row)
 
         p0 = float(self.constraint.pressure(s_prev))
-        x, it, status = newton(residual, jacobian, L, np.append(y0[o] + dt * y1[o], p0), rtol=sch.rtol, atol=sch.atol,
-                               max_iter=sch.max_iter, kept=self._kept if self.chord else None,
-                               corner=float(k["corner"](s_prev, dt)))
+        options = NewtonOptions(sch.rtol, sch.atol, sch.max_iter)
+        x, it, status = newton(residual, jacobian, L, np.append(y0[o] + dt * y1[o], p0), options,
+                               kept=self._kept if self.chord else None, corner=float(k["corner"](s_prev, dt)))
         y0n = L.serial(x[:-1])
         with L.clock("kernels"):
             pn = _host(k["next_state"](s_prev, jnp.append(jnp.asarray(y0n), x[-1]), jnp.asarray(y0), dt))

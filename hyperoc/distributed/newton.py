@@ -32,6 +32,7 @@ import numpy as np
 
 from ..solvers.linsolve import eliminate_border
 from ..solvers.newton import (
+    NewtonOptions,
     NewtonStatus,
     chord_accepts,
     chord_counts,
@@ -61,9 +62,11 @@ class KeptJacobian:
         return self.factorization == layout.factorizations
 
 
-def newton(residual, jacobian, layout: Layout, x0: np.ndarray, *, rtol: float, atol: float, max_iter: int,
-           constrained: bool = True, kept: KeptJacobian | None = None, corner: float = 0.0):
-    """Solve ``residual(x) = 0`` from x0; ``(x, iterations, NewtonStatus)``.
+def newton(residual, jacobian, layout: Layout, x0: np.ndarray, options: NewtonOptions, *, constrained: bool = True,
+           kept: KeptJacobian | None = None, corner: float = 0.0):
+    """Solve ``residual(x) = 0`` from x0; ``(x, iterations, NewtonStatus)``. ``options``: the tolerances
+    ``rtol``, ``atol`` and ``max_iter`` of `hyperoc.solvers.newton.NewtonOptions` (its other fields are the
+    serial loop's).
 
     ``residual(xl, q)`` and ``jacobian(xl, q)`` take the local values xl (m,) of the iterate's owned
     part (ghosts filled) and its multiplier q (0 unconstrained). ``residual`` returns the owned rows
@@ -72,7 +75,7 @@ def newton(residual, jacobian, layout: Layout, x0: np.ndarray, *, rtol: float, a
     unconstrained). ``kept``: chord Newton with this kept Jacobian (updated in place), else full Newton.
     ``corner``: the bordered Jacobian's corner ``dr_c/dq``.
     """
-    m_o = layout.owned_size
+    m_o, (rtol, atol, max_iter) = layout.owned_size, (options.rtol, options.atol, options.max_iter)
     x = np.array(x0, dtype=np.float64)
     at = lambda x: (layout.local_of_owned(x[:m_o]), x[m_o] if constrained else 0.0)
     merit = lambda r: layout.dot(r[:m_o], r[:m_o]) + (r[m_o] ** 2 if constrained else 0.0)

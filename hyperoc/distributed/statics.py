@@ -33,7 +33,7 @@ from ..errors import InputError
 from ..mechanics.active import FibreTension
 from ..mechanics.follower import FollowerPressure
 from ..mechanics.model import StateModel
-from ..solvers.newton import NewtonStatus
+from ..solvers.newton import NewtonOptions, NewtonStatus
 from .layout import Layout
 from .newton import newton
 
@@ -120,8 +120,8 @@ class DistributedStatics:
                 G = layout.add(np.asarray(k["volume_gradient"](xl))) if self.constrained else None
             return blocks, G, G
 
-        x, it, status = newton(residual, jacobian, layout, x0, rtol=scheme.rtol, atol=scheme.atol,
-                               max_iter=scheme.max_iter, constrained=self.constrained)
+        x, it, status = newton(residual, jacobian, layout, x0, NewtonOptions(scheme.rtol, scheme.atol, scheme.max_iter),
+                               constrained=self.constrained)
         mindet = np.nan
         if status == NewtonStatus.CONVERGED:
             mindet = layout.min(k["min_det_F"](layout.local_of_owned(x[:layout.owned_size])))
