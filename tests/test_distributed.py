@@ -43,6 +43,15 @@ def test_partition_owns_each_dof_once_in_contiguous_ranges_by_a_rank_holding_it(
         Partition.build(model.mesh.cells, model.cell_dofs, model.n, 0)
 
 
+def _restricted_parts(model, ranks: int = 2):
+    """``(cells, dofs, the model restricted to them)`` of each part of a ``ranks``-way partition of the model."""
+    part = Partition.build(model.mesh.cells, model.cell_dofs, model.n, ranks)
+    for r in range(ranks):
+        cells = part.cells_of(r)
+        dofs = local_dofs(model, cells)
+        yield cells, dofs, model.restricted(cells, dofs)
+
+
 @pytest.mark.parametrize("mixed", [False, True])
 def test_restricted_kernels_sum_over_the_parts_to_the_serial_ones(beam, mixed):
     """Forces, follower forces, volume, volume gradient and the assembled tangent (follower stiffness
@@ -50,13 +59,9 @@ def test_restricted_kernels_sum_over_the_parts_to_the_serial_ones(beam, mixed):
     model, follower = beam_problem(1, bulk_modulus=np.inf, volumetric="taylor-hood", isochoric=True) if mixed \
         else beam
     x = jnp.asarray(np.random.default_rng(0).normal(scale=1e-2, size=model.n))
-    part = Partition.build(model.mesh.cells, model.cell_dofs, model.n, 2)
     force, grad, volume = np.zeros(model.n), np.zeros(model.n), 0.0
     K = np.zeros((model.n, model.n))
-    for r in range(2):
-        cells = part.cells_of(r)
-        dofs = local_dofs(model, cells)
-        local = model.restricted(cells, dofs)
+    for cells, dofs, local in _restricted_parts(model):
         fol = follower.restricted(model, local, cells, dofs)
         xl = x[dofs]
         # Compiled once per part, as the distributed solve does (op by op they take minutes).
@@ -98,13 +103,9 @@ def test_restricted_cavity_constraint_sums_over_the_parts_to_the_serial_one():
     assert con.cavity.rim.size > 0  # an open wall: the lid's part is exercised
     y = jnp.asarray(np.random.default_rng(2).normal(scale=0.2, size=model.n))
     x, V0, t = con.unknown(y, 0.7), 1900.0, 1.5
-    part = Partition.build(model.mesh.cells, model.cell_dofs, model.n, 2)
     row, grad, force = 0.0, np.zeros(model.n), np.zeros(model.n)
     K = np.zeros((model.n, model.n))
-    for r in range(2):
-        cells = part.cells_of(r)
-        dofs = local_dofs(model, cells)
-        local = model.restricted(cells, dofs)
+    for cells, dofs, local in _restricted_parts(model):
         part_con = con.restricted(model, local, cells, dofs)
         xl = x[np.append(dofs, model.n)]
         row += float(part_con.row(xl, 0.0, t))
@@ -281,6 +282,21 @@ STEP_TERMS = ["--set", 'dynamics.robin=[{ boundary = "epicardium", stiffness = 1
               "--set", 'dynamics.activation={ law = "0.1*t" }', "--set", "material.viscosity=0.05"]
 
 
+def _serial_and_two_ranks(mpiexec, tmp_path, settings: list, reference: dict | None = None) -> tuple[dict, dict]:
+    """``(serial, 2 ranks)``: the JSON of `hyperoc.app.distributed_gradient` with ``settings`` on this process's
+    serial path and under ``mpiexec -n 2 ... --taylor``; with ``reference`` (the gradient without the settings),
+    the settings must change J by more than 1e-3 of it, so that the comparison tests them."""
+    from hyperoc.app.distributed_gradient import main
+
+    out = tmp_path / "serial.json"
+    assert main([*SMALL_VENTRICLE, *settings, "--serial", "--out", str(out)]) == 0
+    serial = json.loads(out.read_text())
+    if reference is not None:
+        assert abs(serial["J"] - reference["J"]) > 1e-3 * abs(reference["J"])
+    return serial, _on_two_ranks(mpiexec, tmp_path, "hyperoc.app.distributed_gradient",
+                                 [*SMALL_VENTRICLE, *settings, "--taylor"])
+
+
 def test_two_rank_gradient_with_the_step_terms_equals_the_serial_one_and_passes_the_taylor_test(
         mpiexec, tmp_path, serial_gradient):
     """`DistributedStepper(..., terms=...)`: Robin boundaries and the follower pressure on the facets of each
@@ -288,14 +304,7 @@ def test_two_rank_gradient_with_the_step_terms_equals_the_serial_one_and_passes_
     (dJ/dtau through them), the adjoint with the transposed blocks (pressure on an open surface, viscosity: not
     symmetric). J and dJ on 2 ranks equal the serial path's with the same terms, which change J, and the Taylor
     remainder falls at rate 2.00 +- 0.05."""
-    from hyperoc.app.distributed_gradient import main
-
-    out = tmp_path / "serial-terms.json"
-    assert main([*SMALL_VENTRICLE, *STEP_TERMS, "--serial", "--out", str(out)]) == 0
-    serial = json.loads(out.read_text())
-    assert abs(serial["J"] - serial_gradient["J"]) > 1e-3 * abs(serial_gradient["J"])
-    dist = _on_two_ranks(mpiexec, tmp_path, "hyperoc.app.distributed_gradient",
-                         [*SMALL_VENTRICLE, *STEP_TERMS, "--taylor"])
+    serial, dist = _serial_and_two_ranks(mpiexec, tmp_path, STEP_TERMS, serial_gradient)
     _assert_same_gradient(dist, serial)
     assert abs(dist["taylor"]["rate"] - 2.0) <= 0.05
 
@@ -310,13 +319,7 @@ def test_two_rank_gradient_with_the_cavity_constraint_equals_the_serial_one_and_
     pressure, each rank's share of the volume, its follower load and stiffness on the wall facets of its cells.
     The step pressures, the state, J and dJ on 2 ranks equal the serial path's with the same constraint, which
     changes J, and the Taylor remainder falls at rate 2.00 +- 0.05."""
-    from hyperoc.app.distributed_gradient import main
-
-    out = tmp_path / "serial-cavity.json"
-    assert main([*SMALL_VENTRICLE, *CAVITY, "--serial", "--out", str(out)]) == 0
-    serial = json.loads(out.read_text())
-    assert abs(serial["J"] - serial_gradient["J"]) > 1e-3 * abs(serial_gradient["J"])
-    dist = _on_two_ranks(mpiexec, tmp_path, "hyperoc.app.distributed_gradient", [*SMALL_VENTRICLE, *CAVITY, "--taylor"])
+    serial, dist = _serial_and_two_ranks(mpiexec, tmp_path, CAVITY, serial_gradient)
     _assert_same_state_and_gradient(dist, serial)
     assert abs(dist["taylor"]["rate"] - 2.0) <= 0.05
 
@@ -350,13 +353,7 @@ def test_two_rank_gradient_with_the_circulation_equals_the_serial_one_and_passes
     change), the 0D part ``g (p' - p_ref)`` and the corner g once, the carried ``(p, Pa, phase)`` by the serial
     ``next_state``; the adjoint carries its total. The step pressures, the state, J and dJ on 2 ranks equal the
     serial path's, and the Taylor remainder falls at rate 2.00 +- 0.05."""
-    from hyperoc.app.distributed_gradient import main
-
-    out = tmp_path / "serial-circulation.json"
-    assert main([*SMALL_VENTRICLE, *CIRCULATION, "--serial", "--out", str(out)]) == 0
-    serial = json.loads(out.read_text())
-    dist = _on_two_ranks(mpiexec, tmp_path, "hyperoc.app.distributed_gradient",
-                         [*SMALL_VENTRICLE, *CIRCULATION, "--taylor"])
+    serial, dist = _serial_and_two_ranks(mpiexec, tmp_path, CIRCULATION)
     _assert_same_state_and_gradient(dist, serial)
     assert abs(dist["taylor"]["rate"] - 2.0) <= 0.05
 
@@ -367,14 +364,7 @@ def test_two_rank_gradient_with_a_control_time_profile_equals_the_serial_one_and
     vector-Jacobian product in xi, dt and t0 (g's rate: dJ/dtau) summed over the ranks. J and dJ on 2 ranks
     equal the serial path's with the same profile, which changes J, and the Taylor remainder falls at rate
     2.00 +- 0.05."""
-    from hyperoc.app.distributed_gradient import main
-
-    out = tmp_path / "serial-profile.json"
-    assert main([*SMALL_VENTRICLE, *PROFILE, "--serial", "--out", str(out)]) == 0
-    serial = json.loads(out.read_text())
-    assert abs(serial["J"] - serial_gradient["J"]) > 1e-3 * abs(serial_gradient["J"])
-    dist = _on_two_ranks(mpiexec, tmp_path, "hyperoc.app.distributed_gradient",
-                         [*SMALL_VENTRICLE, *PROFILE, "--taylor"])
+    serial, dist = _serial_and_two_ranks(mpiexec, tmp_path, PROFILE, serial_gradient)
     _assert_same_gradient(dist, serial)
     assert abs(dist["taylor"]["rate"] - 2.0) <= 0.05
 
