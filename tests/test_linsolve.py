@@ -19,6 +19,8 @@ assembled from element blocks and solved on the host (SuperLU / MINRES) from ins
   ``2 cond_inf(A) rtol`` (relative, inf-norm).
 - Tiny diagonal pivots (kept by the default ``pivot_thresh = 0``) leave the refinement short of
   ``rtol``; the solver then factors again with threshold partial pivoting and still meets the bound.
+- Host solves run with one OpenBLAS thread (its spinning threads would take XLA's cores), and leave
+  OpenBLAS's thread count as it was.
 - The tridiagonal solver (1D P1) agrees with the dense LU on any numbering along the line (points in
   descending order, cells shuffled, both ends held): two direct solves of a well-conditioned
   system, so to a few ulps times cond(K) (asserted 1e-12 relative).
@@ -308,3 +310,30 @@ def test_tridiagonal_solve_matches_the_dense_solve_on_any_numbering_along_the_li
     scale = np.abs(expected[0]).max()
     np.testing.assert_allclose(got[0], expected[0], rtol=0, atol=1e-12 * scale)
     assert abs(float(got[1] - expected[1])) <= 1e-12 * abs(float(expected[1]))
+
+
+def _openblas_threads():
+    from threadpoolctl import threadpool_info
+
+    return {lib["filepath"]: lib["num_threads"] for lib in threadpool_info() if lib["internal_api"] == "openblas"}
+
+
+def test_host_solves_run_with_one_openblas_thread(model, monkeypatch):
+    """During a host solve (on the solver's worker thread) every OpenBLAS library runs one thread, and
+    afterwards its thread count is the one it had; ``blas_threads = None`` leaves it as it is set."""
+    from hyperoc.solvers import backends
+
+    before = _openblas_threads()
+    if not before:
+        pytest.skip("no OpenBLAS loaded")
+    seen = []
+    splu = backends.spla.splu
+    monkeypatch.setattr(backends.spla, "splu", lambda *a, **k: seen.append(_openblas_threads()) or splu(*a, **k))
+    solver = SparseSolver(model, "lu")
+    solve_within_forward_error_bound(model, solver, spd_blocks(model))
+    assert seen and all(set(threads.values()) == {1} for threads in seen)
+    assert _openblas_threads() == before
+    solver.blas_threads = None
+    seen.clear()
+    solve_within_forward_error_bound(model, solver, spd_blocks(model, seed=2))
+    assert seen and all(threads == before for threads in seen)

@@ -31,6 +31,7 @@ from .._jax import on_device
 from ..errors import InputError
 from ..fem.assembly import dump_index
 from .backends import MinresBackend, PardisoBackend, SuperLUBackend, nested_dissection
+from .threads import openblas_threads
 
 __all__ = ["DenseSolver", "TridiagonalSolver", "SparseSolver", "make_solver", "nested_dissection"]
 
@@ -186,10 +187,13 @@ class SparseSolver:
     tracks a factorization's memory per thread: one freed on another thread than the one that built it
     is never released (scipy issue #15921). ``"lu_reuse"`` keeps factorizations across calls, and leaked
     one per refresh (LV Taylor-Hood at 11,569 unknowns: +70 MB per factorization, 4.5 GB after 43). So
-    every call runs on the solver's own single worker thread, where each factorization is built and freed.
+    every call runs on the solver's own single worker thread, where each factorization is built and freed,
+    with OpenBLAS limited to ``blas_threads`` threads (`hyperoc.solvers.threads.openblas_threads`: its
+    spinning threads would take the cores from XLA between the solves; None leaves OpenBLAS as it is set).
     """
 
     traced = False
+    blas_threads: int | None = 1
     methods = ("lu", "lu_reuse", "pardiso", "pardiso_reuse", "pardiso_single", "pardiso_single_reuse", "minres")
     orderings = ("nd", "mmd")
 
@@ -251,7 +255,15 @@ class SparseSolver:
     def host_solve(self, blocks, col, row, r_u, r_c, corner=0.0, keep: bool = False):
         """The bordered solve ``(x, q)`` as one array (n + 1,), on the solver's worker thread (class
         docstring); ``keep``: keep this Jacobian (with its ``corner``) for `kept_solve`."""
-        return self._worker.submit(self._host_solve, blocks, col, row, r_u, r_c, corner, keep).result()
+        return self._on_worker(self._host_solve, blocks, col, row, r_u, r_c, corner, keep)
+
+    def _on_worker(self, fn, *args):
+        """``fn(*args)`` on the worker thread, with OpenBLAS at ``blas_threads`` (class docstring)."""
+        return self._worker.submit(self._limited, fn, *args).result()
+
+    def _limited(self, fn, *args):
+        with openblas_threads(self.blas_threads):
+            return fn(*args)
 
     def _host_solve(self, blocks, col, row, r_u, r_c, corner=0.0, keep: bool = False):
         t_start = time.perf_counter()
@@ -406,7 +418,7 @@ class SparseSolver:
     def _kept_or_nan(self, r_u, r_c):
         if self._kept is None:
             return np.full(self.n + 1, np.nan)
-        return self._or_nan(lambda: self._worker.submit(self._host_kept_solve, r_u, r_c).result())
+        return self._or_nan(lambda: self._on_worker(self._host_kept_solve, r_u, r_c))
 
 
 def _checked_rhs(rhs) -> np.ndarray:

@@ -1,4 +1,5 @@
-"""CPU affinity of this process's threads, and the size of XLA's CPU thread pool.
+"""CPU affinity of this process's threads, the size of XLA's CPU thread pool, and OpenBLAS's threads
+during the host solves.
 
 XLA sizes its CPU thread pool by the CPUs the process may run on when the backend starts. Started
 with one (``taskset -c 0 ...``), the pool has a single thread, and `jax.pure_callback` (the host
@@ -12,13 +13,23 @@ thread and the threads XLA started back to the CPUs the caller had (threads that
 their own): the pool keeps several threads, the process keeps its pinning. Where the CPU set cannot
 be widened (a one-CPU cpuset) it warns instead. A process started on several CPUs is left alone: its
 backend starts when first used.
+
+`openblas_threads` limits the threads of the OpenBLAS libraries loaded in the process (numpy's and
+scipy's) for the duration of a host solve. After each call that it splits across threads, OpenBLAS
+keeps its worker threads spinning for a while, waiting for the next call; between two host solves
+of a time step (SuperLU's triangular solves, the border's dot products) XLA evaluates the residual
+on the same cores, and on a two-core machine the spinning threads take a large share of them
+(``python bench/bench_sparse_path.py --variants chord/lu,chord/lu_blas``). The solves of a time step
+are too small for threads to pay off.
 """
 
+import contextlib
 import os
 import threading
 import warnings
+from functools import cache
 
-__all__ = ["bind_threads", "start_backend", "ONE_THREAD_POOL"]
+__all__ = ["bind_threads", "start_backend", "openblas_threads", "ONE_THREAD_POOL"]
 
 #: Environment variable: ``"1"`` keeps a process started on one CPU at XLA's one-thread pool, for
 #: processes that run no host solves (`hyperoc.app.paper`'s 1D workers, which run faster with one thread).
@@ -59,3 +70,19 @@ def start_backend() -> None:
         warnings.warn("hyperoc: a single CPU: XLA's CPU thread pool has one thread, and large 3D host solves "
                       "may deadlock inside jax.pure_callback (see hyperoc.solvers.threads)", RuntimeWarning,
                       stacklevel=2)
+
+
+@cache
+def _openblas():
+    """The OpenBLAS libraries loaded in this process (threadpoolctl's controller, read once: the first
+    solve comes after scipy's sparse solvers, and with them both OpenBLAS builds, are loaded)."""
+    from threadpoolctl import ThreadpoolController
+
+    return ThreadpoolController().select(internal_api="openblas")
+
+
+def openblas_threads(threads: int | None):
+    """A context in which OpenBLAS runs ``threads`` threads (module docstring); None: as it is set."""
+    if threads is None:
+        return contextlib.nullcontext()
+    return _openblas().limit(limits=threads)
