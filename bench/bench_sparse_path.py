@@ -13,6 +13,8 @@ Variants, each the whole solve after an untimed first step (JIT compilation, the
 - ``full/lu_reuse``: full Newton, each tangent solved by refinement with a kept factorization;
 - ``chord/lu``: chord Newton (the default on the sparse path): the whole Jacobian of an earlier
   iterate, refreshed when the contraction rate exceeds 0.1 (`hyperoc.solvers.newton.CHORD_RATE`);
+- ``chord/lu_blas``: ``chord/lu`` with OpenBLAS left at its own thread count during the host solves
+  (every other variant runs them with one OpenBLAS thread, `SparseSolver.blas_threads`);
 - ``chord/pardiso``: the same with MKL PARDISO's ``L D L^T`` (needs ``pip install mkl``).
 
 Per variant: wall and CPU seconds, Newton iterations, factorizations, and per Newton iteration the
@@ -20,7 +22,8 @@ split between assembly (blocks -> matrix), factorization and solves (host) and t
 (element kernels, residuals, line search, callbacks); ``p rel. diff`` is
 ``max_t |p - p_base| / max_t |p_base|`` against the baseline's pressure.
 
-    taskset -c 0 python bench/bench_sparse_path.py    # P1, 750 steps, every variant, one core
+    python bench/bench_sparse_path.py    # P1, 750 steps, every variant
+    taskset -c 0 python bench/bench_sparse_path.py    # the same on one core
     python bench/bench_sparse_path.py --degree 2 --steps 150
 
 Writes ``bench/results/bench_sparse_path_p<degree>.json``.
@@ -36,8 +39,9 @@ import numpy as np
 import hyperoc as ho
 from hyperoc.fem.geometry import annulus
 
-VARIANTS = {"full/lu": ("full", "lu"), "full/lu_reuse": ("full", "lu_reuse"), "chord/lu": ("auto", "lu"),
-            "chord/pardiso": ("auto", "pardiso")}
+#: name: (Newton variant, linear solver, OpenBLAS threads during the host solves; None: the library's own)
+VARIANTS = {"full/lu": ("full", "lu", 1), "full/lu_reuse": ("full", "lu_reuse", 1), "chord/lu": ("auto", "lu", 1),
+            "chord/lu_blas": ("auto", "lu", None), "chord/pardiso": ("auto", "pardiso", 1)}
 
 
 def case(degree: int):
@@ -46,8 +50,9 @@ def case(degree: int):
     return ho.StateModel(mesh, ho.SaintVenantKirchhoff(0.05, 0.05), degree=degree, damping=2e-4, control=control)
 
 
-def run(model, grid, xi, newton: str, solver: str) -> dict:
+def run(model, grid, xi, newton: str, solver: str, blas_threads: int | None) -> dict:
     st = ho.TimeStepper(model, ho.Scheme(newton=newton), solver)
+    st.solver.blas_threads = blas_threads
     st.run(ho.TimeGrid(grid.t[:2]), xi[:2], diagnose=False)  # compilation and the ordering
     st.solver._release()  # no factorization carried into the timed run
     st.solver.reset_stats()
