@@ -64,9 +64,11 @@ XI_MAX = 0.02
 OMEGA_INTERIOR = [0.75, 0.95]  # omega compactly inside (0, 1), as the paper's control operator assumes
 # The bounded problem is not concave on its free values and ill-conditioned: projected Newton-CG reaches the
 # KKT tolerance where L-BFGS-B stalls far from it (docs/wellposedness.md); J and its gradient on the steps
-# up to tau (`ReducedFunctional.horizon`), which give the same values.
+# up to tau (`ReducedFunctional.horizon`), which give the same values. Its metric takes tau unweighted, as the
+# paper's Algorithm 1 takes the gradient (weighted by its range, Newton-CG from the same start ends at another
+# KKT point, at the end of tau's box, where the value profile's rise towards T ends).
 BOUNDED = {"optimize.method": "newton", "optimize.xi_bounds": [-XI_MAX, XI_MAX], "optimize.horizon": "objective",
-           "optimize.max_iter": 200}
+           "optimize.max_iter": 200, "optimize.tau_scale": 1.0}
 # The smooth variant: a control cost that competes with the pressure, H^1 in time (sqrt(beta / alpha) = 1 time
 # unit); no bound is reached (min det F 0.77 at the largest maximum, 0.84 at the one nearest T/2).
 WELL_POSED = {"objective.alpha": 10.0, "objective.beta": 10.0, "optimize.method": "newton",
