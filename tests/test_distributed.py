@@ -15,7 +15,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hyperoc.app.distributed_statics import problem
+from hyperoc.app.distributed_statics import main as statics_main
+from hyperoc.app.distributed_statics import problem, springs
 from hyperoc.cardiac.land import beam_problem
 from hyperoc.distributed.partition import Partition, local_dofs
 from hyperoc.dynamics.statics import StaticOptions, solve_static
@@ -187,16 +188,20 @@ P_TOL = 1e-8
 
 
 @pytest.mark.parametrize("args", [["--problem", "beam", "--n", "1", "--constrained"],
+                                  ["--problem", "beam", "--n", "1", "--constrained", "--robin", "top=20:normal",
+                                   "--robin", "front=5"],
                                   ["--problem", "ventricle", "--refinements", "0"],
                                   ["--problem", "contraction", "--refinements", "0"]],
-                         ids=["beam-volume", "ventricle", "contraction"])
+                         ids=["beam-volume", "beam-volume-robin", "ventricle", "contraction"])
 def test_two_ranks_equal_the_serial_solve(mpiexec, tmp_path, args):
     """`mpiexec -n 2 python -m hyperoc.app.distributed_statics` (MUMPS) against `solve_static` in this process:
-    displacement, multiplier, the benchmark's apex / tip positions, and the Newton iterations per load step."""
+    displacement, multiplier, the benchmark's apex / tip positions, and the Newton iterations per load step;
+    with Robin springs (normal on the top face, full on the front face), each on the rank owning its facets."""
     dist = _on_two_ranks(mpiexec, tmp_path, "hyperoc.app.distributed_statics", args)
     opts = SimpleNamespace(problem=args[1], n=1, refinements=0)  # as run.problem reads them
     model, load, _ = problem(opts)
-    sol = solve_static(model, follower=load, constraint=None if "--constrained" in args else "none",
+    robin = springs(model, [value for flag, value in zip(args, args[1:]) if flag == "--robin"])
+    sol = solve_static(model, follower=load, robin=robin, constraint=None if "--constrained" in args else "none",
                        options=StaticOptions(steps=20, line_search=False, cutbacks=40))
     u = np.asarray(dist["u"])
     assert np.abs(u - sol.u).max() <= U_TOL * np.abs(sol.u).max()
@@ -213,6 +218,20 @@ def test_a_load_that_is_not_distributed_is_an_input_error(beam):
 
     with pytest.raises(InputError, match="is not distributed"):
         DistributedStatics(beam[0], [beam[1], object()])
+    with pytest.raises(InputError, match="robin must hold RobinBoundary terms"):
+        DistributedStatics(beam[0], beam[1], robin=[beam[1]])
+
+
+@pytest.mark.parametrize("spec, message", [("top", "expected NAME=STIFFNESS"), ("top=soft", "expected NAME=STIFFNESS"),
+                                           ("nowhere=1", "no boundary tag 'nowhere'"),
+                                           ("top=-1", "stiffness >= 0"), ("top=1:sideways", "direction must be")])
+def test_a_bad_spring_is_one_line_and_status_2(tmp_path, capsys, spec, message):
+    """``--robin`` that does not name a boundary, a stiffness >= 0 and a direction: one line, status 2, no file."""
+    out = tmp_path / "out.json"
+    assert statics_main(["--problem", "beam", "--serial", "--robin", spec, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("error: ") and message in err
+    assert not out.exists()
 
 
 # The ventricle example, coarse (336 unknowns) and short (8 steps), at tau = 2 ms.

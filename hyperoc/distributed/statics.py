@@ -4,10 +4,11 @@ tangent from the JAX element kernels on each rank's cells.
 The same discrete problem as `hyperoc.dynamics.statics.solve_static`: with the volume constraint
 (``constrained=True``) find ``(u, p)`` with
 
-    R(u) + p G(u) = sum_j f_j(u; s),      vol(u) = V(s),
+    R(u) + sum_k k_k S_k u + p G(u) = sum_j f_j(u; s),      vol(u) = V(s),
 
-else ``R(u) = sum_j f_j(u; s)``, the follower loads f_j and the target volume ramped over the load
-factor s (`hyperoc.dynamics.statics.step_load`, shared). Each Newton iteration solves
+else without p and the volume, the springs ``k_k S_k`` of the Robin boundaries
+(`hyperoc.dynamics.terms.RobinBoundary`, at rest: no dashpot), the follower loads f_j and the target volume
+ramped over the load factor s (`hyperoc.dynamics.statics.step_load`, shared). Each Newton iteration solves
 
     [ K   G ] [du]   [ -r           ]
     [ G^T 0 ] [dp] = [ -(vol - V)    ]
@@ -27,8 +28,9 @@ import jax.numpy as jnp
 import numpy as np
 from mpi4py import MPI
 
-from ..dynamics.statics import step_load
+from ..dynamics.statics import spring_force, step_load
 from ..dynamics.stepper import Scheme
+from ..dynamics.terms import RobinBoundary
 from ..errors import InputError
 from ..mechanics.active import FibreTension
 from ..mechanics.follower import FollowerPressure
@@ -58,13 +60,15 @@ class DistributedSolution:
 
 class DistributedStatics:
     """``model`` (a `StateModel` or `hyperoc.mechanics.mixed.TaylorHoodModel`, built on every rank) and its
-    loads (`FollowerPressure`, `FibreTension`: ``follower`` as in `hyperoc.dynamics.statics.solve_static`),
-    distributed over ``comm`` by a METIS partition of the cells (`Layout`).
+    loads (`FollowerPressure`, `FibreTension`: ``follower`` as in `hyperoc.dynamics.statics.solve_static`) and
+    Robin springs (``robin``: `RobinBoundary` terms of the model, as in ``solve_static``), distributed over
+    ``comm`` by a METIS partition of the cells (`Layout`); each load and spring acts on the facets whose owner
+    cell is the rank's.
 
     ``solver``: the PETSc direct solver package of PC lu (``"mumps"``, ``"superlu_dist"``).
     """
 
-    def __init__(self, model: StateModel, follower=(), *, comm=MPI.COMM_WORLD, constrained: bool = True,
+    def __init__(self, model: StateModel, follower=(), *, robin=(), comm=MPI.COMM_WORLD, constrained: bool = True,
                  solver: str = "mumps"):
         self.model, self.comm, self.constrained = model, comm, constrained
         followers = (follower,) if not isinstance(follower, (tuple, list)) else tuple(follower)
@@ -72,25 +76,32 @@ class DistributedStatics:
             if not isinstance(f, (FollowerPressure, FibreTension)):
                 raise InputError(f"DistributedStatics: the loads are follower pressures and fibre tensions; "
                                  f"{type(f).__name__} is not distributed")
+        robin = (robin,) if not isinstance(robin, (tuple, list)) else tuple(robin)
+        if not all(isinstance(term, RobinBoundary) and term.n == model.n for term in robin):
+            raise InputError("DistributedStatics: robin must hold RobinBoundary terms of this model")
         self.layout = Layout(model, comm, solver)
         cells, dofs = self.layout.cells, self.layout.dofs
         self.local = model.restricted(cells, dofs)
         self.followers = tuple(f.restricted(model, self.local, cells, dofs) for f in followers)
+        self.robin = tuple(term.restricted(model, self.local, cells, dofs) for term in robin)
 
     # --- local kernels ---------------------------------------------------------------------------
     @cached_property
     def _kernels(self):
         """Jitted local kernels of the rank's unknowns xl (m,): force balance, element blocks,
         volume and its gradient, min det F."""
-        local, followers = self.local, self.followers
+        local, followers, robin = self.local, self.followers, self.robin
 
         def force(xl, s):
-            return local.internal_force(xl) - sum((f.force(xl, s) for f in followers), jnp.zeros(local.n))
+            return (local.internal_force(xl) + spring_force(robin, xl)
+                    - sum((f.force(xl, s) for f in followers), jnp.zeros(local.n)))
 
         def blocks(xl, p, s):
             K = local.tangent_blocks(xl, 1.0, p)
             for f in followers:
                 K = f.add_stiffness(K, xl, s)
+            for term in robin:  # the spring's tangent (a = 1), no dashpot (b = 0), as solve_static's
+                K = term.add_tangent(K, xl, jnp.zeros_like(xl), 0.0, 1.0, 0.0)
             return K
 
         return {"force": jax.jit(force), "blocks": jax.jit(blocks), "volume": jax.jit(local.volume),
