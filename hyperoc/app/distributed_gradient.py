@@ -112,14 +112,16 @@ def optimization(cfg, J, tau: float) -> dict:
 
 
 def evaluate(J, m) -> dict:
-    """J(m), its derivative and the state (the step multipliers, the last kept level's displacement), timed
+    """J(m), its derivative and the state (the step multipliers, the last kept level's displacement, the
+    constraint's carried states at the levels: for the circulation ``(p, Pa, phase)``), timed
     (first evaluation: compilation included; then a second one at a new point next to m, the cost of an
     optimizer's iteration)."""
     t0 = time.perf_counter()
     value, d = J.value_and_derivative(m)
     first = time.perf_counter() - t0
     state = J.record(m)  # the solve of the evaluation, cached
-    state = {"p_steps": state.p_steps.tolist(), "state_level": int(state.levels[-1]), "state": state.y0[-1].tolist()}
+    state = {"p_steps": state.p_steps.tolist(), "state_level": int(state.levels[-1]), "state": state.y0[-1].tolist(),
+             "carried": np.asarray(state.carried).tolist()}
     t0 = time.perf_counter()
     J.value_and_derivative(m * (1 + 1e-6))
     again = time.perf_counter() - t0
