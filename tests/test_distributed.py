@@ -388,7 +388,8 @@ def test_two_rank_gradient_through_a_valve_opening_equals_the_serial_one_and_pas
     """The circulation across a phase switch: the valve opens on both paths after the same step (the carried
     ``(p, Pa, phase)`` of every level equal), the step pressures, the state, J and dJ on 2 ranks equal the
     serial path's, and the Taylor remainder falls at rate 2.00 +- 0.05 (the exact adjoint holds the phase
-    sequence, which the perturbations leave as it is)."""
+    sequence, which the perturbations leave as it is). With binomial checkpointing (2 snapshots: the reverse
+    pass recomputes the steps, the switch included, from the carried states it kept) the gradient is the same."""
     serial, dist = _serial_and_two_ranks(mpiexec, tmp_path, SWITCH)
     phases = np.asarray(serial["carried"])[:, 2]
     assert phases[1] == 0 and phases[-1] == 1 and np.all(np.diff(phases) >= 0)  # isovolumic, then ejection
@@ -397,6 +398,9 @@ def test_two_rank_gradient_through_a_valve_opening_equals_the_serial_one_and_pas
                                rtol=0, atol=P_TOL * np.abs(serial["p_steps"]).max())
     _assert_same_state_and_gradient(dist, serial)
     assert abs(dist["taylor"]["rate"] - 2.0) <= 0.05
+    checkpointed = _on_two_ranks(mpiexec, tmp_path, "hyperoc.app.distributed_gradient",
+                                 [*SMALL_VENTRICLE, *SWITCH, "--snapshots", "2"])
+    _assert_same_gradient(checkpointed, serial)
 
 
 def test_two_rank_gradient_with_a_control_time_profile_equals_the_serial_one_and_passes_the_taylor_test(
