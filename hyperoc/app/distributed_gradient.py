@@ -29,7 +29,6 @@ Bad input: one line on standard error (from rank 0), exit status 2, nothing writ
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 
@@ -38,7 +37,7 @@ import numpy as np
 from ..dynamics.constraint import DISTRIBUTED_CONSTRAINTS
 from ..errors import InputError
 from ..io import write_json
-from .distributed_statics import peak_mb
+from .distributed_statics import peak_mb, refused
 
 
 def parse(argv):
@@ -135,9 +134,7 @@ def main(argv=None) -> int:
         args = parse(argv)
         J, m, comm, cfg = reduced_functional(args)
     except InputError as err:
-        if os.environ.get("PMI_RANK", "0") == "0":  # mpiexec's rank (the communicator may not exist yet)
-            print(f"error: {err}", file=sys.stderr)
-        return 2
+        return refused(err)
     record = {"config": args.config, "overrides": args.set, "serial": args.serial, "solver": args.solver,
               "ranks": 1 if comm is None else comm.size, "unknowns": int(J.model.n), "steps": int(J.steps_solved),
               "controls": int(J.model.control.size), "tau": m.tau, "amplitude": args.amplitude, "seed": args.seed,

@@ -66,6 +66,14 @@ def springs(model, specs) -> tuple:
     return tuple(terms)
 
 
+def refused(err: InputError) -> int:
+    """Exit status 2 for bad input, its message one line on standard error from the first rank (mpiexec's
+    rank: the communicator may not exist yet)."""
+    if os.environ.get("PMI_RANK", "0") == "0":
+        print(f"error: {err}", file=sys.stderr)
+    return 2
+
+
 def peak_mb() -> float:
     """This process's peak resident memory, MB (Linux reports kB)."""
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
@@ -90,10 +98,8 @@ def main(argv=None) -> int:
     model, load, points = problem(args)
     try:
         robin = springs(model, args.robin)
-    except InputError as err:  # one line from the first rank, exit 2, nothing written
-        if os.environ.get("PMI_RANK", "0") == "0":  # mpiexec's rank (the communicator may not exist yet)
-            print(f"error: {err}", file=sys.stderr)
-        return 2
+    except InputError as err:  # nothing written
+        return refused(err)
     setup = time.perf_counter() - t0
     if args.serial:
         t0 = time.perf_counter()

@@ -28,9 +28,8 @@ import jax.numpy as jnp
 import numpy as np
 from mpi4py import MPI
 
-from ..dynamics.statics import spring_force, step_load
+from ..dynamics.statics import add_spring_tangent, robin_terms, spring_force, step_load
 from ..dynamics.stepper import Scheme
-from ..dynamics.terms import RobinBoundary
 from ..errors import InputError
 from ..mechanics.active import FibreTension
 from ..mechanics.follower import FollowerPressure
@@ -76,9 +75,7 @@ class DistributedStatics:
             if not isinstance(f, (FollowerPressure, FibreTension)):
                 raise InputError(f"DistributedStatics: the loads are follower pressures and fibre tensions; "
                                  f"{type(f).__name__} is not distributed")
-        robin = (robin,) if not isinstance(robin, (tuple, list)) else tuple(robin)
-        if not all(isinstance(term, RobinBoundary) and term.n == model.n for term in robin):
-            raise InputError("DistributedStatics: robin must hold RobinBoundary terms of this model")
+        robin = robin_terms(model, robin, "DistributedStatics")
         self.layout = Layout(model, comm, solver)
         cells, dofs = self.layout.cells, self.layout.dofs
         self.local = model.restricted(cells, dofs)
@@ -100,9 +97,7 @@ class DistributedStatics:
             K = local.tangent_blocks(xl, 1.0, p)
             for f in followers:
                 K = f.add_stiffness(K, xl, s)
-            for term in robin:  # the spring's tangent (a = 1), no dashpot (b = 0), as solve_static's
-                K = term.add_tangent(K, xl, jnp.zeros_like(xl), 0.0, 1.0, 0.0)
-            return K
+            return add_spring_tangent(robin, K, xl)
 
         return {"force": jax.jit(force), "blocks": jax.jit(blocks), "volume": jax.jit(local.volume),
                 "volume_gradient": jax.jit(local.volume_gradient), "min_det_F": jax.jit(local.min_det_F)}

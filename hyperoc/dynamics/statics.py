@@ -161,8 +161,7 @@ def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, co
         blocks = model.tangent_blocks(u, 1.0, con.tangent_weight(x) if constrained else 0.0)
         for fol in followers:
             blocks = fol.add_stiffness(blocks, u, s)
-        for term in robin:  # the spring's tangent dA/dy0 (a = 1), no dashpot (b = 0)
-            blocks = term.add_tangent(blocks, u, jnp.zeros_like(u), 0.0, 1.0, 0.0)
+        blocks = add_spring_tangent(robin, blocks, u)
         if constrained:
             return con.add_tangent(blocks, x, 1.0), con.force_direction(u), con.value_gradient(u)
         Ke = jax.jvp(lambda v: force_balance(v, fk, s), (u,), (e,))[1]
@@ -192,6 +191,23 @@ def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, co
 
     cache[key] = solve, slot
     return cache[key]
+
+
+def robin_terms(model, robin, caller: str) -> tuple:
+    """``robin`` (a `RobinBoundary` or a sequence of them) as a tuple, each a term of ``model``; else an
+    `InputError` naming ``caller``."""
+    robin = (robin,) if not isinstance(robin, (tuple, list)) else tuple(robin)
+    if not all(isinstance(term, RobinBoundary) and term.n == model.n for term in robin):
+        raise InputError(f"{caller}: robin must hold RobinBoundary terms of this model")
+    return robin
+
+
+def add_spring_tangent(robin, blocks, u):
+    """The element blocks (nc, k, k) plus the springs' tangent ``k_k S_k`` of the Robin boundaries ``robin``
+    (the step term's ``dA/dy0`` with a = 1, no dashpot: b = 0)."""
+    for term in robin:
+        blocks = term.add_tangent(blocks, u, jnp.zeros_like(u), 0.0, 1.0, 0.0)
+    return blocks
 
 
 def spring_force(robin, u):
@@ -249,9 +265,7 @@ def solve_static(model: StateModel, *, load=None, xi=None, volume: float | None 
         Newton fails or an element inverts (``det F <= 0``) and no cutback is left.
     """
     followers = (follower,) if not isinstance(follower, (tuple, list)) else tuple(follower)
-    robin = (robin,) if not isinstance(robin, (tuple, list)) else tuple(robin)
-    if not all(isinstance(term, RobinBoundary) and term.n == model.n for term in robin):
-        raise InputError("solve_static: robin must hold RobinBoundary terms of this model")
+    robin = robin_terms(model, robin, "solve_static")
     if options.predictor not in ("previous", "secant"):
         raise InputError(f"solve_static: predictor must be 'previous' or 'secant', got {options.predictor!r}")
     constrained, constraint = _constraint(constraint)
