@@ -24,6 +24,13 @@ assembled from element blocks and solved on the host (SuperLU / MINRES) from ins
 - The tridiagonal solver (1D P1) agrees with the dense LU on any numbering along the line (points in
   descending order, cells shuffled, both ends held): two direct solves of a well-conditioned
   system, so to a few ulps times cond(K) (asserted 1e-12 relative).
+- A dense symmetric low-rank term ``K + U W U^T`` (``lowrank=(U, W)``, rank 2 dim: a cavity's lid through
+  its rim's centroid) enters the dense solve, every sparse method's (by the Woodbury identity on the
+  factorization of K), the transposed one (col and row swapped: the adjoint's) and the chord iteration's
+  kept solve, traced or not, also with a singular W; the dense solves of K_full agree with them to
+  1e-10 relative (cond_2 of K_full and of ``I + W U^T K^-1 U`` checked below 1e3, so the solver's
+  backward error 1e-13 amplifies to 1e-10 at most). Without the term every solve is bitwise as before,
+  and the tridiagonal solver refuses one.
 """
 
 import jax
@@ -31,11 +38,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hyperoc.fem.mesh import Mesh, box
+from hyperoc.errors import InputError
+from hyperoc.fem.mesh import Mesh, box, interval
 from hyperoc.mechanics.materials import Guccione, SaintVenantKirchhoff
 from hyperoc.mechanics.mixed import TaylorHoodModel
 from hyperoc.mechanics.model import StateModel
 from hyperoc.solvers.linsolve import DenseSolver, SparseSolver, TridiagonalSolver, nested_dissection
+from hyperoc.solvers.pardiso import available as pardiso_available
 
 
 @pytest.fixture(scope="module")
@@ -55,13 +64,17 @@ def bordered_rhs(model, seed=1):
     return rng.standard_normal(model.n), rng.standard_normal(model.n), rng.standard_normal(model.n), 0.3
 
 
-def bordered_matrix(model, blocks, col, row, corner=0.0):
+def bordered_matrix(model, blocks, col, row, corner=0.0, lowrank=None):
+    """``[[K, col], [row, corner]]`` (n + 1, n + 1), with ``K + U W U^T`` for ``lowrank = (U, W)``."""
     K = model.pattern.matrix(blocks).toarray()
+    if lowrank is not None:
+        U, W = lowrank
+        K = K + U @ W @ U.T
     return np.block([[K, col[:, None]], [row[None, :], np.full((1, 1), corner)]])
 
 
-def dense_bordered_solve(model, blocks, col, row, r_u, r_c, corner=0.0):
-    return np.linalg.solve(bordered_matrix(model, blocks, col, row, corner), np.concatenate([r_u, [r_c]]))
+def dense_bordered_solve(model, blocks, col, row, r_u, r_c, corner=0.0, lowrank=None):
+    return np.linalg.solve(bordered_matrix(model, blocks, col, row, corner, lowrank), np.concatenate([r_u, [r_c]]))
 
 
 def solve_within_forward_error_bound(model, solver, blocks):
@@ -337,3 +350,111 @@ def test_host_solves_run_with_one_openblas_thread(model, monkeypatch):
     seen.clear()
     solve_within_forward_error_bound(model, solver, spd_blocks(model, seed=2))
     assert seen and all(threads == before for threads in seen)
+
+
+PARDISO = pytest.param("pardiso", marks=pytest.mark.skipif(not pardiso_available(), reason="MKL is not installed"))
+
+
+def low_rank_term(model, blocks, rank, seed=1):
+    """``(U, W)``: U (n, 2 dim) with columns of unit size and W (2 dim, 2 dim) symmetric of ``rank``, with
+    ``|W| ~ |K|_2`` (the term changes the solution by O(1) and makes K_full indefinite); asserts that K_full
+    and ``I + W U^T K^-1 U`` (the Woodbury identity's small matrix) have cond_2 below 1e3."""
+    k = 2 * model.dim
+    rng = np.random.default_rng(seed)
+    K = model.pattern.matrix(blocks).toarray()
+    U = rng.standard_normal((model.n, k)) / np.sqrt(model.n)
+    V = np.linalg.qr(rng.standard_normal((k, k)))[0][:, :rank]
+    W = 0.3 * np.linalg.norm(K, 2) * V @ np.diag(rng.standard_normal(rank)) @ V.T
+    assert np.linalg.matrix_rank(W) == rank
+    assert np.linalg.cond(K + U @ W @ U.T) < 1e3
+    assert np.linalg.cond(np.eye(k) + W @ U.T @ np.linalg.solve(K, U)) < 1e3
+    return U, W
+
+
+def bordered_solver(model, method):
+    return DenseSolver(model) if method == "dense" else SparseSolver(model, method)
+
+
+def as_solution(du, dp):
+    return np.concatenate([np.asarray(du), [float(dp)]])
+
+
+def assert_close(x, expected):
+    np.testing.assert_allclose(x, expected, rtol=1e-10, atol=1e-10 * np.abs(expected).max())
+
+
+@pytest.mark.parametrize("rank", [6, 4])  # 2 dim, and a singular W
+@pytest.mark.parametrize("method", ["dense", "lu", "lu_reuse", "minres", PARDISO])
+def test_a_low_rank_term_enters_the_bordered_solve_and_its_transpose(model, method, rank):
+    """With ``lowrank = (U, W)`` the solve, eager and jitted, is the dense solve of
+    ``[[K + U W U^T, col], [row, d]]``, and the one with col and row swapped is the solve with that
+    matrix's transpose (the adjoint's: W symmetric, K symmetric here); the term matters (O(1))."""
+    blocks = spd_blocks(model)
+    col, row, r_u, r_c = bordered_rhs(model)
+    corner = -0.3
+    lowrank = low_rank_term(model, blocks, rank)
+    b = np.concatenate([r_u, [r_c]])
+    A = bordered_matrix(model, blocks, col, row, corner, lowrank)
+    with_term, without = np.linalg.solve(A, b), dense_bordered_solve(model, blocks, col, row, r_u, r_c, corner)
+    assert np.abs(with_term - without).max() > 0.1 * np.abs(with_term).max()
+    solver = bordered_solver(model, method)
+    traced_lowrank = tuple(jnp.asarray(a) for a in lowrank)
+    for c, r, matrix in ((col, row, A), (row, col, A.T)):
+        expected = np.linalg.solve(matrix, b)
+        args = tuple(jnp.asarray(a) for a in (blocks, c, r, r_u)) + (r_c, corner)
+        for solve in (solver.solve, jax.jit(solver.solve)):
+            assert_close(as_solution(*solve(*args, lowrank=traced_lowrank)), expected)
+
+
+@pytest.mark.parametrize("method", ["lu", "lu_reuse", PARDISO])
+def test_the_kept_solve_uses_the_low_rank_term_of_its_refresh(model, method):
+    """Chord Newton: after ``refresh_solve`` with ``lowrank``, ``kept_solve`` of new right-hand sides solves
+    with the whole kept K_full (no new factorization); after a refresh without it, with K alone."""
+    blocks = spd_blocks(model)
+    col, row, r_u, r_c = bordered_rhs(model)
+    r_u2, r_c2 = np.random.default_rng(5).standard_normal(model.n), -0.8
+    corner = -0.3
+    lowrank = low_rank_term(model, blocks, 2 * model.dim)
+    solver = SparseSolver(model, method)
+    refresh, kept = jax.jit(solver.refresh_solve), jax.jit(solver.kept_solve)
+    args = tuple(jnp.asarray(a) for a in (blocks, col, row, r_u)) + (r_c, corner)
+    for term in (lowrank, None):
+        expected = dense_bordered_solve(model, blocks, col, row, r_u, r_c, corner, term)
+        expected2 = dense_bordered_solve(model, blocks, col, row, r_u2, r_c2, corner, term)
+        assert_close(as_solution(*refresh(*args, lowrank=term)), expected)
+        factorizations = solver.stats["factorizations"]
+        assert_close(as_solution(*kept(jnp.asarray(r_u2), r_c2)), expected2)
+        assert solver.stats["factorizations"] == factorizations
+    assert solver.stats["kept_solves"] == 2
+
+
+@pytest.mark.parametrize("method", ["dense", "lu", "lu_reuse", "minres", PARDISO])
+def test_without_a_low_rank_term_the_solves_are_bitwise_unchanged(model, method):
+    """``lowrank=None`` traces the same program (the same operations on the same shapes, the host callback's
+    operands included) and gives bitwise the results of the call without it, on two solvers taking the
+    same calls (the second solve of "lu_reuse" refines its kept factorization; chord: refresh, kept)."""
+    blocks = spd_blocks(model)
+    col, row, r_u, r_c = bordered_rhs(model)
+    args = tuple(jnp.asarray(a) for a in (blocks, col, row, r_u)) + (r_c, -0.3)
+    plain, with_none = bordered_solver(model, method), bordered_solver(model, method)
+    names = ["solve", "solve"] + (["refresh_solve"] if getattr(plain, "chord", False) else [])
+    for name in names:
+        ops = [[(e.primitive, [v.aval for v in e.invars]) for e in jax.make_jaxpr(fn)(*args).eqns]
+               for fn in (getattr(plain, name), lambda *a: getattr(with_none, name)(*a, lowrank=None))]
+        assert ops[0] == ops[1]
+        got = [as_solution(*jax.jit(getattr(plain, name))(*args)),
+               as_solution(*jax.jit(getattr(with_none, name))(*args, lowrank=None))]
+        np.testing.assert_array_equal(got[0], got[1])
+    if names[-1] == "refresh_solve":
+        np.testing.assert_array_equal(as_solution(*plain.kept_solve(args[3], r_c)),
+                                      as_solution(*with_none.kept_solve(args[3], r_c)))
+
+
+def test_the_tridiagonal_solver_refuses_a_low_rank_term():
+    """A 1D P1 line has no cavity: a low-rank term is an `InputError` when the solve is traced."""
+    model = StateModel(interval(6), SaintVenantKirchhoff(1.0, 1.0))
+    blocks = spd_blocks(model)
+    col, row, r_u, r_c = bordered_rhs(model)
+    lowrank = (np.ones((model.n, 2)), np.eye(2))
+    with pytest.raises(InputError, match="low-rank"):
+        TridiagonalSolver(model).solve(jnp.asarray(blocks), col, row, r_u, r_c, lowrank=lowrank)

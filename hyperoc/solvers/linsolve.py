@@ -10,6 +10,18 @@ with K symmetric (possibly indefinite under compression) given by element blocks
 factorization of K: ``K a = r_u``, ``K b = col``, ``q = (row.a - r_c) / (row.b - d)``, ``x = a - b q``.
 The adjoint solves the transpose, which is the same call with ``col`` and ``row`` swapped.
 
+A constraint may add to the Jacobian a dense symmetric low-rank term that the element blocks cannot hold
+(the volume of a cavity closed by a lid through the moving centroid of its rim: rank ``2 dim``):
+``K_full = K + U W U^T``, ``U`` (n, k), ``W`` (k, k) symmetric, given to a solve as ``lowrank=(U, W)``.
+The dense solver adds it to its dense K. The sparse solver never puts it into the sparse matrix: it solves
+``K^-1 [r_u, col, U]`` with the one factorization of K (``Z = K^-1 U``: k more columns) and corrects
+``a`` and ``b`` by the Woodbury identity
+
+    K_full^-1 v = K^-1 v - Z (I_k + W U^T Z)^-1 W U^T K^-1 v,
+
+valid for a singular W (W = 0 gives K^-1 v), before the border is eliminated as above. The transposed
+solve needs nothing more: W is symmetric, so ``K_full^T = K^T + U W U^T``.
+
 - `DenseSolver`: LU in JAX (small problems; the whole time loop can be compiled).
 - `TridiagonalSolver`: 1D P1 meshes numbered along the line (the paper's case), in JAX.
 - `SparseSolver`: assembly into a fixed sparsity pattern and a host solver (SuperLU, MINRES from scipy;
@@ -50,6 +62,21 @@ def _schur(solve2, col, row, r_u, r_c, corner):
     return eliminate_border(solve2(jnp.stack([r_u, col], axis=1)), row, r_c, corner=corner)
 
 
+class _Woodbury:
+    """Solves with ``K + U W U^T`` from solves with K (NumPy): for ``x = K^-1 v`` (n,) or (n, m),
+    ``(K + U W U^T)^-1 v = x - Z C U^T x`` with ``Z = K^-1 U`` (n, k) and ``C = (I_k + W U^T Z)^-1 W``
+    (k, k). W (k, k) symmetric, possibly singular; ``LinAlgError`` if ``I_k + W U^T Z`` is singular
+    (so is ``K + U W U^T``)."""
+
+    def __init__(self, U, W, Z):
+        self.U, self.Z = U, Z
+        self.C = np.linalg.solve(np.eye(len(W)) + W @ (U.T @ Z), W)
+
+    def corrected(self, x):
+        """``(K + U W U^T)^-1 v`` from ``x = K^-1 v``, same shape as x."""
+        return x - self.Z @ (self.C @ (self.U.T @ x))
+
+
 class DenseSolver:
     """Dense LU of the assembled K, traced by JAX."""
 
@@ -67,8 +94,14 @@ class DenseSolver:
         K = jnp.zeros((self.n + 1, self.n + 1), blocks.dtype).at[self._rows, self._cols].add(blocks.reshape(-1))
         return K[: self.n, : self.n]
 
-    def solve(self, blocks, col, row, r_u, r_c, corner=0.0):
-        lu = jax.scipy.linalg.lu_factor(self.assemble(blocks))
+    def solve(self, blocks, col, row, r_u, r_c, corner=0.0, lowrank=None):
+        """The bordered solve ``(x (n,), q)`` with ``K + U W U^T`` for ``lowrank = (U (n, k), W (k, k))``
+        (None: K), the term added to the dense K."""
+        K = self.assemble(blocks)
+        if lowrank is not None:
+            U, W = lowrank
+            K = K + U @ W @ U.T
+        lu = jax.scipy.linalg.lu_factor(K)
         return _schur(lambda B: jax.scipy.linalg.lu_solve(lu, B), col, row, r_u, r_c, corner)
 
 
@@ -97,7 +130,10 @@ class TridiagonalSolver:
         self._upper = _gather_table(n, [(np.where(both, row_lo, -1), flat(cells, lo, hi))], 4 * len(ed))
         self._lower = _gather_table(n, [(np.where(both, row_lo + 1, -1), flat(cells, hi, lo))], 4 * len(ed))
 
-    def solve(self, blocks, col, row, r_u, r_c, corner=0.0):
+    def solve(self, blocks, col, row, r_u, r_c, corner=0.0, lowrank=None):
+        """The bordered solve ``(x (n,), q)``; ``lowrank`` must be None (a 1D P1 line has no cavity)."""
+        if lowrank is not None:
+            raise InputError("the tridiagonal solver has no low-rank term")
         flat = jnp.concatenate([blocks.reshape(-1), jnp.zeros(1, blocks.dtype)])
         d, du, dl = (flat[t].sum(axis=1) for t in (self._diag, self._upper, self._lower))
         solve2 = lambda B: jax.lax.linalg.tridiagonal_solve(dl, d, du, B)
@@ -252,10 +288,11 @@ class SparseSolver:
                            "pivoting_fallbacks": 0})
 
     # --- solves -------------------------------------------------------------------------------
-    def host_solve(self, blocks, col, row, r_u, r_c, corner=0.0, keep: bool = False):
+    def host_solve(self, blocks, col, row, r_u, r_c, corner=0.0, lowrank=None, keep: bool = False):
         """The bordered solve ``(x, q)`` as one array (n + 1,), on the solver's worker thread (class
-        docstring); ``keep``: keep this Jacobian (with its ``corner``) for `kept_solve`."""
-        return self._on_worker(self._host_solve, blocks, col, row, r_u, r_c, corner, keep)
+        docstring), with ``K + U W U^T`` for ``lowrank = (U (n, k), W (k, k))`` (None: K); ``keep``: keep this
+        Jacobian (with its ``corner`` and low-rank term) for `kept_solve`."""
+        return self._on_worker(self._host_solve, blocks, col, row, r_u, r_c, corner, lowrank, keep)
 
     def _on_worker(self, fn, *args):
         """``fn(*args)`` on the worker thread, with OpenBLAS at ``blas_threads`` (class docstring)."""
@@ -265,54 +302,63 @@ class SparseSolver:
         with openblas_threads(self.blas_threads):
             return fn(*args)
 
-    def _host_solve(self, blocks, col, row, r_u, r_c, corner=0.0, keep: bool = False):
+    def _host_solve(self, blocks, col, row, r_u, r_c, corner=0.0, lowrank=None, keep: bool = False):
         t_start = time.perf_counter()
         self.stats["calls"] += 1
         self.backend.prepare()
         K, q = self.backend.matrix(blocks)
-        rhs = _checked_rhs(np.stack([r_u, col], axis=1))
+        # U's k columns join r_u and col in the one solve with K (Z = K^-1 U, for the Woodbury correction)
+        rhs = _checked_rhs(np.column_stack([r_u, col] if lowrank is None else [r_u, col, lowrank[0]]))
         if not np.isfinite(K.data).all():
             raise np.linalg.LinAlgError("the tangent or the residual has non-finite entries (NaN or Inf)")
+        if keep:
+            self._kept = None  # freed before the new factorization is built
         if isinstance(self.backend, MinresBackend):
             t0 = time.perf_counter()
-            ab = self.backend.solve(K, rhs)
+            lu, x = None, self.backend.solve(K, rhs)
             self.stats["solve_s"] += time.perf_counter() - t0
         else:
-            ab = _unpermuted(self._factored_solve(K, rhs if q is None else rhs[q], q, row, corner, keep), q)
+            lu, x = self._factored_solve(K, rhs if q is None else rhs[q], q, keep)
+            x = _unpermuted(x, q)
+        low_rank = None if lowrank is None else _Woodbury(rhs[:, 2:], _checked_rhs(lowrank[1]), x[:, 2:])
+        ab = x if low_rank is None else low_rank.corrected(x[:, :2])
+        if lu is not None:
+            self._kept = (lu, ab[:, 1], np.asarray(row, dtype=np.float64), float(corner), low_rank)
         self.stats["host_s"] += time.perf_counter() - t_start
         return _bordered(ab, row, r_c, corner)
 
-    def _factored_solve(self, K, rhs, q, row, corner, keep: bool):
-        """``K^-1 rhs`` (in the ordering q) by the reuse policy: a fresh factor kept for chord Newton
-        (``keep``), the kept factor of a "_reuse" method refined and refreshed when it stalls, or a fresh
-        factor (kept by a "_reuse" method)."""
+    def _factored_solve(self, K, rhs, q, keep: bool):
+        """``(lu, K^-1 rhs)`` (rhs and the solution in the ordering q) by the reuse policy: with ``keep``, a
+        fresh factor, returned as ``lu`` for chord Newton to keep (None if the backend cannot keep it);
+        otherwise ``lu`` is None and the solve uses the kept factor of a "_reuse" method, refined and
+        refreshed when it stalls, or a fresh factor (kept by a "_reuse" method)."""
         keepable = self.backend.keepable(q)
         if keep:
-            self._kept = None  # freed before the new factorization is built
-            lu, ab = self._fresh_solve(K, rhs, q is not None)
-            self._kept = ((lu, _unpermuted(ab, q)[:, 1], np.asarray(row, dtype=np.float64), float(corner))
-                          if keepable else None)
-            return ab
+            lu, x = self._fresh_solve(K, rhs, q is not None)
+            return (lu if keepable else None), x
         if self._reuse and self._lu is not None:
-            ab = self._solve_refined(K, rhs, self._lu, max_iter=self.reuse_max_iter, rate=self.reuse_rate)
-            if ab is None:  # the kept factorization is too far from K: refresh it
+            x = self._solve_refined(K, rhs, self._lu, max_iter=self.reuse_max_iter, rate=self.reuse_rate)
+            if x is None:  # the kept factorization is too far from K: refresh it
                 self.stats["refactor_after_stall"] += 1
                 self._lu = None  # freed before the new factorization is built
-                self._lu, ab = self._fresh_solve(K, rhs, q is not None)
-            return ab
-        lu, ab = self._fresh_solve(K, rhs, q is not None)
+                self._lu, x = self._fresh_solve(K, rhs, q is not None)
+            return None, x
+        lu, x = self._fresh_solve(K, rhs, q is not None)
         self._lu = lu if self._reuse and keepable else None
-        return ab
+        return None, x
 
     def _host_kept_solve(self, r_u, r_c):
-        """The bordered solve with the whole Jacobian of the last `refresh_solve`: its factorization,
-        ``b = K^-1 col``, ``row`` and the corner (one solve, no refinement: chord Newton)."""
+        """The bordered solve with the whole Jacobian of the last `refresh_solve`: its factorization of K,
+        ``b = K_full^-1 col``, ``row``, the corner and its low-rank term's `_Woodbury` (None: K_full = K);
+        one solve with the factor, no refinement (chord Newton)."""
         t_start = time.perf_counter()
         self.stats["calls"] += 1
-        lu, b, row, corner = self._kept
+        lu, b, row, corner, low_rank = self._kept
         q = self.backend.order
         r_u = _checked_rhs(r_u)
         a = _unpermuted(lu.solve(r_u if q is None else r_u[q]), q)
+        if low_rank is not None:
+            a = low_rank.corrected(a)
         self.stats["kept_solves"] += 1
         self.stats["solve_s"] += time.perf_counter() - t_start
         self.stats["host_s"] += time.perf_counter() - t_start
@@ -396,23 +442,27 @@ class SparseSolver:
         out = jax.pure_callback(fn, jax.ShapeDtypeStruct((self.n + 1,), jnp.float64), *args)
         return out[:-1], out[-1]
 
-    def solve(self, blocks, col, row, r_u, r_c, corner=0.0):
-        return self._callback(self._host_solve_or_nan, blocks, col, row, r_u, r_c, jnp.asarray(corner, jnp.float64))
+    def solve(self, blocks, col, row, r_u, r_c, corner=0.0, lowrank=None):
+        """The bordered solve ``(x (n,), q)`` with ``K + U W U^T`` for ``lowrank = (U (n, k), W (k, k))``
+        (None: K), traced: `host_solve` through ``jax.pure_callback`` (None adds no operand)."""
+        return self._callback(self._host_solve_or_nan, blocks, col, row, r_u, r_c, jnp.asarray(corner, jnp.float64),
+                              lowrank)
 
     @property
     def chord(self) -> bool:
         """Whether `refresh_solve` / `kept_solve` are available (every method with a factorization)."""
         return not isinstance(self.backend, MinresBackend)
 
-    def refresh_solve(self, blocks, col, row, r_u, r_c, corner=0.0):
-        """`solve`, keeping this Jacobian (the factorization of K, ``K^-1 col``, ``row`` and the corner) for
-        `kept_solve` (chord Newton, traced)."""
+    def refresh_solve(self, blocks, col, row, r_u, r_c, corner=0.0, lowrank=None):
+        """`solve`, keeping this Jacobian (the factorization of K, ``K_full^-1 col``, ``row``, the corner and,
+        with ``lowrank``, ``Z = K^-1 U`` and ``(I_k + W U^T Z)^-1 W``) for `kept_solve` (chord Newton, traced).
+        A refresh without ``lowrank`` keeps none."""
         return self._callback(lambda *a: self._host_solve_or_nan(*a, keep=True), blocks, col, row, r_u, r_c,
-                              jnp.asarray(corner, jnp.float64))
+                              jnp.asarray(corner, jnp.float64), lowrank)
 
     def kept_solve(self, r_u, r_c):
-        """The bordered solve with the Jacobian of the last `refresh_solve` (traced); NaN if there is
-        none yet, which asks the chord iteration for a refresh (not counted as a failure)."""
+        """The bordered solve with the Jacobian of the last `refresh_solve`, its low-rank term included
+        (traced); NaN if there is none yet, which asks the chord iteration for a refresh (not counted as a failure)."""
         return self._callback(self._kept_or_nan, r_u, r_c)
 
     def _kept_or_nan(self, r_u, r_c):
