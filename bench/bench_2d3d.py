@@ -153,7 +153,7 @@ def solver_only(model, dt, methods, reps):
 
     st = ho.TimeStepper(model, ho.Scheme(), "dense" if model.n < 600 else "lu")
     x = jnp.zeros(model.n + 1)
-    blocks, col, row = (np.asarray(a) for a in st.jacobian_parts(x, jnp.zeros(model.n), dt))
+    blocks, col, row = (np.asarray(a) for a in st.jacobian_parts(x, jnp.zeros(model.n), dt)[:3])
     rhs = np.random.default_rng(0).standard_normal(model.n)
     solvers = {name: solver_for(model, name) for name in methods}
     times = {name: [] for name in methods}

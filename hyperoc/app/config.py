@@ -293,7 +293,8 @@ class Config:
         change = cavity.get("volume_change")
         with _in_section("dynamics.cavity"):
             constraint = CavityVolumeConstraint(model, cavity.get("boundary", "endocardium"),
-                                                None if change is None else time_law(change))
+                                                None if change is None else time_law(change),
+                                                apex=cavity.get("apex", "fixed"))
             if t is not None:
                 constraint.check_targets(t)
         return constraint

@@ -300,6 +300,9 @@ class Cavity(Section):
         None, description="dV(t): the cavity volume is held at V(0) + dV(t) (length^3, e.g. m^3); none: at V(0), "
                           "an isovolumic phase; a time law finite on the grid",
         json_schema_extra={"type": "number, expression of t, table or Bestel law"})
+    apex: Literal["fixed", "rim"] = Field(
+        "fixed", description="the lid's apex: the reference rim's centroid (fixed), or the deformed rim's centroid "
+                             "(rim: the volume the benchmark codes and clinicians report; serial path only)")
 
 
 class CirculationSection(Section):
@@ -318,6 +321,7 @@ class CirculationSection(Section):
     aortic_pressure: Number = Field(description="Pa(0), the Windkessel's pressure at the first level")
     phase: Literal["isovolumic", "ejection", "filling"] = Field(
         "filling", description="the phase at the first level")
+    apex: Literal["fixed", "rim"] = Field("fixed", description="the lid's apex (as in [dynamics.cavity])")
 
 
 class Fibres(Section):

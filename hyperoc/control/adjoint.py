@@ -146,12 +146,13 @@ class Adjoint:
         lam_s = lam_s + jax.vjp(con.pressure, s_new)[1](jnp.asarray(gp, dtype=x.dtype))[0]
         _, vjp_next = jax.vjp(con.next_state, s_prev, x, y0, dt)
         n_s, n_x, n_y0, n_dt = vjp_next(lam_s)
-        blocks, col, row, corner = st.jacobian_parts(x, y0, dt, y1, t0, s_prev)
+        blocks, col, row, corner, low_rank = st.jacobian_parts(x, y0, dt, y1, t0, s_prev)
         if not st.symmetric:
             blocks = jnp.swapaxes(blocks, 1, 2)
         _, vjp_split = jax.vjp(con.split, x)
         rhs = vjp_split((lam0 + v_y0n, jnp.zeros((), x.dtype)))[0] + n_x
-        w_u, w_p = st.solver.solve(blocks, row, col, rhs[:-1], rhs[-1], corner)  # transpose: col <-> row
+        # the transpose: col <-> row (the low-rank part is symmetric)
+        w_u, w_p = st.solver.solve(blocks, row, col, rhs[:-1], rhs[-1], corner, low_rank)
         w = jnp.concatenate([w_u, w_p[None]])
         res = lambda y0, y1, s, xi0, xi1, dt, t0: st.residual(x, (y0, y1, s), (xi0, xi1), (f0, f1), dt, V0, t0)
         _, vjp_r = jax.vjp(res, y0, y1, s_prev, xi0, xi1, dt, t0)

@@ -198,8 +198,9 @@ class DistributedStepper(TimeStepper):
 
         def jacobian(xl, q):
             with L.clock("kernels"):
-                blocks, col, row, _ = (np.asarray(a) for a in k["jacobian"](jnp.append(jnp.asarray(xl), q), yl0, yl1,
-                                                                             dt, t0))  # the parts' corners are 0
+                parts = k["jacobian"](jnp.append(jnp.asarray(xl), q), yl0, yl1, dt, t0)
+                # the parts' corners are 0, and a restricted constraint has no low-rank part (a fixed apex)
+                blocks, col, row = (np.asarray(a) for a in parts[:3])
             return blocks, L.add(col), L.add(row)
 
         p0 = float(self.constraint.pressure(s_prev))
@@ -260,8 +261,8 @@ class DistributedAdjoint(Adjoint):
                 s_new, s_prev, jnp.append(jnp.asarray(y0n), pn), jnp.asarray(y0), dt, jnp.asarray(float(gp)),
                 jnp.asarray(lam_s)))
             x = jnp.append(jnp.asarray(y0n[d]), pn)
-            blocks, col, row, _ = (np.asarray(a) for a in k["jacobian"](x, jnp.asarray(y0[d]), jnp.asarray(y1[d]),
-                                                                         dt, t0))  # the parts' corners are 0
+            parts = k["jacobian"](x, jnp.asarray(y0[d]), jnp.asarray(y1[d]), dt, t0)
+            blocks, col, row = (np.asarray(a) for a in parts[:3])  # the parts' corners are 0, no low-rank part
             corner = float(k["corner"](s_prev, dt))
         if not st.symmetric:  # the assembled transpose: the transposed blocks on the same pattern
             blocks = np.swapaxes(blocks, 1, 2)

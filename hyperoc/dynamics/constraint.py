@@ -28,12 +28,14 @@ rows, ``G`` the *force direction* (`force_direction`) and ``c`` the constrained 
 - `TissueVolume` (``"tissue_volume"``, the paper's): ``c = vol(y0) = int det F``, ``G = dc/dy0``
   (the multiplier pulls the body against its volume change), ``target = V0``.
 - `CavityVolumeConstraint` (``"cavity_volume"``): ``c = V_cav(y0)``, the volume of the cavity bounded by a
-  wall of the body (`hyperoc.mechanics.cavity.CavityVolume`, fixed apex: exact for P1 and P2, curved
-  cells), held at ``target = V0 + dV(t)`` (``dV`` a time law, `hyperoc.dynamics.laws`; none: the
-  initial volume, an isovolumic phase). Its multiplier is the cavity (left-ventricular) pressure, positive
-  when it pushes the wall out of the cavity: the load ``p' dV_cav/du`` (a follower pressure on the wall
-  and the lid's reaction on the rim), so ``G = -dV_cav/du``; its stiffness ``-p' d2V_cav/du2`` is
-  symmetric (a Hessian), added to the element blocks of the wall's cells.
+  wall of the body (`hyperoc.mechanics.cavity.CavityVolume`, the lid's apex fixed or at the deformed rim's
+  centroid: exact for P1 and P2, curved cells), held at ``target = V0 + dV(t)`` (``dV`` a time law,
+  `hyperoc.dynamics.laws`; none: the initial volume, an isovolumic phase). Its multiplier is the cavity
+  (left-ventricular) pressure, positive when it pushes the wall out of the cavity: the load ``p' dV_cav/du``
+  (a follower pressure on the wall and the lid's reaction on the rim), so ``G = -dV_cav/du``; its stiffness
+  ``-p' d2V_cav/du2`` is symmetric (a Hessian): its facet-local part added to the element blocks of the wall's
+  cells, with the moving apex its dense rank-2d part the Jacobian's low-rank term (`low_rank`,
+  `hyperoc.solvers.linsolve`).
 - `Circulation` (``"circulation"``): the cavity of `CavityVolumeConstraint` closed by a lumped (0D) circulation,
   coupled monolithically: its multiplier p is still the cavity pressure, and the phase of the beat decides the
   row. Each phase of the linear 0D model, its own state eliminated, gives a row linear in the step's volume
@@ -117,6 +119,11 @@ class _ScalarState:
     def pressure(self, state):
         """The multiplier (the reported pressure) of carried states (any leading shape): the states themselves."""
         return state
+
+    def low_rank(self, x, scale):
+        """The dense symmetric part ``(U, W)`` of the Jacobian beside its element blocks (`hyperoc.solvers.linsolve`),
+        ``scale`` times the multiplier's stiffness as in `add_tangent`: none."""
+        return None
 
 
 class _HeldByMultiplier(_ScalarState):
@@ -211,21 +218,26 @@ class TissueVolume(_HeldByMultiplier):
 
 
 class CavityVolumeConstraint(_HeldByMultiplier):
-    """The volume of the cavity bounded by ``boundary`` (`hyperoc.mechanics.cavity.CavityVolume`, fixed apex)
-    held at ``V0 + change(t)`` (``change``: a `hyperoc.dynamics.laws.TimeLaw` of the volume change in
-    length^d, or None: isovolumic) by the cavity pressure p (stress units, positive pushing the wall out
-    of the cavity). `InputError` for a boundary the mesh lacks or one that encloses no volume."""
+    """The volume of the cavity bounded by ``boundary`` (`hyperoc.mechanics.cavity.CavityVolume`) held at
+    ``V0 + change(t)`` (``change``: a `hyperoc.dynamics.laws.TimeLaw` of the volume change in length^d, or None:
+    isovolumic) by the cavity pressure p (stress units, positive pushing the wall out of the cavity). ``apex``:
+    the lid's apex, ``"fixed"`` (the reference rim's centroid) or ``"rim"`` (the deformed rim's centroid: the
+    volume codes and clinicians report; its stiffness has a dense part, `low_rank`; not on the distributed
+    path). `InputError` for a boundary the mesh lacks, one that encloses no volume, or another apex."""
 
     kind = "cavity_volume"
+    APEXES = ("fixed", "rim")
 
-    def __init__(self, model, boundary: str = "endocardium", change: TimeLaw | None = None):
+    def __init__(self, model, boundary: str = "endocardium", change: TimeLaw | None = None, apex: str = "fixed"):
         if boundary not in model.mesh.boundaries:
             raise InputError(f"cavity volume: the mesh has no boundary {boundary!r} (its boundaries: "
                              f"{', '.join(sorted(model.mesh.boundaries))})")
         if change is not None and not isinstance(change, TimeLaw):
             raise InputError(f"cavity volume: the volume change must be a time law, got {change!r}")
-        self.model, self.boundary, self.change = model, boundary, change
-        self.cavity = CavityVolume(model, boundary)
+        if apex not in self.APEXES:
+            raise InputError(f"cavity volume: apex must be one of {', '.join(self.APEXES)}, got {apex!r}")
+        self.model, self.boundary, self.change, self.apex = model, boundary, change, apex
+        self.cavity = CavityVolume(model, boundary, apex="rim" if apex == "rim" else None)
 
     def value(self, y0):
         """``V_cav(y0)`` (length^d)."""
@@ -263,8 +275,14 @@ class CavityVolumeConstraint(_HeldByMultiplier):
         return 0.0
 
     def add_tangent(self, blocks, x, scale):
-        """The element blocks plus ``scale`` times the pressure's stiffness ``-p' d2V_cav/du2``."""
+        """The element blocks plus ``scale`` times the pressure's stiffness ``-p' d2V_cav/du2`` (with the moving
+        apex its facet-local part, `low_rank` the rest)."""
         return self.cavity.add_hessian(blocks, x[:-1], -scale * x[-1])
+
+    def low_rank(self, x, scale):
+        """With the moving apex the dense part ``(U, W)`` of ``-scale p' d2V_cav/du2`` (`CavityVolume.low_rank`),
+        else None."""
+        return self.cavity.low_rank(x[:-1], -scale * x[-1])
 
 
 class Circulation(CavityVolumeConstraint):
@@ -282,7 +300,7 @@ class Circulation(CavityVolumeConstraint):
 
     def __init__(self, model, boundary: str = "endocardium", *, resistance: float, compliance: float,
                  atrial_pressure: float, mitral_resistance: float, aortic_pressure: float,
-                 characteristic_resistance: float = 0.0, phase: str = "filling"):
+                 characteristic_resistance: float = 0.0, phase: str = "filling", apex: str = "fixed"):
         values = {"resistance": resistance, "compliance": compliance, "mitral_resistance": mitral_resistance,
                   "characteristic_resistance": characteristic_resistance, "atrial_pressure": atrial_pressure,
                   "aortic_pressure": aortic_pressure}
@@ -296,7 +314,7 @@ class Circulation(CavityVolumeConstraint):
             raise InputError(f"circulation: characteristic_resistance must be >= 0, got {characteristic_resistance!r}")
         if phase not in self.PHASES:
             raise InputError(f"circulation: phase must be one of {', '.join(self.PHASES)}, got {phase!r}")
-        super().__init__(model, boundary)
+        super().__init__(model, boundary, apex=apex)
         self.R, self.C, self.Rc = float(resistance), float(compliance), float(characteristic_resistance)
         self.p_atrial, self.R_mitral = float(atrial_pressure), float(mitral_resistance)
         self.Pa0 = float(aortic_pressure)

@@ -163,7 +163,8 @@ def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, co
             blocks = fol.add_stiffness(blocks, u, s)
         blocks = add_spring_tangent(robin, blocks, u)
         if constrained:
-            return con.add_tangent(blocks, x, 1.0), con.force_direction(u), con.value_gradient(u)
+            return (con.add_tangent(blocks, x, 1.0), con.force_direction(u), con.value_gradient(u), 0.0,
+                    con.low_rank(x, 1.0))
         Ke = jax.jvp(lambda v: force_balance(v, fk, s), (u,), (e,))[1]
         return blocks, Ke, e
 

@@ -206,7 +206,7 @@ class StateSolution:
     warnings : regimes detected after the solve (loss of convexity, under-resolved fronts).
     multiplier_states : (N, k) the multiplier states carried after each step when the constraint carries more
         than its multiplier (`hyperoc.dynamics.constraint`), else None.
-    constrained_volume : (N+1,) the volume a cavity constraint holds (its fixed apex), at the levels; None for
+    constrained_volume : (N+1,) the volume a cavity constraint holds (with its apex), at the levels; None for
         the other constraints.
     """
 
@@ -362,9 +362,10 @@ class TimeStepper:
         return jnp.concatenate([Fu, jnp.reshape(con.row(x, V0, t0 + dt, y0, p_prev, dt), (1,))])
 
     def jacobian_parts(self, x, y0, dt, y1=None, t0=0.0, p_prev=0.0):
-        """(element blocks of dFu/dy0', border column, border row, corner dF_c/dp') at x
-        (`hyperoc.dynamics.constraint`); ``y1`` (the level's velocity) is needed when a term depends on the
-        velocity, ``p_prev`` (the carried multiplier state) when the constraint's row does."""
+        """(element blocks of dFu/dy0', border column, border row, corner dF_c/dp', the dense low-rank part
+        ``(U, W)`` of dFu/dy0' or None) at x (`hyperoc.dynamics.constraint`, `hyperoc.solvers.linsolve`); ``y1``
+        (the level's velocity) is needed when a term depends on the velocity, ``p_prev`` (the carried multiplier
+        state) when the constraint's row does."""
         m, th, con = self.model, self.scheme.theta, self.constraint
         y0n, _ = con.split(x)
         blocks = con.add_tangent(self._mass_blocks / (th * dt) + m.damping * self._lap_blocks
@@ -374,7 +375,7 @@ class TimeStepper:
             for term in self.terms:
                 blocks = term.add_tangent(blocks, y0n, y1n, t0 + dt, dt * th, 1.0)
         col, row = con.border(blocks, x, y0, dt, th, self.scheme.multiplier)
-        return blocks, col, row, con.corner(p_prev, dt)
+        return blocks, col, row, con.corner(p_prev, dt), con.low_rank(x, dt * th)
 
     def step(self, carry, inputs):
         """One time step on traced arrays.

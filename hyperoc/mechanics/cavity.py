@@ -20,13 +20,21 @@ deformed rim's centroid, which moves with the rim. With a fixed apex the cone is
 deformed rim stays in a plane through c (a base sliding in its plane, or clamped); a rim that leaves that
 plane adds the volume between the flat lid and the cone (first order in the rim's out-of-plane motion).
 With ``apex="rim"`` the volume does not change under rigid motions of the whole, and the cone is the flat
-lid whenever the rim stays planar: the volume the benchmark codes and a clinician report. Its derivative
-couples every rim node to every wall node (the centroid moves with all of them), which does not fit the
-element blocks: the constraint and its tangent use a fixed apex, the reports the moving one.
+lid whenever the rim stays planar: the volume the benchmark codes and a clinician report.
 
-V is a sum over facets of the facet's nodal positions, so its gradient (the load of a cavity pressure,
-``P dV/du``: the follower pressure on ``Gamma`` plus the cone's reaction on the rim) and its Hessian
-(that load's stiffness) are facet-local and fit the element blocks of the facets' owner cells.
+With a fixed apex V is a sum over facets of the facet's nodal positions, so its gradient (the load of a
+cavity pressure, ``P dV/du``: the follower pressure on ``Gamma`` plus the cone's reaction on the rim) and its
+Hessian (that load's stiffness) are facet-local and fit the element blocks of the facets' owner cells.
+With the moving apex ``c(u)``, the rim's mean position, write ``V(u) = F(x, c(u))`` with F the fixed-apex sum.
+F is linear in c with ``dF/dc = A(u) / d``, ``A = sum_facets int a dxi`` (the wall's area vector), so
+
+    dV/du = F_x(x, c) + (dc/du)^T A / d,
+    d2V/du2 = F_xx(x, c) + (1/d) [(dA/du)^T (dc/du) + (dc/du)^T (dA/du)],
+
+the first part facet-local (the fixed-apex Hessian at the current apex), the second a dense symmetric term
+of rank 2d, coupling every rim dof to every wall dof: ``U W U^T`` with ``U = [(dc/du)^T, (dA/du)^T]`` (n, 2d)
+and ``W = (1/d) [[0, I], [I, 0]]`` (`low_rank`), which the bordered solvers take beside the element blocks
+(`hyperoc.solvers.linsolve`, by the Woodbury identity on the one factorization).
 """
 
 from __future__ import annotations
@@ -82,8 +90,8 @@ class CavityVolume:
     model : `hyperoc.mechanics.model.StateModel` (2D or 3D, P1 or P2); its reduced dofs are used.
     boundary : the cavity wall, e.g. ``"endocardium"``.
     apex : the cone's apex c (dim,); default the centroid of the rim's reference nodes (of all the
-        wall's nodes when the wall is closed); ``"rim"``: the deformed rim's centroid (for reports: its
-        gradient is not facet-local, so `gradient` and `add_hessian` refuse it).
+        wall's nodes when the wall is closed); ``"rim"``: the deformed rim's centroid (its Hessian has the
+        dense part `low_rank` beside the facet blocks; `restricted` refuses it).
     """
 
     def __init__(self, model, boundary: str = "endocardium", apex=None):
@@ -142,30 +150,52 @@ class CavityVolume:
 
     def _fixed_apex(self) -> None:
         if self.moving:
-            raise InputError("the cavity volume with apex='rim' has no facet-local derivatives: use a fixed apex")
+            raise InputError("the cavity volume with apex='rim' is not a sum over the ranks' facets (its lid moves "
+                             "with the whole rim): use a fixed apex on the distributed path")
 
-    def _facet_volume(self, x):
-        """One facet's volume term of its nodal positions x (m, dim)."""
+    def _facet_volume(self, x, c):
+        """One facet's volume term of its nodal positions x (m, dim) with the apex c (dim,)."""
         s = self.surface
-        xq = s._N @ x - self.apex
-        return -jnp.einsum("q,qi,qi->", s._w, xq, s._area_vectors(x)) / self.dim
+        return -jnp.einsum("q,qi,qi->", s._w, s._N @ x - c, s._area_vectors(x)) / self.dim
+
+    def area_vector(self, u):
+        """``A(u) = sum_facets int a dxi`` (dim,): the wall's area vector, pointing into the cavity (length^(d-1))."""
+        s = self.surface
+        a = jax.vmap(s._area_vectors)(s._positions(u))
+        return jnp.einsum("q,fqi->i", s._w, a)
 
     def gradient(self, u):
-        """dV/du (n,): facet by facet, summed into the reduced dofs (Dirichlet dofs dropped)."""
-        self._fixed_apex()
+        """dV/du (n,): facet by facet, summed into the reduced dofs (Dirichlet dofs dropped), plus with the
+        moving apex its part ``(dc/du)^T A / d`` (module docstring)."""
         s = self.surface
-        g = jax.vmap(jax.grad(self._facet_volume))(s._positions(u))
-        return scatter(g.reshape(g.shape[0], -1), s._gather, self.n)
+        c = self.apex_at(u)
+        g = jax.vmap(jax.grad(self._facet_volume), in_axes=(0, None))(s._positions(u), c)
+        g = scatter(g.reshape(g.shape[0], -1), s._gather, self.n)
+        if not self.moving:
+            return g
+        return g + jax.vjp(self.apex_at, u)[1](self.area_vector(u) / self.dim)[0]
 
     def facet_hessians(self, u, factor=1.0):
-        """``factor d2V/dx2`` per facet, (nf, m dim, m dim), node-major facet dofs: the stiffness of a
-        cavity pressure ``factor`` is ``-factor d2V/du2``."""
-        self._fixed_apex()
+        """``factor d2F/dx2`` per facet at the apex of u, (nf, m dim, m dim), node-major facet dofs: with a fixed
+        apex the whole ``factor d2V/du2`` (the stiffness of a cavity pressure ``factor`` is
+        ``-factor d2V/du2``), with the moving one its facet-local part (`low_rank` the rest)."""
         s = self.surface
         x = s._positions(u)
         nf, m, d = x.shape
-        H = jax.vmap(jax.hessian(self._facet_volume))(x)
+        H = jax.vmap(jax.hessian(self._facet_volume), in_axes=(0, None))(x, self.apex_at(u))
         return factor * H.reshape(nf, m * d, m * d)
+
+    def low_rank(self, u, factor=1.0):
+        """``(U, W)``, ``U`` (n, 2 dim), ``W`` (2 dim, 2 dim): the dense part ``U W U^T`` of ``factor d2V/du2``
+        with the moving apex (module docstring); None with a fixed apex."""
+        if not self.moving:
+            return None
+        dc = jax.jacrev(self.apex_at)(u)  # (dim, n)
+        dA = jax.jacrev(self.area_vector)(u)
+        eye = jnp.eye(self.dim)
+        zero = jnp.zeros_like(eye)
+        W = factor / self.dim * jnp.block([[zero, eye], [eye, zero]])
+        return jnp.concatenate([dc, dA]).T, W
 
     def add_hessian(self, cell_blocks, u, factor=1.0):
         """``cell_blocks`` (nc, k, k) plus ``factor d2V/du2``, scattered into each facet's owner cell."""

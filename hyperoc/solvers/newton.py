@@ -120,8 +120,9 @@ def newton(residual, jacobian_parts, solver, x0, options: NewtonOptions | None =
     ``options``: the `NewtonOptions` of the solve; or, without them, the tolerances ``rtol``, ``atol``,
     ``max_iter`` as keywords, the other options at their defaults.
 
-    ``jacobian_parts(x)``: the bordered Jacobian at x as ``(blocks, col, row)`` or ``(blocks, col, row,
-    corner)`` (`hyperoc.solvers.linsolve`; the corner is 0 when not given), passed to the solver's solves.
+    ``jacobian_parts(x)``: the bordered Jacobian at x as ``(blocks, col, row)``, ``(blocks, col, row,
+    corner)`` or ``(blocks, col, row, corner, low_rank)`` (`hyperoc.solvers.linsolve`; the corner is 0 and the
+    low-rank part ``(U, W)`` None when not given), passed to the solver's solves.
 
     Convergence: ``|du|_inf <= rtol |u + du|_inf + atol`` for the Newton increment du; with
     quadratic convergence the error after that update is far below the test. With ``n_u`` (a
