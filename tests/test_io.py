@@ -11,7 +11,14 @@ import pytest
 
 import hyperoc.app.plotting
 import hyperoc.io as hio
-from hyperoc.app.plotting import Units, plot_control_spacetime, plot_history, plot_pressure, plot_snapshots
+from hyperoc.app.plotting import (
+    Units,
+    plot_control_spacetime,
+    plot_history,
+    plot_pressure,
+    plot_pressure_comparison,
+    plot_snapshots,
+)
 from hyperoc.fem.mesh import interval, rectangle
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -305,6 +312,29 @@ def test_plot_pressure_labels(monkeypatch):
     assert legend == ["p(t)", r"$\tau$", "filling ends", "snapshot"]
     assert plain._suptitle is None and plain.axes[-1].get_xlabel() == "time t [-]"
     assert [ax.get_ylabel() for ax in plain.axes] == ["pressure p [-]", "cavity volume [-]"]
+
+
+def test_the_pressure_comparison_zooms_on_tau(monkeypatch):
+    """With ``zoom`` a third panel shows the rates of rise on [tau - zoom, tau + eps + zoom], its vertical range that
+    of the rates there (where a control acting near tau shows), not of the whole run."""
+    figures = _figures(monkeypatch)
+    t = np.linspace(0.0, 0.5, 501)
+    bump = np.exp(-((t - 0.03) / 0.01) ** 2)
+    runs = {"uncontrolled": 1e5 * bump, "optimized": 1.02e5 * bump}
+    rises = {name: (t, r - 5e5 * (t > 0.3)) for name, r in runs.items()}
+    plot_pressure_comparison("p.png", {name: (t, np.cumsum(r)) for name, r in runs.items()}, rises, tau=0.03,
+                             eps=0.002, zoom=0.01, title="run: pressure", units=Units(time="s", pressure="Pa"))
+    plot_pressure_comparison("q.png", {"a": (t, t)}, {"a": (t, t)}, tau=0.03)
+    zoomed, plain = figures
+    assert len(zoomed.axes) == 3 and len(plain.axes) == 2
+    ax = zoomed.axes[2]
+    assert ax.get_xlim() == pytest.approx((0.02, 0.042))
+    lo, hi = ax.get_ylim()
+    inside = (t >= 0.02) & (t <= 0.042)
+    assert lo <= 0.99 * rises["uncontrolled"][1][inside].min() and hi >= rises["optimized"][1][inside].max()
+    assert lo > 0 and hi < 1.1e5  # the whole run's rates reach -5e5
+    assert ax.get_ylabel() == "(p(t + $\\varepsilon$) - p(t)) / $\\varepsilon$ [Pa/s]"
+    assert zoomed.axes[-1].get_xlabel() == "time t [s]"
 
 
 def test_plot_labels_carry_units(monkeypatch):

@@ -377,8 +377,9 @@ def plot_value_profile(path, tau, value, converged, *, marks=(), title=None) -> 
 
 
 def plot_pressure_comparison(path, pressures: dict, rises: dict, *, tau=None, eps=None, title=None,
-                             units=None) -> Path:
-    """Pressures of several runs (top) and their rates of rise (bottom), tau marked.
+                             units=None, zoom=None) -> Path:
+    """Pressures of several runs (top) and their rates of rise (middle), tau marked; with ``zoom``, the rates
+    around tau once more (bottom), where a control that acts near tau shows.
 
     Parameters
     ----------
@@ -395,30 +396,51 @@ def plot_pressure_comparison(path, pressures: dict, rises: dict, *, tau=None, ep
         Figure title.
     units : Units, optional
         Units of the axes.
+    zoom : float, optional
+        Half-width of the bottom panel's window ``[tau - zoom, tau + eps + zoom]`` [units.time]; needs tau.
 
     Returns
     -------
     Path
     """
     units = units or Units()
-    fig = new_figure(6.4, 6.4)
-    top, bottom = fig.subplots(2, 1, sharex=True)
+    zoomed = zoom is not None and tau is not None
+    fig = new_figure(6.4, 8.8 if zoomed else 6.4)
+    axes = fig.subplots(3 if zoomed else 2, 1)
+    top, middle = axes[0], axes[1]
+    middle.sharex(top)
+    top.tick_params(labelbottom=False)
     for k, (label, (t, p)) in enumerate(pressures.items()):
         top.plot(_as_1d("t", t), _as_1d("p", p, np.size(t)), color=f"C{k}", label=label)
-    for k, (label, (t, r)) in enumerate(rises.items()):
-        bottom.plot(_as_1d("t", t), _as_1d("rate", r, np.size(t)), color=f"C{k}", label=label)
-    for ax in (top, bottom):
+    rate_label = axis_label(r"(p(t + $\varepsilon$) - p(t)) / $\varepsilon$", units.pressure_rate)
+    for ax in axes[1:]:
+        for k, (label, (t, r)) in enumerate(rises.items()):
+            ax.plot(_as_1d("t", t), _as_1d("rate", r, np.size(t)), color=f"C{k}", label=label)
+        ax.set_ylabel(rate_label)
+    for ax in axes:
         if tau is not None:
             ax.axvline(tau, color="k", linestyle="--", linewidth=1.0, label=r"$\tau^*$")
             if eps is not None:
                 ax.axvspan(tau, tau + eps, color="0.85", label=r"$[\tau^*, \tau^*+\varepsilon]$")
+    if zoomed:
+        _zoom_to(axes[2], rises, tau - zoom, tau + (eps or 0.0) + zoom)
+        axes[2].set_title(r"around $\tau^*$", fontsize="small")
     top.set_ylabel(axis_label("pressure p", units.pressure))
-    bottom.set_ylabel(axis_label(r"(p(t + $\varepsilon$) - p(t)) / $\varepsilon$", units.pressure_rate))
-    bottom.set_xlabel(axis_label("time t", units.time))
+    axes[-1].set_xlabel(axis_label("time t", units.time))
     top.legend(loc="best", fontsize="small")
     if title:
         fig.suptitle(_fitted(title, fig))
     return save_figure(fig, path)
+
+
+def _zoom_to(ax, curves: dict, lo: float, hi: float) -> None:
+    """Limit ``ax`` to ``lo <= t <= hi`` and to the range the ``curves`` ({label: (t, y)}) take there."""
+    inside = [np.asarray(y)[(np.asarray(t) >= lo) & (np.asarray(t) <= hi)] for t, y in curves.values()]
+    values = np.concatenate(inside) if inside else np.zeros(0)
+    ax.set_xlim(lo, hi)
+    if values.size:
+        pad = 0.05 * max(np.ptp(values), 1e-12 * np.max(np.abs(values)))
+        ax.set_ylim(values.min() - pad, values.max() + pad)
 
 
 def plot_pv_loops(path, loops: dict, *, title=None, units=None) -> Path:

@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._jax import on_device
+from ..cardiac.hemodynamics import beat_indices
 from ..dynamics.stepper import StateSolution
 from ..errors import InputError
 from ..io import write_json, write_npz, write_time_series
@@ -151,11 +152,12 @@ def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = No
     as written: ``[control] file`` replays it on its levels), in 3D the `cavity_volume` enclosed by the
     boundary ``cavity`` (default ``"endocardium"``, `_cavity_volumes`; a 3D mesh without it gets a warning
     saying so, unless ``cavity`` is None: a body with no cavity), with a cavity constraint the volume it holds
-    ``constrained_cavity_volume`` (its fixed apex), and with the circulation constraint its ``aortic_pressure``
-    and ``phase`` after each step (N,). pressure.png shows p (tau marked), the body-volume drift and the cavity
-    volume; pv_loop.png the pressure against the cavity volume (the constrained one if any, else the reported);
-    control.png the control's space-time map (1D; 2D/3D scalar controls: means over slices along the mesh's
-    longest extent, the long axis of a ventricle: `_long_axis`); 1D adds snapshot figures.
+    ``constrained_cavity_volume`` (with the constraint's apex), and with the circulation constraint its
+    ``aortic_pressure`` and ``phase`` after each step (N,) (the summary's ``beat``: its valve events and
+    ejections, `hyperoc.cardiac.hemodynamics.beat_indices`). pressure.png shows p (tau marked), the body-volume
+    drift and the cavity volume; pv_loop.png the pressure against the cavity volume (the constrained one if any,
+    else the reported); control.png the control's space-time map (1D; 2D/3D scalar controls: means over slices
+    along the mesh's longest extent, the long axis of a ventricle: `_long_axis`); 1D adds snapshot figures.
     The series ``paraview/state`` has the point fields ``displacement``, ``velocity``, ``control`` (the
     control's space-time field, zero outside omega; a scalar for an active stress) and the cell fields
     of `_cell_series` (``frames``: the fibre frames, for output only).
@@ -217,10 +219,19 @@ def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = No
     if history:
         plot_history(out / "history.png", history, title=f"{title}: optimizer history")
         files["history_plot"] = "history.png"
-    summary = {**sol.summary(), **_pressure_extrema(sol), **cavity_summary,
+    summary = {**sol.summary(), **_pressure_extrema(sol), **cavity_summary, **_beat(sol),
                "newton_iterations_mean": float(np.mean(sol.newton_iterations)), "files": files, **(extra_summary or {})}
     write_json(out / "summary.json", summary)
     return summary
+
+
+def _beat(sol: StateSolution) -> dict:
+    """``{"beat": ...}``, the indices of a run closed by the circulation (valve events, ejections, stroke volume,
+    ejection fraction: `hyperoc.cardiac.hemodynamics.beat_indices`, on the volume the constraint holds); empty
+    for the other constraints."""
+    if sol.multiplier_states is None or sol.constrained_volume is None:
+        return {}
+    return {"beat": beat_indices(sol.t, sol.constrained_volume, sol.pressure, sol.multiplier_states[:, 2])}
 
 
 def _cavity_volumes(sol: StateSolution, cavity: str | None) -> np.ndarray | None:
