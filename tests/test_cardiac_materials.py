@@ -371,3 +371,36 @@ def test_the_c2_tension_switch_is_the_published_square_outside_its_width():
     gap = np.max(np.asarray(inside**2 - tension_square(inside, w)))
     assert 0.0345 * w**2 < gap < 0.0346 * w**2
     assert abs(float(jax.grad(jax.grad(lambda y: tension_square(y, 0.0)))(1e-9)) - 2.0) < 1e-12  # the jump w removes
+
+
+@pytest.mark.parametrize("label", ["generic", "fibre-tension", "fibre-slack"])
+def test_the_codes_sigmoid_switch_is_their_formula_and_tends_to_the_published_one(label):
+    """``switch_steepness = k``: the fibre and sheet terms ``a_i/(2b_i) chi_k(I4_i) (exp(b_i (I4_i - 1)^2) - 1)``
+    with ``chi_k = 1 / (1 + exp(-k (I4 - 1)))`` (the participating codes' form, k = 100); as k grows they tend to
+    the published ``<I4 - 1>^2`` terms away from I4 = 1 (``chi_k`` within ``exp(-k |I4 - 1|)`` of the step)."""
+    F, frame = sample_points(3)[label]
+    C, J = F.T @ F, np.linalg.det(F)
+    f, s = frame[0], frame[1]
+    m = HolzapfelOgden(bulk_modulus=30.0, switch_steepness=100.0)
+    chi = lambda x: 1.0 / (1.0 + np.exp(-100.0 * x))
+    term = lambda a, b, x: a / (2 * b) * chi(x) * np.expm1(b * x**2)
+    expected = (m.a / (2 * m.b) * np.expm1(m.b * (J ** (-2 / 3) * np.trace(C) - 3))
+                + term(m.af, m.bf, f @ C @ f - 1) + term(m.as_, m.bs, s @ C @ s - 1)
+                + m.afs / (2 * m.bfs) * np.expm1(m.bfs * (f @ C @ s) ** 2)
+                + m.bulk_modulus / 4 * (J**2 - 1 - 2 * np.log(J)))
+    assert W(m, F, frame) == pytest.approx(expected, rel=1e-13)
+    steep, published = HolzapfelOgden(bulk_modulus=30.0, switch_steepness=1e5), HolzapfelOgden(bulk_modulus=30.0)
+    assert W(steep, F, frame) == pytest.approx(W(published, F, frame), rel=1e-10)
+
+
+def test_the_sigmoid_switch_resists_fibre_shortening_and_excludes_the_c2_one():
+    """Near I4 = 1 the codes' switch bears half the fibre term in compression, where the published one bears
+    none; with both switches given the law is refused in one line."""
+    shortened = np.diag([0.99, 1.0, 1.0])
+    published, sigmoid = HolzapfelOgden(bulk_modulus=30.0), HolzapfelOgden(bulk_modulus=30.0, switch_steepness=100.0)
+    extra = W(sigmoid, shortened, np.eye(3)) - W(published, shortened, np.eye(3))
+    x = 0.99**2 - 1
+    assert extra == pytest.approx(sigmoid.af / (2 * sigmoid.bf) * np.expm1(sigmoid.bf * x**2) / (1 + np.exp(-100 * x)),
+                                  rel=1e-10)
+    with pytest.raises(InputError, match="switch_width or switch_steepness, not both"):
+        material_from_config({"law": "holzapfel-ogden", "switch_width": 0.02, "switch_steepness": 100.0})

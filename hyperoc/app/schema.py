@@ -252,6 +252,9 @@ class Material(Section):
     switch_width: Optional[NonNegative] = Field(
         None, description="Holzapfel-Ogden: width w (in I4 - 1) of a C^2 tension-only switch, so that objectives "
                           "of the state are smooth (default 0: the published <I4 - 1>^2)")
+    switch_steepness: Optional[NonNegative] = Field(
+        None, description="Holzapfel-Ogden: k of the smooth switch 1/(1 + exp(-k (I4 - 1))) several cardiac "
+                          "benchmark codes use (k = 100) in place of <I4 - 1>^2 (default 0: the published switch)")
     isochoric: Optional[bool] = Field(
         None, description="Guccione: Q on the isochoric strain (needed with cell-mean); Holzapfel-Ogden: I1bar "
                           "(default) or, false, the full I1 of the cardiac elastodynamics benchmark")
