@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..cardiac.hemodynamics import beat_indices
+from ..cardiac.hemodynamics import solution_beat
 from ..io import write_json
 
 __all__ = ["beat_config", "reproduce_lv_beat", "pressure_rise", "BEAT_CONFIG"]
@@ -92,8 +92,7 @@ def reproduce_lv_beat(out, *, progress: bool = False, entries: dict | None = Non
     rise_opt = optimized["optimization"]["objective_terms"]["PressureRise"]
     sols = {"uncontrolled": sol_unc, "optimized": sol_opt}
     _write_figures(out, sols, tau, eps, units)
-    beats = {name: beat_indices(sol.t, sol.constrained_volume, sol.pressure, sol.multiplier_states[:, 2])
-             for name, sol in sols.items()}
+    beats = {name: solution_beat(sol) for name, sol in sols.items()}
     rates = pressure_rise(sol_unc.t, sol_unc.pressure, eps)
     k = int(np.argmax(rates))
     g = res.history["grad_norm"]

@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._jax import on_device
-from ..cardiac.hemodynamics import beat_indices
+from ..cardiac.hemodynamics import solution_beat
 from ..dynamics.stepper import StateSolution
 from ..errors import InputError
 from ..io import write_json, write_npz, write_time_series
@@ -154,7 +154,7 @@ def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = No
     saying so, unless ``cavity`` is None: a body with no cavity), with a cavity constraint the volume it holds
     ``constrained_cavity_volume`` (with the constraint's apex), and with the circulation constraint its
     ``aortic_pressure`` and ``phase`` after each step (N,) (the summary's ``beat``: its valve events and
-    ejections, `hyperoc.cardiac.hemodynamics.beat_indices`). pressure.png shows p (tau marked), the body-volume
+    ejections, `hyperoc.cardiac.hemodynamics.solution_beat`). pressure.png shows p (tau marked), the body-volume
     drift and the cavity volume; pv_loop.png the pressure against the cavity volume (the constrained one if any,
     else the reported); control.png the control's space-time map (1D; 2D/3D scalar controls: means over slices
     along the mesh's longest extent, the long axis of a ventricle: `_long_axis`); 1D adds snapshot figures.
@@ -227,11 +227,9 @@ def write_state_outputs(out: Path, sol: StateSolution, *, tau: float | None = No
 
 def _beat(sol: StateSolution) -> dict:
     """``{"beat": ...}``, the indices of a run closed by the circulation (valve events, ejections, stroke volume,
-    ejection fraction: `hyperoc.cardiac.hemodynamics.beat_indices`, on the volume the constraint holds); empty
-    for the other constraints."""
-    if sol.multiplier_states is None or sol.constrained_volume is None:
-        return {}
-    return {"beat": beat_indices(sol.t, sol.constrained_volume, sol.pressure, sol.multiplier_states[:, 2])}
+    ejection fraction: `hyperoc.cardiac.hemodynamics.solution_beat`); empty for the other constraints."""
+    beat = solution_beat(sol)
+    return {} if beat is None else {"beat": beat}
 
 
 def _cavity_volumes(sol: StateSolution, cavity: str | None) -> np.ndarray | None:

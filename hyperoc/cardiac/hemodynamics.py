@@ -16,11 +16,13 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["PHASES", "beat_indices", "level_phases"]
+from ..dynamics.constraint import Circulation
 
-#: The phases by their carried number (`hyperoc.dynamics.constraint.Circulation.PHASES`).
-PHASES = ("isovolumic", "ejection", "filling")
-_EJECTION = 1
+__all__ = ["PHASES", "beat_indices", "level_phases", "solution_beat"]
+
+#: The phases by their carried number.
+PHASES = Circulation.PHASES
+_ISOVOLUMIC, _EJECTION = PHASES.index("isovolumic"), PHASES.index("ejection")
 
 
 def level_phases(carried_phases: np.ndarray) -> np.ndarray:
@@ -58,6 +60,14 @@ def beat_indices(t: np.ndarray, volume: np.ndarray, pressure: np.ndarray, carrie
             sv = float(V[start] - V[end])
             entry.update(end_systolic_volume=float(V[end]), stroke_volume=sv, ejection_fraction=sv / float(V[start]))
         ejections.append(entry)
-    steps = np.flatnonzero(phase[:-1] == 0)
+    steps = np.flatnonzero(phase[:-1] == _ISOVOLUMIC)
     change = np.abs(V[steps + 1] - V[steps]) / abs(V[0]) if steps.size else np.zeros(1)
     return {"valve_events": events, "ejections": ejections, "isovolumic_volume_change": float(np.max(change))}
+
+
+def solution_beat(sol) -> dict | None:
+    """`beat_indices` of a `hyperoc.dynamics.stepper.StateSolution` closed by the circulation, on the volume its
+    constraint holds; None for the other constraints."""
+    if sol.multiplier_states is None or sol.constrained_volume is None:
+        return None
+    return beat_indices(sol.t, sol.constrained_volume, sol.pressure, sol.multiplier_states[:, 2])

@@ -61,6 +61,15 @@ def _point(apex, dim: int) -> np.ndarray:
 __all__ = ["CavityVolume", "rim_nodes"]
 
 
+def _mean_jacobian(index: np.ndarray, n: int):
+    """``dc/du`` (dim, n) of the mean ``c`` of the nodes whose reduced dofs are ``index`` (m, dim) (dump slot n for
+    a held dof): a constant, since c is linear in u."""
+    m, dim = index.shape
+    J = np.zeros((dim, n + 1))
+    np.add.at(J, (np.broadcast_to(np.arange(dim), index.shape), index), 1.0 / m)
+    return jnp.asarray(J[:, :n])
+
+
 def rim_nodes(space, facets: np.ndarray) -> np.ndarray:
     """The nodes on the rim of the boundary part ``facets`` (nf, dim) of ``space``'s mesh: the vertices
     (and, P2, the edge nodes) of the facet edges (3D) or facet vertices (2D) that belong to a single
@@ -101,8 +110,11 @@ class CavityVolume:
         self.rim = rim_nodes(model.space, facets)
         around = self.rim if self.rim.size else np.unique(model.space.facet_nodes(facets))
         self.moving = isinstance(apex, str) and apex == "rim"
-        self._around = jnp.asarray(dump_index(model.to_reduced[model.space.node_dofs(around)], model.n))
+        index = dump_index(model.to_reduced[model.space.node_dofs(around)], model.n)
+        self._around = jnp.asarray(index)
         self._around_X = jnp.asarray(model.space.nodes[around])
+        # dc/du of the moving apex (dim, n): constant, built once rather than differentiated at every Jacobian
+        self._apex_jacobian = _mean_jacobian(index.reshape(len(around), self.dim), model.n) if self.moving else None
         c = np.mean(model.space.nodes[around], axis=0) if apex is None or self.moving else _point(apex, self.dim)
         self.apex = c
         if self.volume(np.zeros(model.n)) <= 0:
@@ -173,7 +185,7 @@ class CavityVolume:
         g = scatter(g.reshape(g.shape[0], -1), s._gather, self.n)
         if not self.moving:
             return g
-        return g + jax.vjp(self.apex_at, u)[1](self.area_vector(u) / self.dim)[0]
+        return g + self._apex_jacobian.T @ (self.area_vector(u) / self.dim)
 
     def facet_hessians(self, u, factor=1.0):
         """``factor d2F/dx2`` per facet at the apex of u, (nf, m dim, m dim), node-major facet dofs: with a fixed
@@ -190,12 +202,11 @@ class CavityVolume:
         with the moving apex (module docstring); None with a fixed apex."""
         if not self.moving:
             return None
-        dc = jax.jacrev(self.apex_at)(u)  # (dim, n)
-        dA = jax.jacrev(self.area_vector)(u)
+        dA = jax.jacrev(self.area_vector)(u)  # (dim, n)
         eye = jnp.eye(self.dim)
         zero = jnp.zeros_like(eye)
         W = factor / self.dim * jnp.block([[zero, eye], [eye, zero]])
-        return jnp.concatenate([dc, dA]).T, W
+        return jnp.concatenate([self._apex_jacobian, dA]).T, W
 
     def add_hessian(self, cell_blocks, u, factor=1.0):
         """``cell_blocks`` (nc, k, k) plus ``factor d2V/du2``, scattered into each facet's owner cell."""
