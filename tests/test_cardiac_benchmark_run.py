@@ -26,7 +26,6 @@ import pytest
 
 from hyperoc.app.cardiac_benchmark import benchmark_config
 from hyperoc.app.cli import main
-from hyperoc.app.config import parse_config, set_entries
 from hyperoc.cardiac.benchmark import benchmark_curves, compare_with_codes, resampled, sample_times
 from hyperoc.cardiac.benchmark_curves import reference_curves
 
@@ -90,7 +89,8 @@ def test_benchmark_command_writes_its_files_and_resumes_from_its_checkpoints(tmp
     assert json.loads((out / "benchmark.json").read_text())["p0"] == entry["p0"]
 
 
-@pytest.mark.parametrize("extra", [["--end-time", "2"], ["--step", "2"], ["--degree", "3"]])
+@pytest.mark.parametrize("extra", [["--end-time", "2"], ["--step", "2"], ["--degree", "3"], ["--dt", "0.02"],
+                                   ["--dt", "0"]])
 def test_benchmark_command_refuses_bad_options(tmp_path, extra, capsys):
     out = tmp_path / "bad"
     assert main(["benchmark", "cardiac-elastodynamics", "--mesh", "coarse", "--out", str(out), *extra]) == 2
@@ -104,7 +104,7 @@ def test_the_coarse_beat_matches_the_fine_run_to_the_measured_mesh_error():
     |p0| and |p1|, the time of the peak and the volume range against the fine run's (module docstring: the
     ratios as measured to `RATIO_TOL`, the time of the peak to one sampling interval)."""
     T = 0.6
-    cfg = parse_config(set_entries(benchmark_config("1", mesh="coarse", T=T).sections, {"dynamics.dt": 0.01}))
+    cfg = benchmark_config("1", mesh="coarse", T=T, dt=0.01)
     model = cfg.model()
     stepper = cfg.stepper(model)
     record = benchmark_curves(stepper.run(cfg.grid(), diagnose=False), stepper)

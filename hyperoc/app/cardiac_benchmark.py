@@ -26,9 +26,11 @@ STEP_LOADS = {"0A": ("activation",), "0B": ("pressure",), "1": ("pressure", "act
 CHECKPOINT_EVERY = 50
 
 
-def benchmark_config(step: str = "1", *, degree: int = 1, mesh: str = "reference", T: float | None = None):
+def benchmark_config(step: str = "1", *, degree: int = 1, mesh: str = "reference", T: float | None = None,
+                     dt: float | None = None):
     """The `hyperoc.app.config.Config` of benchmark step ``step`` (`STEP_LOADS`): Lagrange ``degree`` 1 or 2,
-    ``mesh`` ``"reference"`` (the benchmark's) or ``"coarse"``, the end time ``T`` (s; default the beat, 1 s)."""
+    ``mesh`` ``"reference"`` (the benchmark's) or ``"coarse"``, the end time ``T`` (s; default the beat, 1 s),
+    the time step ``dt`` (s; default the benchmark's, 1 ms)."""
     step = _step(step)
     if degree not in (1, 2):
         raise InputError(f"cardiac benchmark: degree must be 1 or 2, got {degree}")
@@ -40,6 +42,8 @@ def benchmark_config(step: str = "1", *, degree: int = 1, mesh: str = "reference
             del data["dynamics"][load]
     if T is not None:
         data["dynamics"]["T"] = float(T)
+    if dt is not None:
+        data["dynamics"]["dt"] = float(dt)
     return parse_config(data, Path("."), f"cardiac benchmark step {step} (P{degree}, {mesh} mesh)")
 
 
@@ -51,14 +55,14 @@ def _step(step) -> str:
 
 
 def run_benchmark(step: str, out, *, degree: int = 1, mesh: str = "reference", T: float | None = None,
-                  progress: bool = False, on_segment=None, model=None) -> dict:
+                  dt: float | None = None, progress: bool = False, on_segment=None, model=None) -> dict:
     """Solve benchmark step ``step`` (`benchmark_config`) with checkpoints in ``out/segments`` and return the
     record `benchmark_curves` makes of it, with the comparison `compare_with_codes` under ``"comparison"``
     and the run's cost. A run started again on the same ``out`` resumes from its last segment. ``model``: the
     configuration's model if already built (`hyperoc.app.workflows.check_run`)."""
     from ..dynamics.resumable import SEGMENTS_DIR, Segments, run_resumable, segment_costs
 
-    cfg = benchmark_config(step, degree=degree, mesh=mesh, T=T)
+    cfg = benchmark_config(step, degree=degree, mesh=mesh, T=T, dt=dt)
     model = model or cfg.model()
     stepper, grid = cfg.stepper(model), cfg.grid()
     folder = Path(out) / SEGMENTS_DIR

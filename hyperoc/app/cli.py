@@ -105,6 +105,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="the benchmark's reference mesh (default) or hyperoc's coarse mesh of its domain")
     b.add_argument("--end-time", type=float, default=None, metavar="T",
                    help="stop at T seconds (default: the whole beat, 1 s)")
+    b.add_argument("--dt", type=float, default=None, metavar="DT",
+                   help="time step in seconds, at most 10 ms, the sampling interval of the codes' curves "
+                        "(default: the benchmark's, 1 ms)")
     b.add_argument("--resume", action="store_true",
                    help="continue the run checkpointed in DIR (every 50 steps), if there is one")
     for q in (s, o, r, b):
@@ -311,9 +314,13 @@ def _benchmark(args) -> None:
     _refuse_checkpointed(out, args.resume, "--resume")
     if args.end_time is not None and not 0.0 < args.end_time <= 1.0:
         raise InputError(f"--end-time must lie in (0, 1] s, got {args.end_time}")
+    from ..cardiac.benchmark import SAMPLE_DT
+
+    if args.dt is not None and not 0.0 < args.dt <= SAMPLE_DT:
+        raise InputError(f"--dt must lie in (0, {SAMPLE_DT}] s, got {args.dt}")
     from .cardiac_benchmark import benchmark_config
 
-    cfg = benchmark_config(args.step, degree=args.degree, mesh=args.mesh, T=args.end_time)
+    cfg = benchmark_config(args.step, degree=args.degree, mesh=args.mesh, T=args.end_time, dt=args.dt)
     from .workflows import check_run
 
     model = check_run(cfg, "simulate")
@@ -322,8 +329,8 @@ def _benchmark(args) -> None:
     from .cardiac_benchmark_report import write_benchmark_outputs
 
     progress = _progress(args)
-    record = run_benchmark(args.step, out, degree=args.degree, mesh=args.mesh, T=args.end_time, progress=progress,
-                           on_segment=None if progress else _print_segment, model=model)
+    record = run_benchmark(args.step, out, degree=args.degree, mesh=args.mesh, T=args.end_time, dt=args.dt,
+                           progress=progress, on_segment=None if progress else _print_segment, model=model)
     write_benchmark_outputs(out, record)
     _print_comparison(record, out)
 
