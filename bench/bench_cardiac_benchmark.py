@@ -2,7 +2,7 @@
 
     python bench/bench_cardiac_benchmark.py --steps 0A,0B,1 --degrees 1
     python bench/bench_cardiac_benchmark.py --steps 1 --degrees 2 --work runs/benchmark   # resumable, hours
-    python bench/bench_cardiac_benchmark.py --steps 0B,1 --degrees 2 --dt 0.01 --end-time 0.5   # the peaks at P2
+    python bench/bench_cardiac_benchmark.py --steps 1 --degrees 2 --dt 0.005 --end-time 0.5   # P2 to the peak
 
 Source of the comparison: R. Aróstica et al., "A software benchmark for cardiac elastodynamics", Comput.
 Methods Appl. Mech. Engrg. 435 (2025) 117485; the codes' curves (4C, Ambit, CARPentry, CHeart, CHimeRA,
@@ -39,7 +39,7 @@ NAME = "cardiac_benchmark"
 
 def run(step: str, degree: int, mesh: str, work: Path, end_time: float | None, dt: float | None) -> dict:
     """One run through the CLI (resumed if its folder holds checkpoints); its ``benchmark.json``."""
-    out = work / f"step-{step}-p{degree}-{mesh}" if dt is None else work / f"step-{step}-p{degree}-{mesh}-dt{dt:g}"
+    out = work / (f"step-{step}-p{degree}-{mesh}" + ("" if dt is None else f"-dt{dt:g}"))
     cmd = ["hyperoc", "benchmark", "cardiac-elastodynamics", "--step", step, "--degree", str(degree),
            "--mesh", mesh, "--out", str(out), "--resume", "--no-progress"]
     if end_time is not None:
