@@ -304,9 +304,15 @@ class StateModel:
 
     @cached_property
     def _ellipticity_fn(self):
-        # one compiled loop over the states (lax.map: one state's tensors in memory at a time)
-        return jax.jit(lambda U: jax.lax.map(lambda u: diagnostics.min_acoustic_eigenvalue(
-            self.material.energy_of_F, self.deformation_gradient(u), self.material_frames), U))
+        # one compiled loop over the states, each over its cells in `map_cells` chunks: the acoustic tensors of
+        # one chunk in memory at a time (a whole P2 ventricle's take gigabytes)
+        def cell(xs):
+            F, frames = xs
+            return diagnostics.min_acoustic_eigenvalue(self.material.energy_of_F, F[None],
+                                                       None if frames is None else frames[None])
+
+        return jax.jit(lambda U: jax.lax.map(lambda u: jnp.min(self.map_cells(
+            cell, (self.deformation_gradient(u), self.material_frames))), U))
 
     def min_acoustic_eigenvalues(self, U) -> np.ndarray:
         """`hyperoc.mechanics.diagnostics.min_acoustic_eigenvalue` of the full law, for each state of
