@@ -19,7 +19,8 @@ def _turning_frames(x):
 def test_the_acoustic_check_over_cell_chunks_is_the_check_over_all_points_at_once():
     """`StateModel.min_acoustic_eigenvalues` takes the acoustic tensors of `map_cells`' chunks of cells one
     chunk at a time (a whole P2 ventricle's at once take gigabytes); per state, its minimum is the one over
-    all points at once: the same numbers, chunked (here 5 cells a chunk: several chunks and a remainder)."""
+    all points at once: the same numbers, chunked (here 5 cells a chunk: several chunks and a remainder), to
+    round-off."""
     model = StateModel(box(2, 2, 1), HolzapfelOgden(bulk_modulus=30.0), degree=2, frames=_turning_frames,
                        dirichlet=None)
     model.tangent_chunk_points = 5 * model._w.shape[1]
@@ -28,5 +29,31 @@ def test_the_acoustic_check_over_cell_chunks_is_the_check_over_all_points_at_onc
     states = 0.02 * rng.standard_normal((3, model.n))
     whole = [float(diagnostics.min_acoustic_eigenvalue(model.material.energy_of_F, model.deformation_gradient(u),
                                                        model.material_frames)) for u in states]
-    np.testing.assert_allclose(model.min_acoustic_eigenvalues(states), whole, rtol=1e-12)
+    # the same closed-form eigenvalues, fused differently: round-off amplified near double eigenvalues
+    # (`test_closed_form_smallest_eigenvalue_is_lapacks`), on the scale of the tensors, the bulk modulus
+    np.testing.assert_allclose(model.min_acoustic_eigenvalues(states), whole, rtol=0, atol=1e-7 * 30.0)
     assert min(whole) < max(whole)  # the states differ: the check is not of one repeated value
+
+
+def _symmetric(rng, eigenvalues):
+    """Symmetric matrices R diag(eigenvalues) R^T with random rotations R, (len(eigenvalues), d, d)."""
+    q, _ = np.linalg.qr(rng.standard_normal((len(eigenvalues), eigenvalues.shape[1], eigenvalues.shape[1])))
+    return np.einsum("nij,nj,nkj->nik", q, eigenvalues, q)
+
+
+def test_closed_form_smallest_eigenvalue_is_lapacks():
+    """`diagnostics.min_symmetric_eigenvalue` against LAPACK's ``eigvalsh`` on random symmetric 1x1, 2x2 and 3x3
+    matrices of both signs, with distinct, double and triple eigenvalues (the triple ones multiples of I, where
+    the trigonometric formula divides by nothing). Tolerance: near a double eigenvalue the arc cosine loses half
+    the digits, an error of a few sqrt(eps) times the eigenvalues' spread; 1e-7 of the largest eigenvalue."""
+    rng = np.random.default_rng(1)
+    for d in (1, 2, 3):
+        distinct = rng.uniform(-2.0, 5.0, (200, d))
+        double = np.repeat(rng.uniform(-2.0, 5.0, (200, 1)), d, axis=1)
+        double[:, -1] += rng.choice([0.0, 1e-9, 1.0], 200)
+        Q = _symmetric(rng, np.concatenate([distinct, double]))
+        exact = np.linalg.eigvalsh(Q)[:, 0]
+        closed = np.asarray(diagnostics.min_symmetric_eigenvalue(Q))
+        np.testing.assert_allclose(closed, exact, rtol=0, atol=1e-7 * np.max(np.abs(exact)))
+    identity = 3.0 * np.eye(3)[None]
+    np.testing.assert_array_equal(np.asarray(diagnostics.min_symmetric_eigenvalue(identity)), [3.0])

@@ -15,7 +15,7 @@ from .. import _jax  # noqa: F401
 from .kernels import pointwise
 from .materials import det
 
-__all__ = ["cell_mean", "directions", "max_grad", "min_acoustic_eigenvalue", "min_det_F"]
+__all__ = ["cell_mean", "directions", "max_grad", "min_acoustic_eigenvalue", "min_det_F", "min_symmetric_eigenvalue"]
 
 
 def min_det_F(F):
@@ -60,4 +60,32 @@ def min_acoustic_eigenvalue(energy_of_F, F, frames):
     A = pointwise(jax.hessian(energy_of_F), F, frames)  # (nc, nq, d, d, d, d)
     dirs = jnp.asarray(directions(F.shape[-1]))
     Q = jnp.einsum("cqijkl,nj,nl->cqnik", A, dirs, dirs)  # acoustic tensors
-    return jnp.min(jnp.linalg.eigvalsh(Q))
+    return jnp.min(min_symmetric_eigenvalue(Q))
+
+
+def min_symmetric_eigenvalue(Q):
+    """Smallest eigenvalue of each symmetric d x d matrix of Q (..., d, d), d <= 3, in closed form: elementwise
+    arithmetic, where a batched ``eigvalsh`` calls LAPACK once per matrix (millions of acoustic tensors on a P2
+    ventricle).
+
+    1D: ``Q_00``; 2D: ``(a + c)/2 - sqrt(((a - c)/2)^2 + b^2)``; 3D: the trigonometric solution of the
+    characteristic cubic, ``m + 2 s cos(acos(det(B)/2)/3 + 2 pi/3)`` with ``m = tr Q / 3``,
+    ``s^2 = |Q - m I|_F^2 / 6`` and ``B = (Q - m I)/s`` (``m`` where ``s = 0``). Near a double eigenvalue the
+    arc cosine's argument is near -1 or 1, where it loses half the digits: the error is about
+    ``sqrt(eps) s``, harmless for a sign test."""
+    d = Q.shape[-1]
+    if d == 1:
+        return Q[..., 0, 0]
+    if d == 2:
+        a, b, c = Q[..., 0, 0], Q[..., 0, 1], Q[..., 1, 1]
+        return 0.5 * (a + c) - jnp.sqrt(0.25 * (a - c) ** 2 + b**2)
+    # on Q / max|Q_ij|, so that the squares and the determinant neither overflow nor underflow
+    scale = jnp.max(jnp.abs(Q), axis=(-2, -1))
+    scale = jnp.where(scale > 0, scale, 1.0)
+    Q = Q / scale[..., None, None]
+    m = jnp.trace(Q, axis1=-2, axis2=-1) / 3
+    B = Q - m[..., None, None] * jnp.eye(3)
+    s = jnp.sqrt(jnp.sum(B * B, axis=(-2, -1)) / 6)
+    half_det = det(B / jnp.where(s > 0, s, 1.0)[..., None, None]) / 2
+    angle = jnp.arccos(jnp.clip(half_det, -1.0, 1.0)) / 3
+    return scale * (m + 2 * s * jnp.cos(angle + 2 * jnp.pi / 3))
