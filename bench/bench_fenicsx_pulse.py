@@ -91,9 +91,7 @@ def setup(venv: Path, python: str) -> None:
     commands += [[str(venv / "bin" / "pip"), "install", *packages] for packages in PIP_STEPS]
     for command in commands:
         _run_setup_step(command, venv)
-    scifem = [str(venv / "bin" / "pip"), "install", "--no-deps", "scifem"]
-    print("+", " ".join(scifem), flush=True)
-    if subprocess.run(scifem, env=venv_env(venv)).returncode != 0:
+    if not _run_setup_step([str(venv / "bin" / "pip"), "install", "--no-deps", "scifem"], venv, required=False):
         purelib = "import sysconfig; print(sysconfig.get_paths()['purelib'])"
         site = subprocess.run([str(venv / "bin" / "python"), "-c", purelib], capture_output=True, text=True,
                               check=True).stdout.strip()
@@ -103,10 +101,14 @@ def setup(venv: Path, python: str) -> None:
     _run_setup_step([str(venv / "bin" / "python"), "-c", "import pulse, circulation.bestel"], venv)
 
 
-def _run_setup_step(command: list[str], venv: Path) -> None:
+def _run_setup_step(command: list[str], venv: Path, *, required: bool = True) -> bool:
+    """Run one set-up command in the venv's environment, echoed; whether it succeeded (a ``required`` one that
+    fails ends the set-up)."""
     print("+", " ".join(command), flush=True)
-    if subprocess.run(command, env=venv_env(venv)).returncode != 0:
+    succeeded = subprocess.run(command, env=venv_env(venv)).returncode == 0
+    if required and not succeeded:
         sys.exit(f"setup failed at: {' '.join(command)}")
+    return succeeded
 
 
 def benchmark_data(path: Path) -> None:
