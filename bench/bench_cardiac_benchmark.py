@@ -17,8 +17,9 @@ bench resumes each run from its last checkpoint). The runs are merged into
 accurate run of each step (the highest degree, the whole beat): ``t`` (s, every 10 ms), ``p0``, ``p1`` ([ux,
 uy, uz] per time, m), ``volume`` (m^3), ``pressure``, ``tension`` (Pa), the mesh, degree, time step, scheme,
 wall time (s), peak memory (MiB), Newton iterations and the comparison with the codes' band; ``runs`` holds
-every run (a run of another invocation is kept unless this one redoes it). The tables give each step's peak
-displacements and smallest cavity volume, code by code with hyperoc as the eleventh row, and the cost.
+every run (a run of another invocation is kept unless this one solves the same problem as far or further).
+The tables give each step's peak displacements and smallest cavity volume, code by code with hyperoc as the
+eleventh row, and the cost.
 """
 
 from __future__ import annotations
@@ -52,16 +53,23 @@ def run(step: str, degree: int, mesh: str, work: Path, end_time: float | None, d
     return entry
 
 
+def problem(entry: dict) -> tuple:
+    """What a run solves: the step, degree, mesh and time step (its end time aside)."""
+    return entry["step"], entry["degree"], entry["mesh"]["variant"], entry["dt"]
+
+
 def key(entry: dict) -> tuple:
-    return entry["step"], entry["degree"], entry["mesh"]["variant"], entry["t"][-1], entry["dt"]
+    return *problem(entry), entry["t"][-1]
 
 
 def merged_runs(new: list[dict]) -> list[dict]:
-    """The runs of the committed results file, with those of this invocation replacing their equals."""
+    """The runs of the committed results file, with those of this invocation replacing the ones they cover:
+    a run of the same problem that ends no later (its curves are the start of the new run's, the solve being
+    deterministic)."""
     path = RESULTS_DIR / f"{NAME}.json"
     old = json.loads(path.read_text())["runs"] if path.exists() else []
-    redone = {key(e) for e in new}
-    return sorted([e for e in old if key(e) not in redone] + new, key=key)
+    covered = lambda e: any(problem(e) == problem(n) and e["t"][-1] <= n["t"][-1] for n in new)
+    return sorted([e for e in old if not covered(e)] + new, key=key)
 
 
 def best(runs: list[dict], step: str) -> dict | None:
