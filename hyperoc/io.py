@@ -38,6 +38,7 @@ __all__ = [
     "write_json",
     "read_json",
     "write_npz",
+    "write_cache_npz",
     "read_npz",
     "write_time_series",
     "time_series_format",
@@ -50,8 +51,9 @@ NODES_PER_CELL = {"line": 2, "triangle": 3, "tetra": 4, "line3": 3, "triangle6":
 
 
 @contextmanager
-def _atomic_file(path):
-    """Yield a binary file that replaces ``path`` when the block exits without an exception."""
+def _atomic_file(path, durable: bool = True):
+    """Yield a binary file that replaces ``path`` when the block exits without an exception; ``durable``:
+    the file and the rename reach the disk before it returns (fsync), so a power loss keeps them too."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
@@ -59,12 +61,14 @@ def _atomic_file(path):
         with os.fdopen(fd, "wb") as f:
             yield f
             f.flush()
-            os.fsync(f.fileno())
+            if durable:
+                os.fsync(f.fileno())
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
-    _fsync_directory(path.parent)
+    if durable:
+        _fsync_directory(path.parent)
 
 
 def _fsync_directory(directory: Path) -> None:
@@ -81,9 +85,10 @@ def _fsync_directory(directory: Path) -> None:
         os.close(fd)
 
 
-def atomic_write_bytes(path, data: bytes) -> Path:
-    """Write ``data`` to ``path`` atomically; return the path."""
-    with _atomic_file(path) as f:
+def atomic_write_bytes(path, data: bytes, *, durable: bool = True) -> Path:
+    """Write ``data`` to ``path`` atomically (durably unless ``durable`` is False: see `_atomic_file`); return
+    the path."""
+    with _atomic_file(path, durable) as f:
         f.write(data)
     return Path(path)
 
@@ -126,20 +131,28 @@ def read_json(path):
     return json.loads(Path(path).read_text(encoding="utf-8"))
 
 
-def _npz_bytes(arrays: dict) -> bytes:
-    """Compressed npz content of ``arrays`` (no object arrays: they would need pickle)."""
+def _npz_bytes(arrays: dict, compress: bool = True) -> bytes:
+    """npz content of ``arrays``, compressed unless ``compress`` is False (no object arrays: they would need
+    pickle)."""
     converted = {name: np.asarray(value) for name, value in arrays.items()}
     for name, value in converted.items():
         if value.dtype.hasobject:
             raise TypeError(f"npz: array {name!r} has dtype object")
     buffer = io.BytesIO()
-    np.savez_compressed(buffer, **converted)
+    (np.savez_compressed if compress else np.savez)(buffer, **converted)
     return buffer.getvalue()
 
 
 def write_npz(path, **arrays) -> Path:
     """Write arrays to a compressed ``.npz`` file atomically; return the path."""
     return atomic_write_bytes(path, _npz_bytes(arrays))
+
+
+def write_cache_npz(path, **arrays) -> Path:
+    """Write arrays to an uncompressed ``.npz`` file atomically but not durably; return the path. For caches
+    whose reader detects a damaged entry and recomputes it: compression and fsync cost more than the
+    computation they would save after a power loss."""
+    return atomic_write_bytes(path, _npz_bytes(arrays, compress=False), durable=False)
 
 
 def read_npz(path) -> dict:

@@ -3,6 +3,7 @@ import struct
 import sys
 import types
 import xml.etree.ElementTree as ET
+import zipfile
 from pathlib import Path
 
 import meshio
@@ -95,6 +96,22 @@ def test_npz_round_trip(tmp_path):
     with pytest.raises(TypeError, match="object"):
         hio.write_npz(tmp_path / "o.npz", bad=np.array([{}], dtype=object))
     assert not (tmp_path / "o.npz").exists()
+
+
+def test_cache_npz_is_stored_uncompressed_atomically_and_without_fsync(tmp_path, monkeypatch):
+    """A cache entry reads back bitwise, is stored (not deflated), leaves no temporary file, and is not
+    synced to disk: its reader recomputes a lost entry, so durability is not worth its cost."""
+    synced = []
+    monkeypatch.setattr(hio.os, "fsync", lambda fd: synced.append(fd))
+    g = np.random.default_rng(1).normal(size=(5, 2))
+    path = hio.write_cache_npz(tmp_path / "e.npz", J=np.float64(0.5), gxi=g)
+    back = hio.read_npz(path)
+    np.testing.assert_array_equal(back["gxi"], g)
+    assert back["J"] == 0.5 and _hidden(tmp_path) == [] and synced == []
+    with zipfile.ZipFile(path) as z:
+        assert {i.compress_type for i in z.infolist()} == {zipfile.ZIP_STORED}
+    hio.write_npz(tmp_path / "d.npz", gxi=g)  # a result file: durable
+    assert len(synced) == 2  # the file and its folder
 
 
 def test_json_converts_numpy_and_writes_non_finite_as_null(tmp_path):

@@ -14,14 +14,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ...io import read_npz, write_npz
+from ...io import read_npz, write_cache_npz
 from ..reduced import ControlPoint, ReducedFunctional
 
 __all__ = ["EvaluationCache"]
 
 
 class EvaluationCache:
-    """``(J, Riesz gradient)`` of every evaluated point, on disk (one atomic NPZ per point) or in memory.
+    """``(J, Riesz gradient)`` of every evaluated point, on disk (one atomic NPZ per point:
+    `hyperoc.io.write_cache_npz`) or in memory.
 
     An entry that cannot be read back (not an NPZ archive, arrays missing, non-finite, or a
     gradient of another shape than the point's) is reported (`RuntimeWarning`), deleted and
@@ -88,7 +89,7 @@ class EvaluationCache:
         else:
             out = self.J.value_and_gradient(m)
             if path is not None:
-                write_npz(path, J=np.float64(out[0]), gxi=out[1].xi, gtau=np.float64(out[1].tau))
+                write_cache_npz(path, J=np.float64(out[0]), gxi=out[1].xi, gtau=np.float64(out[1].tau))
         self.memory[k] = out
         return out
 
