@@ -3,7 +3,9 @@ ventricle closed by a Windkessel (the LV pressure the cavity's multiplier), max 
 tension.
 
 - The rate of pressure rise of the job's figures and summary is the objective's finite difference.
-- The exact gradient of the job's problem: Taylor rates 2.00 +- 0.05 in xi, tau and jointly, on its first 20 ms.
+- The exact gradient of the job's problem: Taylor rates 2.00 +- 0.05 in xi, tau and jointly, on its first 20 ms
+  (slow: its terms' gradients are checked one by one in the fast tier, in test_cavity_constraint,
+  test_circulation and test_controls).
 - The job (slow): converges to a KKT point, raises dp/dt at tau* over the uncontrolled beat, keeps the control
   within its bounds; both beats eject once, after the objective's window, and hold the cavity volume to 1e-10
   over their isovolumic steps; the job writes its figures and folders.
@@ -31,6 +33,7 @@ def test_pressure_rise_is_the_forward_difference_over_eps():
     np.testing.assert_allclose(rise, 3e5 * (2 * t[:59] + eps), rtol=1e-12)
 
 
+@pytest.mark.slow
 def test_exact_gradient_of_the_beat_problem():
     """The job's config on [0, 20 ms] at tau = 12 ms, from a control adding up to 30 % to the prescribed tension:
     Taylor rates of the exact gradient (the control scaled by T_a(t) at the levels tau moves). Full Newton: chord
