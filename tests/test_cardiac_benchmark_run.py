@@ -1,5 +1,6 @@
 """The cardiac benchmark command (`hyperoc benchmark cardiac-elastodynamics`) on hyperoc's coarse mesh of the
-benchmark domain: its files, its resume from checkpoints, its refusals, and its curves against the fine run's.
+benchmark domain: its files, its resume from checkpoints, its refusals, its curves against the fine run's, and
+(slow) the same curves with MKL PARDISO's factorization (``--solver pardiso``) as with SuperLU's.
 
 The fine run is the P1 run of step 1 on the benchmark's reference mesh (h = 5 mm, 4,577 vertices), dt = 1 ms,
 recorded in bench/results/cardiac_benchmark.json at the codes' 10 ms sampling times. The coarse mesh (h = 12 mm,
@@ -24,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import hyperoc.solvers.pardiso
 from hyperoc.app.cardiac_benchmark import benchmark_config
 from hyperoc.app.cli import main
 from hyperoc.cardiac.benchmark import benchmark_curves, compare_with_codes, resampled, sample_times
@@ -96,6 +98,32 @@ def test_benchmark_command_refuses_bad_options(tmp_path, extra, capsys):
     assert main(["benchmark", "cardiac-elastodynamics", "--mesh", "coarse", "--out", str(out), *extra]) == 2
     assert not out.exists()
     assert capsys.readouterr().err.startswith("hyperoc: error:")
+
+
+def test_pardiso_without_mkl_is_refused_before_anything_is_written(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(hyperoc.solvers.pardiso, "available", lambda: False)
+    out = tmp_path / "beat"
+    assert main(["benchmark", "cardiac-elastodynamics", "--mesh", "coarse", "--solver", "pardiso", "--out",
+                 str(out)]) == 2
+    assert not out.exists()
+    err = capsys.readouterr().err
+    assert err.startswith("hyperoc: error:") and "needs MKL" in err and err.count("\n") == 1
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not hyperoc.solvers.pardiso.available(), reason="MKL (pip install mkl) is not installed")
+def test_the_pardiso_run_is_the_superlu_run_to_newtons_tolerance(tmp_path):
+    """The same steps with the other factorization: the curves agree to far below the stopping test's scale
+    (Newton stops at |du| <= 1e-10 |u| + atol; the factor only changes the path to the solution)."""
+    curves = {}
+    for solver in ("lu", "pardiso"):
+        out = tmp_path / solver
+        assert main(["benchmark", "cardiac-elastodynamics", "--mesh", "coarse", "--end-time", "0.02", "--solver",
+                     solver, "--out", str(out), "--no-progress"]) == 0
+        curves[solver] = json.loads((out / "benchmark.json").read_text())
+    assert curves["pardiso"]["solver"] == "pardiso"
+    for name in ("p0", "p1", "volume"):
+        np.testing.assert_allclose(curves["pardiso"][name], curves["lu"][name], rtol=1e-7, atol=1e-12)
 
 
 @pytest.mark.slow

@@ -27,10 +27,11 @@ CHECKPOINT_EVERY = 50
 
 
 def benchmark_config(step: str = "1", *, degree: int = 1, mesh: str = "reference", T: float | None = None,
-                     dt: float | None = None):
+                     dt: float | None = None, solver: str | None = None):
     """The `hyperoc.app.config.Config` of benchmark step ``step`` (`STEP_LOADS`): Lagrange ``degree`` 1 or 2,
     ``mesh`` ``"reference"`` (the benchmark's) or ``"coarse"``, the end time ``T`` (s; default the beat, 1 s),
-    the time step ``dt`` (s; default the benchmark's, 1 ms)."""
+    the time step ``dt`` (s; default the benchmark's, 1 ms), the linear ``solver`` (``[dynamics] solver``;
+    default the shipped config's)."""
     step = _step(step)
     if degree not in (1, 2):
         raise InputError(f"cardiac benchmark: degree must be 1 or 2, got {degree}")
@@ -44,6 +45,8 @@ def benchmark_config(step: str = "1", *, degree: int = 1, mesh: str = "reference
         data["dynamics"]["T"] = float(T)
     if dt is not None:
         data["dynamics"]["dt"] = float(dt)
+    if solver is not None:
+        data["dynamics"]["solver"] = solver
     return parse_config(data, Path("."), f"cardiac benchmark step {step} (P{degree}, {mesh} mesh)")
 
 
@@ -55,14 +58,15 @@ def _step(step) -> str:
 
 
 def run_benchmark(step: str, out, *, degree: int = 1, mesh: str = "reference", T: float | None = None,
-                  dt: float | None = None, progress: bool = False, on_segment=None, model=None) -> dict:
+                  dt: float | None = None, solver: str | None = None, progress: bool = False, on_segment=None,
+                  model=None) -> dict:
     """Solve benchmark step ``step`` (`benchmark_config`) with checkpoints in ``out/segments`` and return the
     record `benchmark_curves` makes of it, with the comparison `compare_with_codes` under ``"comparison"``
     and the run's cost. A run started again on the same ``out`` resumes from its last segment. ``model``: the
     configuration's model if already built (`hyperoc.app.workflows.check_run`)."""
     from ..dynamics.resumable import SEGMENTS_DIR, Segments, run_resumable, segment_costs
 
-    cfg = benchmark_config(step, degree=degree, mesh=mesh, T=T, dt=dt)
+    cfg = benchmark_config(step, degree=degree, mesh=mesh, T=T, dt=dt, solver=solver)
     model = model or cfg.model()
     stepper, grid = cfg.stepper(model), cfg.grid()
     folder = Path(out) / SEGMENTS_DIR
@@ -73,6 +77,7 @@ def run_benchmark(step: str, out, *, degree: int = 1, mesh: str = "reference", T
                                           "cells": int(len(model.mesh.cells))},
                   degree=degree, dt=float(cfg["dynamics"]["dt"]), unknowns=int(model.n),
                   scheme={"theta": float(cfg["dynamics"]["theta"]), "newton": cfg["dynamics"]["newton"]},
+                  solver=cfg["dynamics"]["solver"],
                   newton_iterations={"total": int(np.sum(sol.newton_iterations)),
                                      "mean": float(np.mean(sol.newton_iterations)),
                                      "max": int(np.max(sol.newton_iterations))},

@@ -108,6 +108,9 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--dt", type=float, default=None, metavar="DT",
                    help="time step in seconds, at most 10 ms, the sampling interval of the codes' curves "
                         "(default: the benchmark's, 1 ms)")
+    b.add_argument("--solver", default=None, choices=["lu", "pardiso"],
+                   help="sparse direct solver of the steps: SuperLU (lu, the default) or MKL PARDISO (pardiso: "
+                        "multithreaded, needs the mkl wheel)")
     b.add_argument("--resume", action="store_true",
                    help="continue the run checkpointed in DIR (every 50 steps), if there is one")
     for q in (s, o, r, b):
@@ -320,7 +323,8 @@ def _benchmark(args) -> None:
         raise InputError(f"--dt must lie in (0, {SAMPLE_DT}] s, got {args.dt}")
     from .cardiac_benchmark import benchmark_config
 
-    cfg = benchmark_config(args.step, degree=args.degree, mesh=args.mesh, T=args.end_time, dt=args.dt)
+    cfg = benchmark_config(args.step, degree=args.degree, mesh=args.mesh, T=args.end_time, dt=args.dt,
+                           solver=args.solver)
     from .workflows import check_run
 
     model = check_run(cfg, "simulate")
@@ -330,7 +334,8 @@ def _benchmark(args) -> None:
 
     progress = _progress(args)
     record = run_benchmark(args.step, out, degree=args.degree, mesh=args.mesh, T=args.end_time, dt=args.dt,
-                           progress=progress, on_segment=None if progress else _print_segment, model=model)
+                           solver=args.solver, progress=progress, on_segment=None if progress else _print_segment,
+                           model=model)
     write_benchmark_outputs(out, record)
     _print_comparison(record, out)
 

@@ -58,6 +58,10 @@ def check_run(cfg: Config, command: str, mesh=None):
     if solver not in ("auto", "tridiagonal", "dense", *SparseSolver.methods):
         raise InputError(f"config: [dynamics] solver {solver!r} unknown (auto, tridiagonal, dense, "
                          f"{', '.join(SparseSolver.methods)})")
+    if solver.startswith("pardiso"):
+        from ..solvers.pardiso import require
+
+        require(solver)
     cfg.step_terms(model)  # a missing boundary tag, fibres an activation needs: before anything is written
     cfg.constraint(model, grid.t)  # a cavity wall the mesh lacks or that encloses nothing, a law not finite on the grid
     if command == "simulate":

@@ -244,10 +244,9 @@ class SparseSolver:
         if not 0 < rtol <= 1e-12:
             raise InputError(f"the iterative tolerance must lie in (0, 1e-12], got {rtol}")
         if method.startswith("pardiso"):
-            from .pardiso import available
+            from .pardiso import require
 
-            if not available():
-                raise InputError(f"the {method!r} solver needs MKL: python -m pip install mkl")
+            require(method)
         self.pattern, self.n, self.method, self.rtol = model.pattern, model.n, method, rtol
         self.stats = {}
         self.reset_stats()

@@ -63,6 +63,14 @@ def available() -> bool:
     return True
 
 
+def require(method: str) -> None:
+    """`InputError` naming the fix when the solver ``method`` (a PARDISO method) cannot load MKL."""
+    if not available():
+        from ..errors import InputError
+
+        raise InputError(f"the {method!r} solver needs MKL: python -m pip install mkl")
+
+
 def _cast_finite(values: np.ndarray, dtype, what: str, *, fortran: bool = False) -> np.ndarray:
     """``values`` in PARDISO's precision, or ``LinAlgError`` when one of them is NaN or Inf there."""
     with np.errstate(over="ignore"):  # a double beyond single precision becomes Inf: refused below
