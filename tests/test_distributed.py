@@ -316,6 +316,57 @@ def _serial_and_two_ranks(mpiexec, tmp_path, settings: list, reference: dict | N
                                  [*SMALL_VENTRICLE, *settings, "--taylor"])
 
 
+# The forward run of the ventricle example with the step terms (its control is zero: they drive the solve),
+# checkpointed every 3 of its 8 steps: three segments, the last one of 2 steps.
+FORWARD = [SMALL_VENTRICLE[0], "--set", "mesh.h=5.0", "--set", "dynamics.T=4.0", *STEP_TERMS,
+           "--set", "output.checkpoint_every=3"]
+
+
+def _results(folder: Path) -> dict:
+    with np.load(folder / "results.npz") as data:
+        return {name: data[name] for name in data.files}
+
+
+def test_two_rank_forward_run_equals_simulate_and_resumes_bitwise(mpiexec, tmp_path):
+    """`mpiexec -n 2 python -m hyperoc.app.distributed_simulate` writes `hyperoc simulate`'s outputs, whose
+    displacements, velocities and step pressures equal the serial run's (Newton's bound, as the static solves
+    above); a run cut after its second checkpoint segment continues with ``--resume`` to the same results,
+    bitwise."""
+    from hyperoc.app.cli import main as cli_main
+
+    serial, dist = tmp_path / "serial", tmp_path / "dist"
+    assert cli_main(["simulate", *FORWARD, "--out", str(serial), "--no-progress"]) == 0
+    command = [mpiexec, "-n", "2", sys.executable, "-m", "hyperoc.app.distributed_simulate"]
+    subprocess.run([*command, *FORWARD, "--out", str(dist)], check=True, timeout=600)
+    ours, ref = _results(dist), _results(serial)
+    for name in ("displacement", "velocity"):
+        assert np.abs(ours[name] - ref[name]).max() <= U_TOL * np.abs(ref[name]).max(), name
+    assert np.abs(ours["p_steps"] - ref["p_steps"]).max() <= P_TOL * np.abs(ref["p_steps"]).max()
+    assert np.abs(ref["p_steps"]).max() > 0  # the pressure and the activation load the cavity
+    record = json.loads((dist / "distributed.json").read_text())
+    assert record["ranks"] == 2 and record["steps"] == 8 and len(record["peak_mb"]) == 2
+    assert {"summary.json", "config.toml", "pressure.png", "paraview"} <= {f.name for f in dist.iterdir()}
+    segments = sorted((dist / "segments").glob("segment_*.npz"))
+    assert len(segments) == 3
+    segments[-1].unlink()
+    subprocess.run([*command, "--resume", str(dist)], check=True, timeout=600)
+    again = _results(dist)
+    assert all(np.array_equal(again[name], ours[name]) for name in ours)
+
+
+@pytest.mark.parametrize("entries, message", [(["--set", "dynamics.constraint=none"], "does not yet take"),
+                                              (["--set", "mesh.h=-1"], "h must be > 0")])
+def test_bad_input_to_the_forward_command_is_one_line_and_status_2(tmp_path, capsys, entries, message):
+    """Refused before any rank starts a solve (and before MPI is imported): one line, exit 2, nothing written."""
+    from hyperoc.app.distributed_simulate import main
+
+    out = tmp_path / "run"
+    assert main([*FORWARD, *entries, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err
+    assert not out.exists()
+
+
 def test_two_rank_gradient_with_the_step_terms_equals_the_serial_one_and_passes_the_taylor_test(
         mpiexec, tmp_path, serial_gradient):
     """`DistributedStepper(..., terms=...)`: Robin boundaries and the follower pressure on the facets of each

@@ -87,23 +87,34 @@ def figure_units(cfg: Config) -> Units:
 
 def simulate(cfg: Config, out, *, progress: bool = False, monitor=None, on_segment=None, model=None,
              title: str | None = None) -> dict:
-    """Forward solve with the prescribed control of ``[control]``; writes the standard outputs.
-    ``monitor``: called with each step's `hyperoc.dynamics.stepper.StepRecord` (`TimeStepper.run`);
-    with ``[output] checkpoint_every`` the solve is saved in segments in ``out/segments`` instead and
-    resumes from them (`hyperoc.dynamics.resumable.run_resumable`, ``on_segment`` called after each);
-    ``model``: the config's model if already built (`check_run`); ``title``: the run's name in the
-    figures (default `run_title`)."""
+    """Forward solve with the prescribed control of ``[control]`` (`solve_prescribed`); writes the standard
+    outputs (`write_simulation`) and returns the summary. ``title``: the run's name in the figures (default
+    `run_title`)."""
+    model = model or cfg.model()
+    sol = solve_prescribed(cfg, out, cfg.stepper(model), progress=progress, monitor=monitor, on_segment=on_segment)
+    return write_simulation(cfg, out, sol, model, title)
+
+
+def solve_prescribed(cfg: Config, out, stepper, *, progress: bool = False, monitor=None, on_segment=None):
+    """The `hyperoc.dynamics.stepper.StateSolution` of ``stepper`` (the config's, serial or distributed) with
+    the prescribed control of ``[control]`` on the config's grid. ``monitor``: called with each step's
+    `hyperoc.dynamics.stepper.StepRecord` (`TimeStepper.run`); with ``[output] checkpoint_every`` the solve is
+    saved in segments in ``out/segments`` instead and resumes from them
+    (`hyperoc.dynamics.resumable.run_resumable`, ``on_segment`` called after each)."""
     from ..dynamics.resumable import SEGMENTS_DIR, Segments, run_resumable
 
-    model = model or cfg.model()
-    grid = cfg.grid()
-    xi = cfg.prescribed_control(model, grid.t)
-    stepper, o = cfg.stepper(model), cfg["output"]
+    grid, o = cfg.grid(), cfg["output"]
+    xi = cfg.prescribed_control(stepper.model, grid.t)
     if o.get("checkpoint_every"):
         segments = Segments(Path(out) / SEGMENTS_DIR, o["checkpoint_every"], cfg.sections)
-        sol = run_resumable(stepper, grid, xi, segments=segments, progress=progress, on_segment=on_segment)
-    else:
-        sol = stepper.run(grid, xi, progress=progress, monitor=monitor)
+        return run_resumable(stepper, grid, xi, segments=segments, progress=progress, on_segment=on_segment)
+    return stepper.run(grid, xi, progress=progress, monitor=monitor)
+
+
+def write_simulation(cfg: Config, out, sol, model, title: str | None = None) -> dict:
+    """`hyperoc simulate`'s outputs of the solution ``sol`` of the config's ``model`` in ``out``; returns the
+    summary."""
+    o = cfg["output"]
     return write_state_outputs(Path(out), sol, snapshot_times=o.get("snapshot_times"),
                                series_every=o.get("series_every"), frames=cfg.fibres(model.mesh),
                                title=title or run_title(cfg), units=figure_units(cfg), cavity=cfg.cavity_wall())

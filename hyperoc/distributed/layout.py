@@ -63,7 +63,7 @@ class Layout:
         self.owned_serial = np.argsort(self.part.to_global)[start:stop]
         self.n_u = int(np.sum(self.owned_serial < model.n_u)) if hasattr(model, "n_u") else None
         self.split: dict[str, float] = {}
-        self.factorizations = 0  # the number of `factor` calls: which factorization the solver holds
+        self.factorizations = 0  # counts `factor` calls (and `forget_factorization`): which factorization is held
 
     @property
     def owned_size(self) -> int:
@@ -122,6 +122,12 @@ class Layout:
             self.A.assemble()
         with self.clock("solve"):
             self.ksp.setOperators(self.A)
+        self.factorizations += 1
+
+    def forget_factorization(self) -> None:
+        """Make the factorization held stale for chord Newton (`hyperoc.distributed.newton.KeptJacobian`), so
+        that its next iteration factors afresh: a checkpoint segment then solves as it does after a resume
+        (`hyperoc.dynamics.resumable`), bitwise."""
         self.factorizations += 1
 
     def solve(self, *rhs: np.ndarray) -> np.ndarray:

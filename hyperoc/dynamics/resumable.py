@@ -16,8 +16,8 @@ loads, scheme, segment length); resuming a different problem is refused.
 from __future__ import annotations
 
 import hashlib
+import io
 import json
-import os
 import resource
 import time
 from dataclasses import dataclass
@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..errors import InputError
+from ..io import atomic_write_bytes, atomic_write_text
 
 if TYPE_CHECKING:  # annotations only: the CLI reads SEGMENTS_DIR before any JAX is imported
     from .stepper import StateSolution, TimeStepper
@@ -139,11 +140,11 @@ def _solve_segment(stepper: TimeStepper, state, t, xis, fs, V0) -> dict:
 
 
 def _write_segment(path: Path, segment: dict) -> None:
-    """Write ``segment`` to ``path`` atomically (a temporary file in the same folder, then a rename)."""
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        np.savez(f, **segment)
-    os.replace(tmp, path)
+    """Write ``segment`` to ``path`` atomically (a uniquely named temporary file in the same folder, then a
+    rename: the MPI ranks of a distributed solve write the same segment at once)."""
+    buffer = io.BytesIO()
+    np.savez(buffer, **segment)
+    atomic_write_bytes(path, buffer.getvalue())
 
 
 def _read_segment(path: Path) -> dict:
@@ -189,7 +190,5 @@ def _claim(folder: Path, fingerprint: dict) -> None:
             changed = sorted(k for k in fingerprint if found.get(k) != fingerprint[k])
             raise InputError(f"{folder} holds the segments of another solve (differs in: {', '.join(changed)})")
         return
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(fingerprint, indent=1))
-    os.replace(tmp, path)
+    atomic_write_text(path, json.dumps(fingerprint, indent=1))  # a unique temporary: MPI ranks claim together
 
