@@ -39,6 +39,7 @@ __all__ = [
     "read_json",
     "write_npz",
     "write_cache_npz",
+    "npz_bytes",
     "read_npz",
     "write_time_series",
     "time_series_format",
@@ -131,7 +132,7 @@ def read_json(path):
     return json.loads(Path(path).read_text(encoding="utf-8"))
 
 
-def _npz_bytes(arrays: dict, compress: bool = True) -> bytes:
+def npz_bytes(arrays: dict, compress: bool = True) -> bytes:
     """npz content of ``arrays``, compressed unless ``compress`` is False (no object arrays: they would need
     pickle)."""
     converted = {name: np.asarray(value) for name, value in arrays.items()}
@@ -145,14 +146,14 @@ def _npz_bytes(arrays: dict, compress: bool = True) -> bytes:
 
 def write_npz(path, **arrays) -> Path:
     """Write arrays to a compressed ``.npz`` file atomically; return the path."""
-    return atomic_write_bytes(path, _npz_bytes(arrays))
+    return atomic_write_bytes(path, npz_bytes(arrays))
 
 
 def write_cache_npz(path, **arrays) -> Path:
     """Write arrays to an uncompressed ``.npz`` file atomically but not durably; return the path. For caches
     whose reader detects a damaged entry and recomputes it: compression and fsync cost more than the
     computation they would save after a power loss."""
-    return atomic_write_bytes(path, _npz_bytes(arrays, compress=False), durable=False)
+    return atomic_write_bytes(path, npz_bytes(arrays, compress=False), durable=False)
 
 
 def read_npz(path) -> dict:

@@ -61,6 +61,16 @@ def parse(argv):
     return args
 
 
+def require_distributed_constraint(cfg, what: str) -> None:
+    """`InputError` when the config's ``[dynamics] constraint`` has no distributed form
+    (`hyperoc.dynamics.constraint.DISTRIBUTED_CONSTRAINTS`), before any rank starts a solve; ``what``: the
+    command's name in the message."""
+    kind = cfg["dynamics"]["constraint"]
+    if kind not in DISTRIBUTED_CONSTRAINTS:
+        raise InputError(f"the distributed {what} does not yet take [dynamics] constraint = {kind!r} "
+                         f"(only {' or '.join(map(repr, DISTRIBUTED_CONSTRAINTS))})")
+
+
 def reduced_functional(args):
     """``(J, m, comm, cfg)``: the config's `ReducedFunctional` (distributed unless ``--serial``), the point,
     the communicator (None serial) and the config."""
@@ -73,9 +83,7 @@ def reduced_functional(args):
     transform = cfg.transform(tau)
     model = cfg.model()
     terms = cfg.step_terms(model)
-    if cfg["dynamics"]["constraint"] not in DISTRIBUTED_CONSTRAINTS:
-        raise InputError(f"the distributed gradient does not yet take [dynamics] constraint = "
-                         f"{cfg['dynamics']['constraint']!r} (only {' or '.join(map(repr, DISTRIBUTED_CONSTRAINTS))})")
+    require_distributed_constraint(cfg, "gradient")
     constraint = cfg.constraint(model, transform.grid(tau).t)  # a volume change not finite on the grid: here
     comm, options = None, {"schedule": checkpoint_schedule(snapshots=args.snapshots),
                            "horizon": cfg["optimize"]["horizon"]}

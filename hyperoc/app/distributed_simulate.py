@@ -26,6 +26,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..io import atomic_write_text, write_json
+from .distributed_gradient import require_distributed_constraint
 from .distributed_statics import peak_mb, refused
 
 
@@ -43,7 +44,6 @@ def parse(argv):
 def checked(args):
     """``(cfg, model, out)`` of a new run (CONFIG --out DIR) or a resumed one (--resume DIR); `InputError`
     before anything is written."""
-    from ..dynamics.constraint import DISTRIBUTED_CONSTRAINTS
     from .cli import _refuse_checkpointed, _run_folder
     from .config import load_config
     from .preflight import check_inputs, check_output_dir
@@ -56,9 +56,7 @@ def checked(args):
     cfg = load_config(config, args.set)
     if args.resume and not cfg["output"].get("checkpoint_every"):
         raise InputError(f"--resume: {config} has no [output] checkpoint_every, so {out} holds no checkpoints")
-    if cfg["dynamics"]["constraint"] not in DISTRIBUTED_CONSTRAINTS:
-        raise InputError(f"the distributed path does not yet take [dynamics] constraint = "
-                         f"{cfg['dynamics']['constraint']!r} (only {' or '.join(map(repr, DISTRIBUTED_CONSTRAINTS))})")
+    require_distributed_constraint(cfg, "forward run")
     return cfg, check_run(cfg, "simulate", check_inputs(cfg, "simulate", False)), out
 
 

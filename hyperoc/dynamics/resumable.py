@@ -16,7 +16,6 @@ loads, scheme, segment length); resuming a different problem is refused.
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import resource
 import time
@@ -27,7 +26,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..errors import InputError
-from ..io import atomic_write_bytes, atomic_write_text
+from ..io import atomic_write_bytes, atomic_write_text, npz_bytes
 
 if TYPE_CHECKING:  # annotations only: the CLI reads SEGMENTS_DIR before any JAX is imported
     from .stepper import StateSolution, TimeStepper
@@ -142,9 +141,7 @@ def _solve_segment(stepper: TimeStepper, state, t, xis, fs, V0) -> dict:
 def _write_segment(path: Path, segment: dict) -> None:
     """Write ``segment`` to ``path`` atomically (a uniquely named temporary file in the same folder, then a
     rename: the MPI ranks of a distributed solve write the same segment at once)."""
-    buffer = io.BytesIO()
-    np.savez(buffer, **segment)
-    atomic_write_bytes(path, buffer.getvalue())
+    atomic_write_bytes(path, npz_bytes(segment, compress=False))
 
 
 def _read_segment(path: Path) -> dict:
