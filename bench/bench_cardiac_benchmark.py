@@ -3,6 +3,7 @@
     python bench/bench_cardiac_benchmark.py --steps 0A,0B,1 --degrees 1
     python bench/bench_cardiac_benchmark.py --steps 1 --degrees 2 --work runs/benchmark   # resumable, hours
     python bench/bench_cardiac_benchmark.py --steps 1 --degrees 2 --dt 0.005 --end-time 0.5   # P2 to the peak
+    python bench/bench_cardiac_benchmark.py --steps 1 --degrees 2 --dt 0.005 --solver pardiso   # MKL, 2 threads
 
 Source of the comparison: R. Aróstica et al., "A software benchmark for cardiac elastodynamics", Comput.
 Methods Appl. Mech. Engrg. 435 (2025) 117485; the codes' curves (4C, Ambit, CARPentry, CHeart, CHimeRA,
@@ -38,11 +39,12 @@ from results import RESULTS_DIR, Table, command_line, write_results
 NAME = "cardiac_benchmark"
 
 
-def run(step: str, degree: int, mesh: str, work: Path, end_time: float | None, dt: float | None) -> dict:
+def run(step: str, degree: int, mesh: str, work: Path, end_time: float | None, dt: float | None,
+        solver: str) -> dict:
     """One run through the CLI (resumed if its folder holds checkpoints); its ``benchmark.json``."""
     out = work / (f"step-{step}-p{degree}-{mesh}" + ("" if dt is None else f"-dt{dt:g}"))
     cmd = ["hyperoc", "benchmark", "cardiac-elastodynamics", "--step", step, "--degree", str(degree),
-           "--mesh", mesh, "--out", str(out), "--resume", "--no-progress"]
+           "--mesh", mesh, "--solver", solver, "--out", str(out), "--resume", "--no-progress"]
     if end_time is not None:
         cmd += ["--end-time", str(end_time)]
     if dt is not None:
@@ -123,8 +125,10 @@ def main() -> None:
     ap.add_argument("--dt", type=float, default=None, help="time step (s; default the benchmark's, 1 ms)")
     ap.add_argument("--work", type=Path, default=Path("runs/cardiac-benchmark"),
                     help="folder of the runs' outputs and checkpoints")
+    ap.add_argument("--solver", default="lu", choices=["lu", "pardiso"],
+                    help="sparse direct solver of the steps (pardiso: MKL, multithreaded)")
     args = ap.parse_args()
-    new = [run(step, int(d), args.mesh, args.work, args.end_time, args.dt)
+    new = [run(step, int(d), args.mesh, args.work, args.end_time, args.dt, args.solver)
            for d in args.degrees.split(",") for step in args.steps.split(",")]
     runs = merged_runs(new)
     chosen = {step: best(runs, step) for step in ("0A", "0B", "1")}
