@@ -8,8 +8,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _simulate(tmp_path, name, **env):
-    cmd = [sys.executable, "-m", "hyperoc.app.cli", "simulate", "examples/simulate-1d.toml", "--out",
+def _simulate(tmp_path, name, example="simulate-1d.toml", **env):
+    cmd = [sys.executable, "-m", "hyperoc.app.cli", "simulate", f"examples/{example}", "--out",
            str(tmp_path / name), "--no-progress", "--set", "dynamics.T=0.2"]
     inherited = {k: v for k, v in os.environ.items() if not k.startswith("JAX_COMPILATION_CACHE")}
     subprocess.run(cmd, cwd=ROOT, check=True, capture_output=True, env={**inherited, **env})
@@ -26,6 +26,21 @@ def test_a_run_fills_the_cache_and_the_next_one_reads_it(tmp_path):
     assert first
     _simulate(tmp_path, "second", HYPEROC_CACHE_DIR=str(cache), HYPEROC_COMPILATION_CACHE="1")
     assert loops() == first
+
+
+def test_the_sparse_path_keeps_its_step_programs_too(tmp_path):
+    """In 2D and 3D Newton runs on the host around the sparse solver, and the step's residual and Jacobian
+    are programs without host callbacks (which JAX never stores): the first run stores them, the second
+    reads them."""
+    cache = tmp_path / "cache"
+    kernels = lambda: {p.name: p.stat().st_mtime_ns for name in ("jit_residual_at", "jit_jacobian_parts")  # noqa: E731
+                       for p in cache.glob(f"{name}-*")}
+    env = {"HYPEROC_CACHE_DIR": str(cache), "HYPEROC_COMPILATION_CACHE": "1"}
+    _simulate(tmp_path, "first", "annulus-2d.toml", **env)
+    first = kernels()
+    assert len(first) == 2
+    _simulate(tmp_path, "second", "annulus-2d.toml", **env)
+    assert kernels() == first
 
 
 def test_the_cache_can_be_turned_off(tmp_path):

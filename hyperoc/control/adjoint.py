@@ -137,6 +137,15 @@ class Adjoint:
         (the assembled transpose is the sum of the transposed blocks on the same pattern). The right-hand
         side is ``(dsplit/dx)^T (lambda0 + dv/dy0'^T lambda1, dJ/dp)``, the unknown x mapped to the step's
         ``(y0', p')`` by the constraint (`hyperoc.dynamics.constraint`)."""
+        system, partial = self.transposed_system(carry, inputs)
+        w_u, w_p = self.stepper.solver.solve(*system)
+        return self.step_totals(jnp.concatenate([w_u, w_p[None]]), partial, inputs)
+
+    def transposed_system(self, carry, inputs):
+        """The first half of `step`, up to its linear solve: ``(system, partial)``, the arguments of the
+        solver's bordered solve ``(blocks, col, row, rhs_u, rhs_c, corner, low_rank)`` of the transposed step
+        Jacobian, and the totals that do not go through it ``(v_y0, v_y1, v_dt, n_s, n_y0, n_dt)`` (through the
+        velocity update and the carried state)."""
         st, con = self.stepper, self.stepper.constraint
         lam0, lam1, lam_s = carry
         y0n, s_new, s_prev, y0, y1, xi0, xi1, f0, f1, dt, V0, t0, gp = inputs
@@ -152,17 +161,37 @@ class Adjoint:
         _, vjp_split = jax.vjp(con.split, x)
         rhs = vjp_split((lam0 + v_y0n, jnp.zeros((), x.dtype)))[0] + n_x
         # the transpose: col <-> row (the low-rank part is symmetric)
-        w_u, w_p = st.solver.solve(blocks, row, col, rhs[:-1], rhs[-1], corner, low_rank)
-        w = jnp.concatenate([w_u, w_p[None]])
+        return (blocks, row, col, rhs[:-1], rhs[-1], corner, low_rank), (v_y0, v_y1, v_dt, n_s, n_y0, n_dt)
+
+    def step_totals(self, w, partial, inputs):
+        """The second half of `step`, from the solution w (n + 1,) of `transposed_system` and its ``partial``
+        totals: `step`'s results."""
+        st, con = self.stepper, self.stepper.constraint
+        y0n, s_new, s_prev, y0, y1, xi0, xi1, f0, f1, dt, V0, t0, gp = inputs
+        v_y0, v_y1, v_dt, n_s, n_y0, n_dt = partial
+        x = con.unknown(y0n, s_new)
         res = lambda y0, y1, s, xi0, xi1, dt, t0: st.residual(x, (y0, y1, s), (xi0, xi1), (f0, f1), dt, V0, t0)
         _, vjp_r = jax.vjp(res, y0, y1, s_prev, xi0, xi1, dt, t0)
         r_y0, r_y1, r_s, r_xi0, r_xi1, r_dt, r_t0 = vjp_r(w)
         return (v_y0 - r_y0 + n_y0, v_y1 - r_y1, n_s - r_s), (-r_xi0, -r_xi1, v_dt - r_dt + n_dt, -r_t0)
 
+    def host_step(self, carry, inputs):
+        """`step` for a host solver: its two halves jitted apart (programs without host callbacks, which the
+        compilation cache keeps), the transposed solve between them on the host (``try_solve``: NaN if it
+        fails, as `step`'s solve returns)."""
+        system, totals = self._host_kernels
+        args, partial = system(carry, inputs)
+        w = self.stepper.solver.try_solve(*jax.device_get(args))
+        return totals(w, partial, inputs)
+
+    @cached_property
+    def _host_kernels(self):
+        return jax.jit(self.transposed_system), jax.jit(self.step_totals)
+
     @cached_property
     def _jitted_step(self):
-        """`step` compiled once."""
-        return jax.jit(self.step)
+        """`step` compiled once for a traced solver; `host_step` for a host solver."""
+        return jax.jit(self.step) if self.stepper.solver.traced else self.host_step
 
     @cached_property
     def _scan(self):

@@ -17,9 +17,9 @@ Full Newton (``kept=None``) factors K at every iteration, takes full steps and s
 iterate, of this solve or of an earlier one, takes the step if it decreases ``|r|^2`` (sufficient
 decrease 1e-4), refreshes the Jacobian after a rejected step or when the contraction rate exceeds
 `hyperoc.solvers.newton.CHORD_RATE`, and stops when the error left after the update, of u and of the
-multiplier, is small. Its decisions are the serial loop's pure policy functions
-(`hyperoc.solvers.newton.chord_stopping_test`, ``chord_accepts``, ``chord_next``, ``chord_counts``) on
-NumPy values. Every rank makes the same sequence of collective calls: the decisions are taken on reduced
+multiplier, is small. The iteration is `hyperoc.solvers.host_newton.host_newton`, the loop of the serial host
+solvers too, whose decisions are the traced loop's pure policy functions on NumPy values. Every rank makes
+the same sequence of collective calls: the decisions are taken on reduced
 values, equal on all ranks.
 """
 
@@ -30,17 +30,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..solvers.host_newton import Reductions, host_newton
 from ..solvers.linsolve import eliminate_border
-from ..solvers.newton import (
-    NewtonOptions,
-    NewtonStatus,
-    chord_accepts,
-    chord_counts,
-    chord_next,
-    chord_stopping_test,
-    small_increment,
-    sufficient_decrease,
-)
+from ..solvers.newton import NewtonOptions
 
 if TYPE_CHECKING:  # the loop needs only the layout's methods; importing it needs PETSc
     from .layout import Layout
@@ -65,54 +57,26 @@ class KeptJacobian:
 def newton(residual, jacobian, layout: Layout, x0: np.ndarray, options: NewtonOptions, *, constrained: bool = True,
            kept: KeptJacobian | None = None, corner: float = 0.0):
     """Solve ``residual(x) = 0`` from x0; ``(x, iterations, NewtonStatus)``. ``options``: the tolerances
-    ``rtol``, ``atol`` and ``max_iter`` of `hyperoc.solvers.newton.NewtonOptions` (its other fields are the
-    serial loop's).
+    ``rtol``, ``atol`` and ``max_iter`` of `hyperoc.solvers.newton.NewtonOptions`; the steps are taken whole
+    (no line search).
 
     ``residual(xl, q)`` and ``jacobian(xl, q)`` take the local values xl (m,) of the iterate's owned
     part (ghosts filled) and its multiplier q (0 unconstrained). ``residual`` returns the owned rows
     r_u (m_o,) and, constrained, the constraint's value r_c (so (m_o + 1,)); ``jacobian`` the element
     blocks (nc_local, k, k) of K on the rank's cells and the owned parts of ``col`` and ``row`` (None
     unconstrained). ``kept``: chord Newton with this kept Jacobian (updated in place), else full Newton.
-    ``corner``: the bordered Jacobian's corner ``dr_c/dq``.
+    ``corner``: the bordered Jacobian's corner ``dr_c/dq``. The loop is `hyperoc.solvers.host_newton`'s,
+    with the reductions over the ranks.
     """
-    m_o, (rtol, atol, max_iter) = layout.owned_size, (options.rtol, options.atol, options.max_iter)
-    x = np.array(x0, dtype=np.float64)
+    m_o = layout.owned_size
     at = lambda x: (layout.local_of_owned(x[:m_o]), x[m_o] if constrained else 0.0)
-    merit = lambda r: layout.dot(r[:m_o], r[:m_o]) + (r[m_o] ** 2 if constrained else 0.0)
-    r, previous, it = residual(*at(x)), np.inf, 0
-    refresh = kept is None or not kept.current(layout)
-    while it < max_iter:
-        if refresh:
-            dx = _fresh_step(jacobian, layout, at(x), r, constrained, kept, corner)
-        else:
-            dx = _kept_step(layout, r, constrained, kept, corner)
-        du = dx[:m_o]
-        solved = layout.all_finite(dx)
-        it += 1 if chord_counts(refresh, solved, xp=np) else 0
-        if refresh and not solved:
-            return x, it, NewtonStatus.NON_FINITE
-        increment = layout.inf_norm(du) if solved else np.inf
-        chord = kept is not None
-        small = lambda u, v, rt, at: bool(small_increment(u, v, layout.n_u, rt, at, inf_norm=layout.inf_norm))
-        if chord:
-            p, dp = (x[m_o], dx[m_o]) if constrained else (0.0, 0.0)
-            settled, rate = chord_stopping_test(x[:m_o], du, p, dp, increment, previous, small, tol=(rtol, atol),
-                                                xp=np)
-        else:
-            settled, rate = small(x[:m_o], du, rtol, atol), np.inf
-        converged = solved and bool(settled)
-        if converged:
-            return x + dx, it, NewtonStatus.CONVERGED
-        r1 = residual(*at(x + dx)) if solved else None
-        decreased = solved and bool(sufficient_decrease(merit(r1), merit(r)))  # a chord step is taken whole
-        accepted = bool(chord_accepts(solved, converged, decreased, refresh, xp=np))
-        if accepted:
-            x, r = x + dx, r1
-            if not layout.all_finite(r):
-                return x, it, NewtonStatus.NON_FINITE
-        refresh_next, previous = chord_next(accepted, rate, increment, xp=np)
-        refresh, previous = not chord or bool(refresh_next), float(previous)
-    return x, max_iter, NewtonStatus.MAX_ITERATIONS
+    reductions = Reductions(m_o, layout.n_u, layout.dot, layout.inf_norm, layout.all_finite)
+    return host_newton(lambda x: residual(*at(x)),
+                       lambda x, r: _fresh_step(jacobian, layout, at(x), r, constrained, kept, corner),
+                       lambda r: _kept_step(layout, r, constrained, kept, corner),
+                       x0, NewtonOptions(options.rtol, options.atol, options.max_iter, line_search=False), reductions,
+                       constrained=constrained, chord=kept is not None,
+                       refresh=kept is None or not kept.current(layout))
 
 
 def _fresh_step(jacobian, layout: Layout, xl_q, r, constrained: bool, kept: KeptJacobian | None,

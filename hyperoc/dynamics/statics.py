@@ -52,6 +52,7 @@ import numpy as np
 from .. import _jax  # noqa: F401
 from ..errors import InputError, SolverError
 from ..mechanics.model import StateModel
+from ..solvers.host_newton import Reductions, host_newton
 from ..solvers.linsolve import make_solver
 from ..solvers.newton import NewtonIteration, NewtonOptions, NewtonStatus, newton
 from .constraint import NoConstraint, TissueVolume
@@ -179,18 +180,39 @@ def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, co
         r, G = force_balance(u, fk, s), con.force_direction(u)
         return x.at[-1].set(-(G @ r) / (G @ G))
 
+    options = lambda monitor: NewtonOptions(scheme.rtol, scheme.atol, scheme.max_iter, line_search, monitor,
+                                            getattr(model, "n_u", None))
+
     @jax.jit
     def solve(x0, fk, Vk, s, fit_multiplier=False):
         if constrained:  # traced flag: the guess path and the load steps share one compilation
             x0 = jax.lax.cond(fit_multiplier, lambda: fitted_multiplier(x0, fk, s), lambda: x0)
         monitor = (lambda *values: jax.debug.callback(report, s, *values)) if monitored else None
-        options = NewtonOptions(scheme.rtol, scheme.atol, scheme.max_iter, line_search, monitor,
-                                getattr(model, "n_u", None))
-        x, it, status = newton(lambda x: residual(x, fk, Vk, s), lambda x: jacobian_parts(x, fk, s), lin, x0, options,
-                               chord=chord)
+        x, it, status = newton(lambda x: residual(x, fk, Vk, s), lambda x: jacobian_parts(x, fk, s), lin, x0,
+                               options(monitor), chord=chord)
         return x, it, status, model.min_det_F(displacement(x))
 
-    cache[key] = solve, slot
+    kernels = {"residual": jax.jit(residual), "jacobian": jax.jit(jacobian_parts), "fit": jax.jit(fitted_multiplier),
+               "min_det_F": jax.jit(lambda x: model.min_det_F(displacement(x)))}
+
+    def host_solve(x0, fk, Vk, s, fit_multiplier=False):
+        """`solve` for a host solver: Newton on the host (`hyperoc.solvers.host_newton`), the residual and
+        the Jacobian parts jitted apart (no host callback in them, so the compilation cache keeps them)."""
+        if constrained and fit_multiplier:
+            x0 = kernels["fit"](x0, fk, s)
+        x0 = np.asarray(x0, dtype=np.float64)
+
+        def fresh(x, r):
+            blocks, col, row, *rest = jax.device_get(kernels["jacobian"](x, fk, s))
+            return lin.try_solve(blocks, col, row, -r[:-1], -r[-1], *rest, keep=chord)
+
+        monitor = (lambda *values: report(s, *values)) if monitored else None
+        x, it, status = host_newton(lambda x: np.asarray(kernels["residual"](x, fk, Vk, s)), fresh,
+                                    lambda r: lin.try_kept_solve(-r[:-1], -r[-1]), x0, options(monitor),
+                                    Reductions(x0.size - 1, getattr(model, "n_u", None)), chord=chord, refresh=False)
+        return x, it, status, float(kernels["min_det_F"](x))
+
+    cache[key] = (solve if lin.traced else host_solve), slot
     return cache[key]
 
 

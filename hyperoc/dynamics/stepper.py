@@ -22,9 +22,11 @@ gauge, the reported pressure 0).
 and GetFEM's choice), with ``p`` at t = 0 from the consistent initial acceleration. It is kept for
 comparison: at theta = 1/2 it carries an undamped alternating mode (see `tests/`).
 
-One step is a JAX function (Newton with backtracking inside a ``while_loop``); when the linear
-solver is traced (dense, tridiagonal) the whole time loop is one compiled ``lax.scan``, otherwise
-the step is jitted and driven from Python.
+When the linear solver is traced (dense, tridiagonal) one step is a JAX function (Newton with
+backtracking inside a ``while_loop``) and the whole time loop one compiled ``lax.scan``. With a host
+solver (sparse LU, PARDISO) the same Newton iteration runs on the host (`hyperoc.solvers.host_newton`),
+the step's residual and Jacobian jitted apart: programs without host callbacks, which the persistent
+compilation cache keeps from one process to the next.
 """
 
 from __future__ import annotations
@@ -42,8 +44,9 @@ from .._jax import on_device
 from ..errors import InputError, SolverError
 from ..mechanics.model import StateModel
 from ..mechanics.operators import combined_matvec
+from ..solvers.host_newton import Reductions, host_newton
 from ..solvers.linsolve import make_solver
-from ..solvers.newton import NewtonStatus, newton
+from ..solvers.newton import NewtonOptions, NewtonStatus, newton
 from .constraint import make_constraint
 from .timegrid import TimeGrid
 
@@ -475,9 +478,49 @@ class TimeStepper:
 
     @cached_property
     def advance(self):
-        """One compiled step, ``advance(carry, inputs) -> (carry, outputs)`` (`step` jitted): carry
-        ``(y0, y1, p, failed)``, inputs ``(xi0, xi1, f0, f1, dt, V0, t0)``, outputs as in `march`."""
-        return jax.jit(self.step)
+        """One step, ``advance(carry, inputs) -> (carry, outputs)``: carry ``(y0, y1, p, failed)``, inputs
+        ``(xi0, xi1, f0, f1, dt, V0, t0)``, outputs as in `march`; `step` jitted for a traced solver, else
+        `host_step`."""
+        return jax.jit(self.step) if self.solver.traced else self.host_step
+
+    def host_step(self, carry, inputs):
+        """`step` for a host solver: the same Newton iteration driven from the host
+        (`hyperoc.solvers.host_newton.host_newton`), its residual and Jacobian parts jitted apart
+        (`_host_kernels`), the bordered solves by the solver on the host (``try_solve``, ``try_kept_solve``)."""
+        y0, y1, p_prev, failed = carry
+        xi0, xi1, f0, f1, dt, V0, t0 = inputs
+        if bool(failed):
+            return carry, (y0, y1, p_prev, 0, int(StepStatus.AFTER_FAILURE), np.nan, np.nan)
+        k, sch, solver = self._host_kernels, self.scheme, self.solver
+        known = k["known"](y0, y1, xi0, xi1, f0, f1, dt, t0)
+
+        def fresh(x, r):
+            blocks, col, row, corner, low_rank = jax.device_get(k["jacobian"](x, y0, dt, y1, t0, p_prev))
+            return solver.try_solve(blocks, col, row, -r[:-1], -r[-1], corner, low_rank, keep=self.chord)
+
+        x0 = np.asarray(k["guess"](y0, y1, dt, p_prev))
+        x, it, status = host_newton(lambda x: np.asarray(k["residual_at"](x, known, y0, y1, p_prev, dt, V0, t0)),
+                                    fresh, lambda r: solver.try_kept_solve(-r[:-1], -r[-1]), x0,
+                                    NewtonOptions(sch.rtol, sch.atol, sch.max_iter), Reductions(x0.size - 1),
+                                    chord=self.chord, refresh=False)
+        y0n, y1n, pn, mindet, maxgrad = jax.device_get(k["after"](x, y0, y1, p_prev, dt))
+        status = int(StepStatus.DET_F if status == NewtonStatus.CONVERGED and not mindet > 0 else status)
+        return (y0n, y1n, pn, status != 0), (y0n, y1n, pn, it, status, mindet, maxgrad)
+
+    @cached_property
+    def _host_kernels(self):
+        """The jitted parts of `host_step`: the step's known terms, residual, Jacobian parts, Newton's first
+        guess and what follows the solve (the new state, the carried multiplier state, min det F, max |grad u|)."""
+        m, con = self.model, self.constraint
+
+        def after(x, y0, y1, p_prev, dt):
+            y0n, _ = con.split(x)
+            return (y0n, self.velocity(y0n, y0, y1, dt), con.next_state(p_prev, x, y0, dt), m.min_det_F(y0n),
+                    m.max_grad(y0n))
+
+        return {"known": jax.jit(self.known_terms), "residual_at": jax.jit(self.residual_at),
+                "jacobian": jax.jit(self.jacobian_parts),
+                "guess": jax.jit(lambda y0, y1, dt, p: con.unknown(y0 + dt * y1, p)), "after": jax.jit(after)}
 
     def march_levels(self, y0, y1, p_prev, t, xi, loads, V0):
         """This stepper's own loop (`march`, or `march_stepwise` for host solvers) over the levels

@@ -25,8 +25,10 @@ solve needs nothing more: W is symmetric, so ``K_full^T = K^T + U W U^T``.
 - `DenseSolver`: LU in JAX (small problems; the whole time loop can be compiled).
 - `TridiagonalSolver`: 1D P1 meshes numbered along the line (the paper's case), in JAX.
 - `SparseSolver`: assembly into a fixed sparsity pattern and a host solver (SuperLU, MINRES from scipy;
-  MKL PARDISO's symmetric indefinite LDL^T, `hyperoc.solvers.pardiso`), called from traced code through
-  ``jax.pure_callback``; SuperLU runs on K permuted once by METIS nested dissection (`nested_dissection`).
+  MKL PARDISO's symmetric indefinite LDL^T, `hyperoc.solvers.pardiso`), called on the host by the time
+  steps' and the static solves' Newton (`hyperoc.solvers.host_newton`: ``try_solve``, ``try_kept_solve``) or
+  from traced code through ``jax.pure_callback`` (``solve``, ``refresh_solve``, ``kept_solve``); SuperLU runs
+  on K permuted once by METIS nested dissection (`nested_dissection`).
   The method's assembly and factorization are its backend (`hyperoc.solvers.backends`).
 """
 
@@ -158,7 +160,7 @@ def _gather_table(n, pairs, sentinel):
 
 
 class SparseSolver:
-    """Host solver on the sparsity pattern of the model, reached through ``jax.pure_callback``: a backend
+    """Host solver on the sparsity pattern of the model, called on the host or through ``jax.pure_callback``: a backend
     (`backend`, `hyperoc.solvers.backends`: K's assembly and factorization for the method) under one reuse and
     precision policy (this class: the kept factorizations, their refresh, iterative refinement to ``rtol``,
     the chord Newton's kept Jacobian, the worker thread and ``stats``).
@@ -421,12 +423,13 @@ class SparseSolver:
         # numerically singular K shows up as a Newton failure, reported with the step).
         return None if rate is not None else x
 
-    def _host_solve_or_nan(self, *args, keep: bool = False):
-        """`host_solve`, with NaN for a singular matrix (SuperLU), a tangent or residual with NaN or
-        Inf entries (an iterate with inverted elements), a refinement that fails (PARDISO) or a MINRES
-        failure: JAX leaves an exception raised inside ``jax.pure_callback`` undefined, while NaN
-        makes Newton fail, so the caller cuts the load step back or raises `SolverError` naming the
-        step. ``stats["failed"]`` counts these, and ``last_failure`` keeps the message."""
+    def try_solve(self, *args, keep: bool = False):
+        """`host_solve` with NaN (on the host, as `hyperoc.solvers.host_newton`'s callers use it) for a singular
+        matrix (SuperLU), a tangent or residual with NaN or Inf entries (an iterate with inverted elements), a
+        refinement that fails (PARDISO) or a MINRES failure: JAX leaves an exception raised inside
+        ``jax.pure_callback`` (`solve`) undefined, while NaN makes Newton fail, so the caller cuts the load step
+        back or raises `SolverError` naming the step. ``stats["failed"]`` counts these, and ``last_failure``
+        keeps the message."""
         return self._or_nan(lambda: self.host_solve(*args, keep=True) if keep else self.host_solve(*args))
 
     def _or_nan(self, solve):
@@ -444,7 +447,7 @@ class SparseSolver:
     def solve(self, blocks, col, row, r_u, r_c, corner=0.0, lowrank=None):
         """The bordered solve ``(x (n,), q)`` with ``K + U W U^T`` for ``lowrank = (U (n, k), W (k, k))``
         (None: K), traced: `host_solve` through ``jax.pure_callback`` (None adds no operand)."""
-        return self._callback(self._host_solve_or_nan, blocks, col, row, r_u, r_c, jnp.asarray(corner, jnp.float64),
+        return self._callback(self.try_solve, blocks, col, row, r_u, r_c, jnp.asarray(corner, jnp.float64),
                               lowrank)
 
     @property
@@ -456,15 +459,17 @@ class SparseSolver:
         """`solve`, keeping this Jacobian (the factorization of K, ``K_full^-1 col``, ``row``, the corner and,
         with ``lowrank``, ``Z = K^-1 U`` and ``(I_k + W U^T Z)^-1 W``) for `kept_solve` (chord Newton, traced).
         A refresh without ``lowrank`` keeps none."""
-        return self._callback(lambda *a: self._host_solve_or_nan(*a, keep=True), blocks, col, row, r_u, r_c,
+        return self._callback(lambda *a: self.try_solve(*a, keep=True), blocks, col, row, r_u, r_c,
                               jnp.asarray(corner, jnp.float64), lowrank)
 
     def kept_solve(self, r_u, r_c):
         """The bordered solve with the Jacobian of the last `refresh_solve`, its low-rank term included
         (traced); NaN if there is none yet, which asks the chord iteration for a refresh (not counted as a failure)."""
-        return self._callback(self._kept_or_nan, r_u, r_c)
+        return self._callback(self.try_kept_solve, r_u, r_c)
 
-    def _kept_or_nan(self, r_u, r_c):
+    def try_kept_solve(self, r_u, r_c):
+        """The host part of `kept_solve`: ``(x, q)`` as one array (n + 1,), NaN without a kept Jacobian or when the
+        solve fails."""
         if self._kept is None:
             return np.full(self.n + 1, np.nan)
         return self._or_nan(lambda: self._on_worker(self._host_kept_solve, r_u, r_c))

@@ -23,7 +23,7 @@ from .. import _jax  # noqa: F401
 
 __all__ = ["newton", "NewtonStatus", "NewtonIteration", "NewtonLog", "NewtonOptions", "CHORD_RATE", "CHORD_MARGIN",
            "chord_stopping_test", "chord_accepts", "chord_next", "chord_counts", "sufficient_decrease",
-           "small_increment"]
+           "small_increment", "block_norms"]
 
 #: Contraction rate above which a chord iteration refreshes the factorization: below it a kept
 #: factorization gains a digit or more per solve; a slower one would need more solves to reach the
@@ -178,7 +178,7 @@ def newton(residual, jacobian_parts, solver, x0, options: NewtonOptions | None =
             alpha, r1 = 1.0, r_full
         x_new = x + alpha * dx
         if monitor is not None:
-            res, inc, *field = _parts(r[:-1], du, solved, n_u)
+            res, inc, *field = block_norms(r[:-1], du, solved, n_u)
             monitor(it + 1, res, jnp.abs(r[-1]), inc, alpha, converged, *field)
         # A residual that is NaN even at the smallest step (e.g. log det F of an inverted element
         # all along the Newton direction) is a failure now, not one iteration later; after a
@@ -224,7 +224,7 @@ def _chord_newton(residual, jacobian_parts, solver, x0, options: NewtonOptions):
         x_new = jnp.where(accepted, x + alpha * dx, x)
         r_new = jnp.where(accepted, r1, r)
         if monitor is not None:
-            res, inc, *field = _parts(r[:-1], du, solved, n_u)
+            res, inc, *field = block_norms(r[:-1], du, solved, n_u)
             monitor(it + 1, res, jnp.abs(r[-1]), inc, jnp.where(accepted, alpha, 0.0), converged, *field)
         finite = ~refresh | solved  # a failed kept solve only asks for a refresh
         finite = finite & jnp.all(jnp.isfinite(x_new)) & (converged | jnp.isfinite(_merit(r_new)))
@@ -329,17 +329,17 @@ def _blocks(n_u):
     return [slice(None)] if n_u is None else [slice(None, n_u), slice(n_u, None)]
 
 
-def small_increment(u, du, n_u, rtol, atol, inf_norm=None):
-    """Whether ``|du_b|_inf <= rtol |u_b + du_b|_inf + atol`` on every block b (`_blocks`).
-    ``inf_norm(v)``: the max norm (default ``max |v|``; a distributed solve passes the maximum over
-    the ranks of their parts')."""
-    norm = inf_norm or (lambda v: jnp.max(jnp.abs(v)))
+def small_increment(u, du, n_u, rtol, atol, inf_norm=None, xp=jnp):
+    """Whether ``|du_b|_inf <= rtol |u_b + du_b|_inf + atol`` on every block b (`_blocks`), on JAX or NumPy
+    values (``xp``). ``inf_norm(v)``: the max norm (default ``max |v|``; a distributed solve passes the maximum
+    over the ranks of their parts')."""
+    norm = inf_norm or (lambda v: xp.max(xp.abs(v)))
     small = [norm(du[b]) <= rtol * norm(u[b] + du[b]) + atol for b in _blocks(n_u)]
-    return jnp.all(jnp.stack(small))
+    return xp.all(xp.stack(small))
 
 
-def _parts(r_u, du, solved, n_u):
-    """``(|r_b|_2, |du_b|_inf)`` of each block b (`_blocks`), one after the other; increments NaN if
-    not ``solved``."""
-    norms = lambda r, d: (jnp.linalg.norm(r), jnp.where(solved, jnp.max(jnp.abs(d)), jnp.nan))
+def block_norms(r_u, du, solved, n_u, xp=jnp):
+    """``(|r_b|_2, |du_b|_inf)`` of each block b (`_blocks`), one after the other, on JAX or NumPy values
+    (``xp``); increments NaN if not ``solved``."""
+    norms = lambda r, d: (xp.linalg.norm(r), xp.where(solved, xp.max(xp.abs(d)), xp.nan))
     return tuple(value for b in _blocks(n_u) for value in norms(r_u[b], du[b]))
