@@ -327,11 +327,12 @@ def _results(folder: Path) -> dict:
         return {name: data[name] for name in data.files}
 
 
-def test_two_rank_forward_run_equals_simulate_and_resumes_bitwise(mpiexec, tmp_path):
+def test_two_rank_forward_run_equals_simulate_and_resumes(mpiexec, tmp_path):
     """`mpiexec -n 2 python -m hyperoc.app.distributed_simulate` writes `hyperoc simulate`'s outputs, whose
     displacements, velocities and step pressures equal the serial run's (Newton's bound, as the static solves
-    above); a run cut after its second checkpoint segment continues with ``--resume`` to the same results,
-    bitwise."""
+    above); a run cut after its second checkpoint segment continues with ``--resume`` to the same results, to
+    the same bound: MUMPS assembles the contributions of the ranks in the order they arrive, so two runs on 2
+    ranks differ in round-off (measured: 1e-14 relative), and Newton's decisions may follow it."""
     from hyperoc.app.cli import main as cli_main
 
     serial, dist = tmp_path / "serial", tmp_path / "dist"
@@ -351,7 +352,10 @@ def test_two_rank_forward_run_equals_simulate_and_resumes_bitwise(mpiexec, tmp_p
     segments[-1].unlink()
     subprocess.run([*command, "--resume", str(dist)], check=True, timeout=600)
     again = _results(dist)
-    assert all(np.array_equal(again[name], ours[name]) for name in ours)
+    assert np.array_equal(again["t"], ours["t"])
+    for name in ("displacement", "velocity"):
+        assert np.abs(again[name] - ours[name]).max() <= U_TOL * np.abs(ours[name]).max(), name
+    assert np.abs(again["p_steps"] - ours["p_steps"]).max() <= P_TOL * np.abs(ours["p_steps"]).max()
 
 
 @pytest.mark.parametrize("entries, message", [(["--set", "dynamics.constraint=none"], "does not yet take"),

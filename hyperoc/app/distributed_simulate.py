@@ -13,7 +13,9 @@ ParaView series) and ``distributed.json``: the ranks, the solver, the unknowns, 
 (compilation included), the Newton iterations and each rank's peak resident memory (MB). With ``[output]
 checkpoint_every`` the solve is saved in segments (``OUT/segments``, each written atomically by every rank:
 the ranks hold the same states) and ``--resume OUT`` continues it from the last one, ending equal to an
-uninterrupted run. Bad input: one line on standard error (from rank 0), exit status 2, nothing written.
+uninterrupted run to Newton's tolerance (MUMPS's sums over the ranks follow the order their contributions
+arrive in, so two runs on several ranks differ in round-off). Bad input: one line on standard error (from
+rank 0), exit status 2, nothing written.
 """
 
 from __future__ import annotations

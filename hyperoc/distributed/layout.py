@@ -126,8 +126,8 @@ class Layout:
 
     def forget_factorization(self) -> None:
         """Make the factorization held stale for chord Newton (`hyperoc.distributed.newton.KeptJacobian`), so
-        that its next iteration factors afresh: a checkpoint segment then solves as it does after a resume
-        (`hyperoc.dynamics.resumable`), bitwise."""
+        that its next iteration factors afresh: a checkpoint segment then takes the iterations it takes after a
+        resume (`hyperoc.dynamics.resumable`)."""
         self.factorizations += 1
 
     def solve(self, *rhs: np.ndarray) -> np.ndarray:
