@@ -1,5 +1,6 @@
-"""What a user waits for on a first run: ``hyperoc --help``, and the 1D forward solve of
-``examples/simulate-1d.toml`` (the paper's bar, 750 steps) with an empty and then a filled compilation cache.
+"""What a user waits for on a first run: ``hyperoc --help``, and the forward solves of the examples
+``simulate-1d.toml`` (the paper's bar, 750 steps), ``annulus-2d.toml`` (P2, 100 steps) and ``ventricle-3d.toml``
+(40 steps) with an empty and then a filled compilation cache.
 
     python bench/bench_first_run.py
 
@@ -21,7 +22,8 @@ from pathlib import Path
 
 from results import command_line, table, write_results
 
-CONFIG = Path(__file__).resolve().parent.parent / "examples" / "simulate-1d.toml"
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+CONFIGS = ("simulate-1d.toml", "annulus-2d.toml", "ventricle-3d.toml")
 
 
 def timed(args: list, env: dict) -> float:
@@ -32,10 +34,27 @@ def timed(args: list, env: dict) -> float:
     return time.perf_counter() - started
 
 
-def simulate(cache: Path, out: Path) -> tuple[float, float]:
-    """(process wall time, the solve's wall time) of one simulate run with the compilation cache ``cache``."""
-    wall = timed(["simulate", str(CONFIG), "--out", str(out), "--no-progress"], {"HYPEROC_CACHE_DIR": str(cache)})
+def simulate(config: str, cache: Path, out: Path) -> tuple[float, float]:
+    """(process wall time, the solve's wall time) of one simulate run of the example ``config`` with the
+    compilation cache ``cache``."""
+    wall = timed(["simulate", str(EXAMPLES / config), "--out", str(out), "--no-progress"],
+                 {"HYPEROC_CACHE_DIR": str(cache)})
     return wall, json.loads((out / "summary.json").read_text())["wall_time_s"]
+
+
+def cold_and_warm(config: str, repeat: int) -> list:
+    """The table's rows of ``config``: the best of ``repeat`` cold runs (an empty cache) and of the warm runs
+    that follow them (the cache each cold run filled)."""
+    cold, warm = [], []
+    for _ in range(repeat):
+        with tempfile.TemporaryDirectory() as tmp:
+            cache = Path(tmp) / "cache"
+            cold.append(simulate(config, cache, Path(tmp) / "cold"))
+            warm.append(simulate(config, cache, Path(tmp) / "warm"))
+    (cold_wall, cold_solve), (warm_wall, warm_solve) = min(cold), min(warm)
+    return [[f"simulate examples/{config}, empty cache (cold)", round(cold_wall, 2), round(cold_solve, 3), 1.0],
+            [f"simulate examples/{config}, cache filled (warm)", round(warm_wall, 2), round(warm_solve, 3),
+             round(warm_solve / cold_solve, 3)]]
 
 
 def main() -> None:
@@ -43,23 +62,14 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     args = ap.parse_args()
     help_s = min(timed(["--help"], {}) for _ in range(args.repeat))
-    cold, warm = [], []
-    for k in range(args.repeat):
-        with tempfile.TemporaryDirectory() as tmp:
-            cache = Path(tmp) / "cache"
-            cold.append(simulate(cache, Path(tmp) / "cold"))
-            warm.append(simulate(cache, Path(tmp) / "warm"))
-    (cold_wall, cold_solve), (warm_wall, warm_solve) = min(cold), min(warm)
     rows = [["hyperoc --help", round(help_s, 3), None, None],
-            ["simulate examples/simulate-1d.toml, empty cache (cold)", round(cold_wall, 2), round(cold_solve, 3), 1.0],
-            ["simulate examples/simulate-1d.toml, cache filled (warm)", round(warm_wall, 2), round(warm_solve, 3),
-             round(warm_solve / cold_solve, 3)]]
+            *(row for config in CONFIGS for row in cold_and_warm(config, args.repeat))]
     for r in rows:
         print(r)
     write_results("bench_first_run", command_line(), [table(
         f"First runs in fresh processes (best of {args.repeat})",
         ["command", "process wall time (s)", "solve (s)", "solve / cold solve"], rows,
-        "solve: the summary's wall_time_s (tracing, compilation or the cache's read, and the 750 steps); "
+        "solve: the summary's wall_time_s (tracing, compilation or the cache's read, and the steps); "
         "the process time adds Python's start, imports and the outputs (figures, ParaView series)")])
 
 
