@@ -65,8 +65,8 @@ class DistributedStepper(TimeStepper):
 
     constraint : "tissue_volume" (default), "cavity_volume" (the endocardium's cavity held at its initial
         volume) or a constraint object of the kinds `DISTRIBUTED_CONSTRAINTS` (`hyperoc.dynamics.constraint`,
-        e.g. ``CavityVolumeConstraint(model, "endocardium", change=law)``, ``Circulation(model, ...)``);
-        `InputError` for "none".
+        e.g. ``CavityVolumeConstraint(model, "endocardium", change=law)``, ``Circulation(model, ...)``) or "none"
+        (Newton then solves ``K dy0' = -F_u`` without a border, the adjoint ``K^T w = ...``).
 
     terms : the step terms of the serial model (`hyperoc.dynamics.terms`: Robin boundaries, follower pressure,
         prescribed tension, viscosity), each on the rank's cells (a boundary term on the facets whose owner
@@ -90,6 +90,8 @@ class DistributedStepper(TimeStepper):
             raise InputError(f"DistributedStepper: the {self.constraint.kind!r} constraint is not implemented on the "
                              f"distributed path (only {', '.join(map(repr, DISTRIBUTED_CONSTRAINTS))})")
         self.layout = self.solver = Layout(model, comm, solver)
+        #: whether a multiplier and its row border the step; without a constraint Newton solves ``K dy0' = -F_u``
+        self.constrained = self.constraint.has_multiplier
         self.chord = scheme.chord_with(self.layout, auto=True)
         self._kept = KeptJacobian()  # chord Newton's Jacobian, kept across iterations and steps
         # the restricted model has no control or traction: B xi + f is assembled, it enters on the owned rows
@@ -193,6 +195,9 @@ class DistributedStepper(TimeStepper):
         def residual(xl, q):
             with L.clock("kernels"):
                 r = np.asarray(k["residual_at"](jnp.append(jnp.asarray(xl), q), known, yl0, yl1, dt, t0))
+            if not self.constrained:  # the local gauge row is not a row of the step
+                return L.add(r[:-1]) + load
+            with L.clock("kernels"):
                 offset = float(k["row_offset"](q, V0, t0, s_prev, dt))
             return np.append(L.add(r[:-1]) + load, L.sum(r[-1]) + offset)
 
@@ -201,15 +206,17 @@ class DistributedStepper(TimeStepper):
                 parts = k["jacobian"](jnp.append(jnp.asarray(xl), q), yl0, yl1, dt, t0)
                 # the parts' corners are 0, and a restricted constraint has no low-rank part (a fixed apex)
                 blocks, col, row = (np.asarray(a) for a in parts[:3])
-            return blocks, L.add(col), L.add(row)
+            return (blocks, L.add(col), L.add(row)) if self.constrained else (blocks, None, None)
 
         p0 = float(self.constraint.pressure(s_prev))
+        guess = y0[o] + dt * y1[o]
         options = NewtonOptions(sch.rtol, sch.atol, sch.max_iter)
-        x, it, status = newton(residual, jacobian, L, np.append(y0[o] + dt * y1[o], p0), options,
-                               kept=self._kept if self.chord else None, corner=float(k["corner"](s_prev, dt)))
-        y0n = L.serial(x[:-1])
+        x, it, status = newton(residual, jacobian, L, np.append(guess, p0) if self.constrained else guess, options,
+                               constrained=self.constrained, kept=self._kept if self.chord else None,
+                               corner=float(k["corner"](s_prev, dt)))
+        y0n, pn = L.serial(x[:L.owned_size]), x[-1] if self.constrained else 0.0
         with L.clock("kernels"):
-            pn = _host(k["next_state"](s_prev, jnp.append(jnp.asarray(y0n), x[-1]), jnp.asarray(y0), dt))
+            pn = _host(k["next_state"](s_prev, jnp.append(jnp.asarray(y0n), pn), jnp.asarray(y0), dt))
         with L.clock("kernels"):
             mindet, maxgrad = (f(k[name](jnp.asarray(y0n[d]))) for f, name in ((L.min, "min_det_F"),
                                                                                 (L.max, "max_grad")))
@@ -266,10 +273,12 @@ class DistributedAdjoint(Adjoint):
             corner = float(k["corner"](s_prev, dt))
         if not st.symmetric:  # the assembled transpose: the transposed blocks on the same pattern
             blocks = np.swapaxes(blocks, 1, 2)
-        col, row = L.add(col), L.add(row)
         L.factor(blocks)
-        w_u, w_p = eliminate_border(L.solve(lam0[o] + v_y0n + n_x[:-1][o], row), col, float(n_x[-1]), dot=L.dot,
-                                    corner=corner)  # transpose: col <-> row
+        if st.constrained:
+            w_u, w_p = eliminate_border(L.solve(lam0[o] + v_y0n + n_x[:-1][o], L.add(row)), L.add(col),
+                                        float(n_x[-1]), dot=L.dot, corner=corner)  # transpose: col <-> row
+        else:  # K^T w = the totals; the gauge's transposed row gives w_p = 0 (`NoConstraint`)
+            w_u, w_p = L.solve(lam0[o] + v_y0n + n_x[:-1][o])[:, 0], 0.0
         with L.clock("kernels"):
             w = jnp.append(jnp.asarray(L.local_of_owned(w_u)), w_p)
             r_y0, r_y1, r_dt, r_t0 = (np.asarray(a) for a in k["residual_vjp"](jnp.asarray(y0[d]), jnp.asarray(y1[d]),
@@ -277,8 +286,9 @@ class DistributedAdjoint(Adjoint):
             # the loads' part -dt (th L1 + (1 - th) L0) on the owned rows, in the controls, dt and t0
             l_xi0, l_xi1, l_dt, l_t0 = (np.asarray(a) for a in k["owned_load_vjp"](
                 *(jnp.asarray(a) for a in (xi0, xi1, f0, f1)), dt, t0, jnp.asarray(w_u)))
-            # the row's rest, added once after the sum of the shares
-            o_s, o_dt, o_t0 = (np.asarray(a) for a in k["offset_vjp"](pn, V0, t0, s_prev, dt, jnp.asarray(w_p)))
+            # the row's rest, added once after the sum of the shares (no row without a constraint)
+            o_s, o_dt, o_t0 = ((np.asarray(a) for a in k["offset_vjp"](pn, V0, t0, s_prev, dt, jnp.asarray(w_p)))
+                               if st.constrained else (np.zeros_like(np.asarray(lam_s)), 0.0, 0.0))
         lam = (L.serial(v_y0 - L.add(r_y0)) + n_y0, L.serial(v_y1 - L.add(r_y1)), n_s - o_s)
         return lam, (-L.sum_array(l_xi0), -L.sum_array(l_xi1),
                      L.sum(float(v_dt) - float(r_dt) - float(l_dt)) + float(n_dt) - float(o_dt),

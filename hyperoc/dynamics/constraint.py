@@ -18,8 +18,8 @@ wall's facets) and the rest. On MPI ranks (`hyperoc.distributed.dynamics`) a con
 ``restricted(model, local, cells, dofs)`` to a rank's cells, as the step terms are: its row the share of
 those cells (or of the wall facets they own), its force direction and tangent those of the part, its corner
 0; the distributed step sums the shares over the ranks and adds the serial `row_offset` and corner once. The
-tissue volume, the cavity volume and the circulation restrict so; the gauge of `NoConstraint` (a vector over
-all unknowns) does not.
+tissue volume, the cavity volume and the circulation restrict so; without a constraint (`NoConstraint`, whose
+gauge is a vector over all unknowns) the distributed step has no border and no row.
 
 A constraint with a multiplier holds ``c(y0') = target(V0, t')`` with a force ``-p' G`` on the momentum
 rows, ``G`` the *force direction* (`force_direction`) and ``c`` the constrained quantity; step weighting
@@ -427,9 +427,15 @@ class NoConstraint(_ScalarState):
         Ke = jnp.einsum("ckl,cl->ck", blocks, gather(self.e, index))
         return scatter(Ke, index, self.model.n), self.e
 
+    def restricted(self, model, local, cells, dofs):
+        """No constraint on ``local`` (the rank's cells): the distributed step solves ``K dy0' = -F_u`` without a
+        border (`hyperoc.distributed.newton` unconstrained), so the gauge's multiplier s stays 0 and the local
+        ``split`` returns the displacement as it is."""
+        return NoConstraint(local)
 
-#: the kinds that restrict to a rank's cells (`restricted`, module docstring): the distributed path's
-DISTRIBUTED_CONSTRAINTS = ("tissue_volume", "cavity_volume", "circulation")
+
+#: the kinds with a form on a rank's cells (`restricted`, module docstring): the distributed path's
+DISTRIBUTED_CONSTRAINTS = ("tissue_volume", "cavity_volume", "circulation", "none")
 
 CONSTRAINTS = {"tissue_volume": TissueVolume, "cavity_volume": CavityVolumeConstraint, "none": NoConstraint}
 
