@@ -383,6 +383,38 @@ def test_two_rank_forward_run_without_a_constraint_equals_simulate(mpiexec, tmp_
     assert not np.any(ours["p_steps"]) and np.abs(ref["displacement"]).max() > 0
 
 
+def test_two_rank_benchmark_command_equals_the_serial_one(mpiexec, tmp_path):
+    """`mpiexec -n 2 python -m hyperoc.app.distributed_benchmark` writes `hyperoc benchmark cardiac-elastodynamics`'s
+    outputs, its curves of p0, p1 and the cavity volume equal the serial command's (Newton's bound), with the
+    ranks and the PETSc solver recorded."""
+    from hyperoc.app.cli import main as cli_main
+
+    options = ["--step", "1", "--mesh", "coarse", "--end-time", "0.03", "--dt", "0.003"]
+    serial, dist = tmp_path / "serial", tmp_path / "dist"
+    assert cli_main(["benchmark", "cardiac-elastodynamics", *options, "--out", str(serial), "--no-progress"]) == 0
+    subprocess.run([mpiexec, "-n", "2", sys.executable, "-m", "hyperoc.app.distributed_benchmark", *options,
+                    "--out", str(dist)], check=True, timeout=600)
+    ours, ref = (json.loads((folder / "benchmark.json").read_text()) for folder in (dist, serial))
+    for name in ("p0", "p1", "volume"):
+        a, b = np.asarray(ours[name]), np.asarray(ref[name])
+        assert np.abs(a - b).max() <= U_TOL * np.abs(b).max(), name
+    assert (ours["ranks"], ours["solver"]) == (2, "mumps")
+    assert {"curves.npz", "displacements.png", "volume.png"} <= {f.name for f in dist.iterdir()}
+
+
+@pytest.mark.parametrize("options, message", [(["--dt", "0.02"], "--dt must lie in"),
+                                              (["--end-time", "2"], "--end-time must lie in")])
+def test_bad_input_to_the_benchmark_command_is_one_line_and_status_2(tmp_path, capsys, options, message):
+    """Refused before any rank starts a solve (and before MPI is imported): one line, exit 2, nothing written."""
+    from hyperoc.app.distributed_benchmark import main
+
+    out = tmp_path / "run"
+    assert main(["--mesh", "coarse", *options, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err
+    assert not out.exists()
+
+
 @pytest.mark.parametrize("entries, message", [([*CAVITY, "--set", 'dynamics.cavity.apex="rim"'], "does not yet take"),
                                               (["--set", "mesh.h=-1"], "h must be > 0")])
 def test_bad_input_to_the_forward_command_is_one_line_and_status_2(tmp_path, capsys, entries, message):

@@ -59,16 +59,17 @@ def _step(step) -> str:
 
 def run_benchmark(step: str, out, *, degree: int = 1, mesh: str = "reference", T: float | None = None,
                   dt: float | None = None, solver: str | None = None, progress: bool = False, on_segment=None,
-                  model=None) -> dict:
+                  model=None, stepper=None) -> dict:
     """Solve benchmark step ``step`` (`benchmark_config`) with checkpoints in ``out/segments`` and return the
     record `benchmark_curves` makes of it, with the comparison `compare_with_codes` under ``"comparison"``
     and the run's cost. A run started again on the same ``out`` resumes from its last segment. ``model``: the
-    configuration's model if already built (`hyperoc.app.workflows.check_run`)."""
+    configuration's model if already built (`hyperoc.app.workflows.check_run`); ``stepper``: its stepper if
+    built (on MPI ranks a `hyperoc.distributed.dynamics.DistributedStepper` of that model)."""
     from ..dynamics.resumable import SEGMENTS_DIR, Segments, run_resumable, segment_costs
 
     cfg = benchmark_config(step, degree=degree, mesh=mesh, T=T, dt=dt, solver=solver)
-    model = model or cfg.model()
-    stepper, grid = cfg.stepper(model), cfg.grid()
+    model = stepper.model if stepper is not None else model or cfg.model()
+    stepper, grid = stepper or cfg.stepper(model), cfg.grid()
     folder = Path(out) / SEGMENTS_DIR
     sol = run_resumable(stepper, grid, None, segments=Segments(folder, CHECKPOINT_EVERY, cfg.sections),
                         progress=progress, on_segment=on_segment)

@@ -97,22 +97,10 @@ def _parser() -> argparse.ArgumentParser:
                        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     b.add_argument("benchmark", choices=["cardiac-elastodynamics"],
                    help="cardiac-elastodynamics: problem 1 of Arostica et al. (2025), CMAME 435:117485")
-    b.add_argument("--step", default="1", choices=["0A", "0B", "1"],
-                   help="0A: active tension only, 0B: endocardial pressure only, 1: both (default)")
-    b.add_argument("--out", required=True, metavar="DIR", help=OUT_HELP)
-    b.add_argument("--degree", type=int, default=1, choices=[1, 2], help="Lagrange degree of the displacement")
-    b.add_argument("--mesh", default="reference", choices=["reference", "coarse"],
-                   help="the benchmark's reference mesh (default) or hyperoc's coarse mesh of its domain")
-    b.add_argument("--end-time", type=float, default=None, metavar="T",
-                   help="stop at T seconds (default: the whole beat, 1 s)")
-    b.add_argument("--dt", type=float, default=None, metavar="DT",
-                   help="time step in seconds, at most 10 ms, the sampling interval of the codes' curves "
-                        "(default: the benchmark's, 1 ms)")
+    add_benchmark_arguments(b)
     b.add_argument("--solver", default=None, choices=["lu", "pardiso"],
                    help="sparse direct solver of the steps: SuperLU (lu, the default) or MKL PARDISO (pardiso: "
                         "multithreaded, needs the mkl wheel)")
-    b.add_argument("--resume", action="store_true",
-                   help="continue the run checkpointed in DIR (every 50 steps), if there is one")
     for q in (s, o, r, b):
         q.add_argument("--no-progress", action="store_true",
                        help="no progress bar (there is none either when stderr is not a terminal)")
@@ -310,7 +298,27 @@ def _reproduce_lv_beat(out: Path, progress: bool) -> None:
           f"({100 * s['pressure_rise_gain']:+.1f} %); {s['wall_time_s']:.0f} s -> {out / 'summary.json'}")
 
 
-def _benchmark(args) -> None:
+def add_benchmark_arguments(parser) -> None:
+    """The options of the cardiac benchmark's run (`hyperoc benchmark cardiac-elastodynamics`, and on MPI ranks
+    `hyperoc.app.distributed_benchmark`), its linear solver aside."""
+    parser.add_argument("--step", default="1", choices=["0A", "0B", "1"],
+                        help="0A: active tension only, 0B: endocardial pressure only, 1: both (default)")
+    parser.add_argument("--out", required=True, metavar="DIR", help=OUT_HELP)
+    parser.add_argument("--degree", type=int, default=1, choices=[1, 2], help="Lagrange degree of the displacement")
+    parser.add_argument("--mesh", default="reference", choices=["reference", "coarse"],
+                        help="the benchmark's reference mesh (default) or hyperoc's coarse mesh of its domain")
+    parser.add_argument("--end-time", type=float, default=None, metavar="T",
+                        help="stop at T seconds (default: the whole beat, 1 s)")
+    parser.add_argument("--dt", type=float, default=None, metavar="DT",
+                        help="time step in seconds, at most 10 ms, the sampling interval of the codes' curves "
+                             "(default: the benchmark's, 1 ms)")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue the run checkpointed in DIR (every 50 steps), if there is one")
+
+
+def checked_benchmark(args, solver: str | None):
+    """``(out, cfg, model)`` of a benchmark run of ``args`` (`add_benchmark_arguments`) with the serial linear
+    ``solver`` (None: the shipped config's); `InputError` before anything is written."""
     from .preflight import check_output_dir
 
     out = check_output_dir(args.out)
@@ -322,12 +330,15 @@ def _benchmark(args) -> None:
     if args.dt is not None and not 0.0 < args.dt <= SAMPLE_DT:
         raise InputError(f"--dt must lie in (0, {SAMPLE_DT}] s, got {args.dt}")
     from .cardiac_benchmark import benchmark_config
-
-    cfg = benchmark_config(args.step, degree=args.degree, mesh=args.mesh, T=args.end_time, dt=args.dt,
-                           solver=args.solver)
     from .workflows import check_run
 
-    model = check_run(cfg, "simulate")
+    cfg = benchmark_config(args.step, degree=args.degree, mesh=args.mesh, T=args.end_time, dt=args.dt,
+                           solver=solver)
+    return out, cfg, check_run(cfg, "simulate")
+
+
+def _benchmark(args) -> None:
+    out, _, model = checked_benchmark(args, args.solver)
     _start_compiler()
     from .cardiac_benchmark import run_benchmark
     from .cardiac_benchmark_report import write_benchmark_outputs
@@ -337,7 +348,7 @@ def _benchmark(args) -> None:
                            solver=args.solver, progress=progress, on_segment=None if progress else _print_segment,
                            model=model)
     write_benchmark_outputs(out, record)
-    _print_comparison(record, out)
+    print_comparison(record, out)
 
 
 def _refuse_checkpointed(out: Path, resume, how: str) -> None:
@@ -356,7 +367,7 @@ def _print_segment(index: int, count: int, segment: dict, solved: bool) -> None:
           file=sys.stderr, flush=True)
 
 
-def _print_comparison(record: dict, out: Path) -> None:
+def print_comparison(record: dict, out: Path) -> None:
     """Per quantity: the share of the codes' sampling times where hyperoc lies inside their band, and the peaks."""
     print(f"step {record['step']}, P{record['degree']}, {record['unknowns']} unknowns, {record['wall_time']:.0f} s, "
           f"{record['newton_iterations']['total']} Newton iterations")
