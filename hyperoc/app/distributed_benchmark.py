@@ -18,6 +18,7 @@ import argparse
 import sys
 
 from ..errors import InputError
+from .distributed_simulate import config_stepper, make_run_folder
 from .distributed_statics import refused
 
 
@@ -37,22 +38,15 @@ def main(argv=None) -> int:
         from .cli import checked_benchmark
 
         out, cfg, model = checked_benchmark(args, None)
-        from mpi4py import MPI
-
-        from ..distributed.dynamics import DistributedStepper
-
-        comm = MPI.COMM_WORLD
-        stepper = DistributedStepper(model, cfg.scheme(), comm=comm, solver=args.solver, terms=cfg.step_terms(model),
-                                     constraint=cfg.constraint(model, cfg.grid().t))
+        stepper = config_stepper(cfg, model, args.solver)
+        comm = stepper.layout.comm
     except InputError as err:
         return refused(err)
     from .cardiac_benchmark import run_benchmark
     from .cardiac_benchmark_report import write_benchmark_outputs
     from .cli import print_comparison
 
-    if comm.rank == 0:
-        out.mkdir(parents=True, exist_ok=True)
-    comm.Barrier()  # the folder exists before any rank claims its segments
+    make_run_folder(comm, out)
     record = run_benchmark(args.step, out, degree=args.degree, mesh=args.mesh, T=args.end_time, dt=args.dt,
                            stepper=stepper)
     record.update(ranks=comm.size, solver=args.solver)

@@ -62,25 +62,38 @@ def checked(args):
     return cfg, check_run(cfg, "simulate", check_inputs(cfg, "simulate", False)), out
 
 
+def config_stepper(cfg, model, solver: str):
+    """The `hyperoc.distributed.dynamics.DistributedStepper` of the config's problem on MPI.COMM_WORLD: its
+    scheme, step terms and constraint, with the PETSc ``solver``."""
+    from mpi4py import MPI
+
+    from ..distributed.dynamics import DistributedStepper
+
+    return DistributedStepper(model, cfg.scheme(), comm=MPI.COMM_WORLD, solver=solver, terms=cfg.step_terms(model),
+                              constraint=cfg.constraint(model, cfg.grid().t))
+
+
+def make_run_folder(comm, out, config: str | None = None) -> None:
+    """Rank 0 creates the output folder ``out`` (and writes the run's ``config`` TOML there); every rank returns
+    once it exists, before any claims a checkpoint segment."""
+    if comm.rank == 0:
+        out.mkdir(parents=True, exist_ok=True)
+        if config is not None:
+            atomic_write_text(out / "config.toml", config)
+    comm.Barrier()
+
+
 def main(argv=None) -> int:
     try:
         args = parse(argv)
         cfg, model, out = checked(args)
-        from mpi4py import MPI
-
-        from ..distributed.dynamics import DistributedStepper
-
-        comm = MPI.COMM_WORLD
-        stepper = DistributedStepper(model, cfg.scheme(), comm=comm, solver=args.solver, terms=cfg.step_terms(model),
-                                     constraint=cfg.constraint(model, cfg.grid().t))
+        stepper = config_stepper(cfg, model, args.solver)
+        comm = stepper.layout.comm
     except InputError as err:
         return refused(err)
     from .workflows import run_title, solve_prescribed, write_simulation
 
-    if comm.rank == 0:
-        out.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(out / "config.toml", cfg.to_toml())
-    comm.Barrier()  # the folder exists before any rank claims its segments
+    make_run_folder(comm, out, cfg.to_toml())
     start = time.perf_counter()
     sol = solve_prescribed(cfg, out, stepper)
     seconds, memory = time.perf_counter() - start, comm.gather(peak_mb())
