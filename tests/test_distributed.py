@@ -161,9 +161,10 @@ def _mpiexec():
     return shutil.which("mpiexec", path=os.path.dirname(sys.executable)) or shutil.which("mpiexec")
 
 
-@pytest.fixture
+@pytest.fixture(scope="module")
 def mpiexec():
-    """The mpiexec of the mpi extra; skips without PETSc or mpiexec."""
+    """The mpiexec of the mpi extra; skips without PETSc or mpiexec (module-scoped, so that it skips before the
+    module's serial reference, `serial_gradient`, is computed for nothing)."""
     pytest.importorskip("dolfinx_solver")
     pytest.importorskip("petsc4py")
     return _mpiexec() or pytest.skip("no mpiexec")
@@ -243,7 +244,7 @@ GRADIENT_RTOL = 1e-10
 
 
 @pytest.fixture(scope="module")
-def serial_gradient(tmp_path_factory):
+def serial_gradient(mpiexec, tmp_path_factory):
     """The serial path's J and gradient at the point of `SMALL_VENTRICLE`, and 3 iterations of its
     optimization (L-BFGS-B), in this process."""
     from hyperoc.app.distributed_gradient import main
