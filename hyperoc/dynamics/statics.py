@@ -83,8 +83,8 @@ class StaticOptions:
         tangent is not symmetric, so ``"minres"`` is refused.
     monitor : a callable given a `hyperoc.solvers.newton.NewtonIteration` after every Newton iteration, of
         the guess and of every load increment, rejected ones included (``NewtonLog(sys.stderr)``
-        prints them as they come). A host callback from the compiled loop: the solve is compiled once
-        with it (for any monitor) and once without.
+        prints them as they come). With a traced solver a host callback from the compiled loop (the solve is
+        compiled once with it, for any monitor, and once without); with a host solver a call from the host loop.
     """
 
     steps: int = 1
