@@ -279,7 +279,8 @@ class TimeStepper:
     scheme : Scheme
     solver : "auto" | "tridiagonal" | "dense" | a `hyperoc.solvers.linsolve.SparseSolver` method
         (``SparseSolver.methods``: "lu", "lu_reuse", "pardiso", "pardiso_reuse", "pardiso_single",
-        "pardiso_single_reuse", "minres"), or a solver object.
+        "pardiso_single_reuse", "minres"), or a solver object: traced (``traced = True``: ``solve`` in JAX) or on the
+        host (``traced = False``: ``try_solve`` and ``try_kept_solve``, as `hyperoc.solvers.linsolve.SparseSolver`).
     terms : the terms ``A_j`` of A (`hyperoc.dynamics.terms`), e.g. ``(RobinBoundary(...), Viscosity(...))``.
     constraint : "tissue_volume" (default, the paper's), "cavity_volume" (the endocardium's cavity held at
         its initial volume), "none", or a constraint object (`hyperoc.dynamics.constraint`, e.g.
