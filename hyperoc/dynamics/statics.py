@@ -52,7 +52,7 @@ import numpy as np
 from .. import _jax  # noqa: F401
 from ..errors import InputError, SolverError
 from ..mechanics.model import StateModel
-from ..solvers.host_newton import Reductions, host_newton
+from ..solvers.host_newton import Reductions, host_newton, solver_steps
 from ..solvers.linsolve import make_solver
 from ..solvers.newton import NewtonIteration, NewtonOptions, NewtonStatus, newton
 from .constraint import NoConstraint, TissueVolume
@@ -202,13 +202,10 @@ def _compiled_solve(model: StateModel, lin, scheme: Scheme, followers: tuple, co
             x0 = kernels["fit"](x0, fk, s)
         x0 = np.asarray(x0, dtype=np.float64)
 
-        def fresh(x, r):
-            blocks, col, row, *rest = jax.device_get(kernels["jacobian"](x, fk, s))
-            return lin.try_solve(blocks, col, row, -r[:-1], -r[-1], *rest, keep=chord)
-
+        fresh, kept = solver_steps(lin, lambda x: kernels["jacobian"](x, fk, s), chord)
         monitor = (lambda *values: report(s, *values)) if monitored else None
-        x, it, status = host_newton(lambda x: np.asarray(kernels["residual"](x, fk, Vk, s)), fresh,
-                                    lambda r: lin.try_kept_solve(-r[:-1], -r[-1]), x0, options(monitor),
+        x, it, status = host_newton(lambda x: np.asarray(kernels["residual"](x, fk, Vk, s)), fresh, kept, x0,
+                                    options(monitor),
                                     Reductions(x0.size - 1, getattr(model, "n_u", None)), chord=chord, refresh=False)
         return x, it, status, float(kernels["min_det_F"](x))
 

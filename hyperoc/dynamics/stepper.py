@@ -44,7 +44,7 @@ from .._jax import on_device
 from ..errors import InputError, SolverError
 from ..mechanics.model import StateModel
 from ..mechanics.operators import combined_matvec
-from ..solvers.host_newton import Reductions, host_newton
+from ..solvers.host_newton import Reductions, host_newton, solver_steps
 from ..solvers.linsolve import make_solver
 from ..solvers.newton import NewtonOptions, NewtonStatus, newton
 from .constraint import make_constraint
@@ -495,15 +495,11 @@ class TimeStepper:
         k, sch, solver = self._host_kernels, self.scheme, self.solver
         known = k["known"](y0, y1, xi0, xi1, f0, f1, dt, t0)
 
-        def fresh(x, r):
-            blocks, col, row, corner, low_rank = jax.device_get(k["jacobian"](x, y0, dt, y1, t0, p_prev))
-            return solver.try_solve(blocks, col, row, -r[:-1], -r[-1], corner, low_rank, keep=self.chord)
-
+        fresh, kept = solver_steps(solver, lambda x: k["jacobian"](x, y0, dt, y1, t0, p_prev), self.chord)
         x0 = np.asarray(k["guess"](y0, y1, dt, p_prev))
         x, it, status = host_newton(lambda x: np.asarray(k["residual_at"](x, known, y0, y1, p_prev, dt, V0, t0)),
-                                    fresh, lambda r: solver.try_kept_solve(-r[:-1], -r[-1]), x0,
-                                    NewtonOptions(sch.rtol, sch.atol, sch.max_iter), Reductions(x0.size - 1),
-                                    chord=self.chord, refresh=False)
+                                    fresh, kept, x0, NewtonOptions(sch.rtol, sch.atol, sch.max_iter),
+                                    Reductions(x0.size - 1), chord=self.chord, refresh=False)
         y0n, y1n, pn, mindet, maxgrad = jax.device_get(k["after"](x, y0, y1, p_prev, dt))
         status = int(StepStatus.DET_F if status == NewtonStatus.CONVERGED and not mindet > 0 else status)
         return (y0n, y1n, pn, status != 0), (y0n, y1n, pn, it, status, mindet, maxgrad)

@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable
 
+import jax
 import numpy as np
 
 from .newton import (
@@ -30,7 +31,7 @@ from .newton import (
     sufficient_decrease,
 )
 
-__all__ = ["Reductions", "host_newton"]
+__all__ = ["Reductions", "host_newton", "solver_steps"]
 
 
 @dataclass(frozen=True)
@@ -126,3 +127,14 @@ def _backtrack(residual, merit, x, dx, m0: float):
         alpha /= 2
         r1 = residual(x + alpha * dx)
     return alpha, r1
+
+
+def solver_steps(solver, jacobian, chord: bool):
+    """``(fresh, kept)`` of `host_newton` for one process's host solver (`hyperoc.solvers.linsolve.SparseSolver`):
+    ``fresh(x, r)`` solves with the bordered Jacobian ``jacobian(x)`` (the jitted parts ``(blocks, col, row[,
+    corner, low_rank])``), keeping it for chord Newton; ``kept(r)`` solves with the kept one. NaN on failure."""
+    def fresh(x, r):
+        blocks, col, row, *rest = jax.device_get(jacobian(x))
+        return solver.try_solve(blocks, col, row, -r[:-1], -r[-1], *rest, keep=chord)
+
+    return fresh, lambda r: solver.try_kept_solve(-r[:-1], -r[-1])
