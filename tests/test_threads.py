@@ -1,15 +1,17 @@
 """A process pinned to one CPU (``taskset -c 0``) keeps XLA's CPU pool at two or more threads.
 
 XLA sizes its CPU thread pool (threads named ``tf_XLAEigen``) by the CPUs the process may use when the
-backend starts; with one, the host sparse solve inside `jax.pure_callback` deadlocked on the Land
-ventricle (hyperoc.solvers.threads). Each test runs a fresh interpreter bound to one CPU before it starts.
+backend starts; with one, a host solve inside `jax.pure_callback` can deadlock (hyperoc.solvers.threads).
+Each test runs a fresh interpreter bound to one CPU before it starts.
 """
 
 import os
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
+import numpy as np
 import pytest
 
 from hyperoc.solvers.threads import ONE_THREAD_POOL
@@ -54,15 +56,24 @@ def test_one_thread_pool_on_request():
 
 
 @pytest.mark.slow
-def test_pinned_host_solve_of_the_ventricle_completes():
-    """The case that hung (no CPU use, forever) before the backend was started on every CPU."""
-    out = run_pinned("""
+def test_pinned_host_solves_of_the_ventricle_complete():
+    """The Land ventricle's static solve (host Newton) and, through a callback inside a compiled program,
+    the mass matrix's inverse of the 3D example (its consistent initial pressure), in a pinned process."""
+    example = Path(__file__).parents[1] / "examples" / "ventricle-3d.toml"
+    out = run_pinned(f"""
+        import numpy as np
+        from hyperoc.app.config import load_config
         from hyperoc.cardiac.land import Formulation, LoadStepping, VentricleMesh, ventricle_apex
         r = ventricle_apex(VentricleMesh(9.0), Formulation(1000.0), LoadStepping(steps=5))
-        print(r.dofs, r.values["z_endo"])
+        cfg = load_config({str(example)!r})
+        stepper = cfg.stepper(cfg.model())
+        n, n_ctrl = stepper.model.n, stepper.model.control.size
+        p0 = stepper.initial_pressure(np.zeros(n), np.zeros(n), np.zeros(n_ctrl), np.zeros(n))
+        print(r.dofs, r.values["z_endo"], p0)
     """, timeout=600)
-    dofs, z_endo = out.split()
+    dofs, z_endo, p0 = out.split()
     assert int(dofs) > 1000 and float(z_endo) < -17.0  # the apex moves down from z = -17 under the load
+    assert np.isfinite(float(p0))  # the callback returned
 
 
 def test_threads_started_before_the_import_keep_their_affinity():

@@ -2,11 +2,13 @@
 during the host solves.
 
 XLA sizes its CPU thread pool by the CPUs the process may run on when the backend starts. Started
-with one (``taskset -c 0 ...``), the pool has a single thread, and `jax.pure_callback` (the host
-sparse solve of `hyperoc.solvers.linsolve`) can deadlock: the callback's operands are copied to the CPU
-device by a task queued on that pool, whose only thread is the one waiting inside the callback.
-With jax 0.10, a quasi-static solve of the Land et al. ventricle hangs with no CPU use under
-``taskset -c 0``, and runs normally when the backend is started as below (`tests/test_threads.py`).
+with one (``taskset -c 0 ...``), the pool has a single thread, and a `jax.pure_callback` can deadlock:
+the callback's operands are copied to the CPU device by a task queued on that pool, whose only thread
+is the one waiting inside the callback. hyperoc's traced code calls the host through such callbacks
+where a host factorization is applied inside a compiled program: the mass matrix's inverse (the
+consistent initial pressure, `hyperoc.mechanics.operators.apply_inverse`) and a host solver's bordered
+solves when a traced Newton iteration uses one (`hyperoc.solvers.linsolve.SparseSolver.solve`); the time
+steps and static solves with a host solver run their Newton iteration on the host and need no callback.
 
 `start_backend` therefore starts the backend on every CPU of the machine and then binds the calling
 thread and the threads XLA started back to the CPUs the caller had (threads that existed before keep
