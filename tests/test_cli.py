@@ -330,3 +330,15 @@ def test_config_to_toml_makes_file_paths_absolute(tmp_path):
     again = load_config(_write(tmp_path, cfg.to_toml()))
     assert again["control"]["file"] == str((tmp_path / "run" / "xi.npz").resolve())
     np.testing.assert_array_equal(again.prescribed_control(model, again.grid().t), xi)
+
+
+def test_log_steps_says_which_checkpoint_segment_a_failure_stopped(tmp_path, capsys):
+    """With checkpoints, the segment line of a run whose step fails says so, before the error names the step."""
+    cfg = _write(tmp_path, SMALL_1D.replace('value = "0.05 * sin(pi * t)"', 'value = "50.0 * t"'))
+    args = ["simulate", str(cfg), "--out", str(tmp_path / "bad"), "--log-steps", "--set", "output.checkpoint_every=1"]
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    failed = int(re.search(r"solver failed at step (\d+) ", err).group(1))
+    segments = [line for line in err.splitlines() if line.startswith("segment ")]
+    assert len(segments) == failed + 1 and "stopped by a failed step" in segments[-1]  # one step per segment
+    assert all(" solved in " in line for line in segments[:-1])

@@ -361,8 +361,11 @@ def _refuse_checkpointed(out: Path, resume, how: str) -> None:
 
 
 def _print_segment(index: int, count: int, segment: dict, solved: bool) -> None:
-    """One line per checkpoint segment on stderr (a log file follows a long run)."""
-    what = f"solved in {segment['wall_time']:.1f} s" if solved else "read back"
+    """One line per checkpoint segment on stderr (a log file follows a long run); a segment in which a step
+    failed says so (the error that follows names the step)."""
+    failed = bool((segment["status"] != 0).any())
+    what = "read back" if not solved else (f"{'stopped by a failed step' if failed else 'solved'} in "
+                                           f"{segment['wall_time']:.1f} s")
     print(f"segment {index + 1}/{count} {what}: {int(segment['newton_iterations'].sum())} Newton iterations",
           file=sys.stderr, flush=True)
 
