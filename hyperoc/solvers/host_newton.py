@@ -50,6 +50,8 @@ class Reductions:
     all_finite: Callable = lambda v: bool(np.isfinite(v).all())
 
 
+# a diverging iterate's merit overflows to inf, as in the traced loop: the loop's tests decide, not a warning
+@np.errstate(over="ignore", invalid="ignore")
 def host_newton(residual, fresh, kept, x0: np.ndarray, options: NewtonOptions, reductions: Reductions, *,
                 constrained: bool = True, chord: bool = False, refresh: bool = True):
     """Solve ``residual(x) = 0`` from x0 (m + 1,) or (m,); returns ``(x, iterations, NewtonStatus)``.
@@ -67,13 +69,6 @@ def host_newton(residual, fresh, kept, x0: np.ndarray, options: NewtonOptions, r
     is called after every iteration with the traced loop's values (`hyperoc.solvers.newton.newton`), on
     NumPy floats (one process: its norms are not reduced over ranks).
     """
-    # a diverging iterate's merit overflows to inf, as in the traced loop: the loop's tests decide, not a warning
-    with np.errstate(over="ignore", invalid="ignore"):
-        return _iterate(residual, fresh, kept, x0, options, reductions, constrained, chord, refresh)
-
-
-def _iterate(residual, fresh, kept, x0, options, reductions, constrained, chord, refresh):
-    """`host_newton`'s loop."""
     m, red = reductions.m, reductions
     rtol, atol, max_iter = options.rtol, options.atol, int(options.max_iter)
     merit = lambda r: red.dot(r[:m], r[:m]) + (float(r[m]) ** 2 if constrained else 0.0)
