@@ -14,6 +14,8 @@ from hyperoc.io import read_npz
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 SMALL_1D = small_1d_toml()
+#: SMALL_1D with a control that grows until an element inverts (a step fails a few steps in).
+FAILING_1D = SMALL_1D.replace('value = "0.05 * sin(pi * t)"', 'value = "50.0 * t"')
 
 
 def _write(tmp_path, text, name="c.toml"):
@@ -177,7 +179,7 @@ def test_missing_config_exit_2(tmp_path):
 
 
 def test_solver_failure_names_step(tmp_path, capsys):
-    cfg = _write(tmp_path, SMALL_1D.replace('value = "0.05 * sin(pi * t)"', 'value = "50.0 * t"'))
+    cfg = _write(tmp_path, FAILING_1D)
     assert main(["simulate", str(cfg), "--out", str(tmp_path / "o"), "--no-progress"]) == 1
     err = capsys.readouterr().err
     assert "solver failed at step" in err and ("detF" in err or "newton" in err or "nonfinite" in err)
@@ -190,7 +192,7 @@ def test_log_steps_prints_each_step_and_the_failing_one(tmp_path, capsys):
     lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("step ")]
     assert [int(line.split()[1]) for line in lines] == list(range(40))  # SMALL_1D: T = 2, dt = 0.05
     assert all(", min det F " in line and ", dV " in line for line in lines)
-    cfg = _write(tmp_path, SMALL_1D.replace('value = "0.05 * sin(pi * t)"', 'value = "50.0 * t"'))
+    cfg = _write(tmp_path, FAILING_1D)
     assert main(["simulate", str(cfg), "--out", str(tmp_path / "bad"), "--log-steps"]) == 1
     err = capsys.readouterr().err
     failing = re.search(r"solver failed at step (\d+) .*?: (\w+)", err)
@@ -334,7 +336,7 @@ def test_config_to_toml_makes_file_paths_absolute(tmp_path):
 
 def test_log_steps_says_which_checkpoint_segment_a_failure_stopped(tmp_path, capsys):
     """With checkpoints, the segment line of a run whose step fails says so, before the error names the step."""
-    cfg = _write(tmp_path, SMALL_1D.replace('value = "0.05 * sin(pi * t)"', 'value = "50.0 * t"'))
+    cfg = _write(tmp_path, FAILING_1D)
     args = ["simulate", str(cfg), "--out", str(tmp_path / "bad"), "--log-steps", "--set", "output.checkpoint_every=1"]
     assert main(args) == 1
     err = capsys.readouterr().err
