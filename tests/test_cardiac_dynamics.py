@@ -6,6 +6,7 @@
   minus the work of the loads, is the error of the theta = 1/2 scheme (second order) and of the trapezoid
   rule on the rates (second order): it must fall like dt^2 (observed rate within 0.15 of 2 at the finest
   pair, where the higher-order terms have decayed).
+- The viscous tangent in closed form is the autodiff derivative of the viscous force, to round-off.
 - A free body under a uniform body force translates rigidly, ``u = g t^2 / 2`` (the scheme integrates a
   quadratic exactly), with or without the volume constraint (the multiplier is then 0): to Newton's
   tolerance. Under a follower pressure the constrained body keeps its volume, the unconstrained one does not.
@@ -75,6 +76,31 @@ def test_robin_energy_of_rigid_translations(degree):
             u = jnp.asarray(model.interpolate(lambda x: np.tile(a, (len(x), 1))))
             expected = 0.5 * k * area * (1.0 if direction == "full" else along_normal)
             assert abs(float(robin.stored_energy(u)) - expected) < 1e-14, (direction, a)
+
+
+# --- viscous tangent -----------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("dim, degree", [(2, 1), (2, 2), (3, 1), (3, 2)])
+def test_viscous_tangent_in_closed_form_is_the_derivative_of_the_viscous_force(dim, degree):
+    """`Viscosity`'s element tangent ``a dA/du + b dA/dv`` in closed form equals ``jax.jacfwd`` of its element
+    force at a generic state (no symmetry: random displacements and velocities), for the step's weights and each
+    part alone: the same derivative, summed in another order, so equal to round-off (1e-14 of the largest
+    entry, about 50 eps)."""
+    mesh = rectangle(2, 2, size=(1.0, 0.7)) if dim == 2 else box(2, 1, 1, size=(1.0, 0.7, 0.5))
+    model = StateModel(mesh, NeoHookean(1.0, 1.0), degree=degree, dirichlet=None)
+    viscosity = Viscosity(model, 0.05)
+    rng = np.random.default_rng(2)
+    cells = viscosity._cells(0.1 * rng.standard_normal(model.n), rng.standard_normal(model.n))
+    for a, b in ((0.3, 1.0), (1.0, 0.0), (0.0, 1.0)):
+        def by_autodiff(*xs):
+            du, dv = jax.jacfwd(viscosity._element_force, argnums=(0, 1))(*xs)
+            return a * du + b * dv
+
+        expected = jax.vmap(by_autodiff)(*cells)
+        closed = jax.vmap(lambda *xs: viscosity._element_tangent(*xs, a, b))(*cells)
+        scale = float(jnp.max(jnp.abs(expected)))
+        assert scale > 0
+        np.testing.assert_allclose(closed, expected, rtol=0, atol=1e-14 * scale)
 
 
 # --- energy balance -----------------------------------------------------------------------------------
