@@ -7,15 +7,15 @@ Each takes the deformation gradient F (nc, nq, d, d) at the quadrature points
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .. import _jax  # noqa: F401
-from .kernels import pointwise
+from .kernels import VOIGT, pointwise, voigt_derivatives
 from .materials import det
 
-__all__ = ["cell_mean", "directions", "max_grad", "min_acoustic_eigenvalue", "min_det_F", "min_symmetric_eigenvalue"]
+__all__ = ["acoustic_tensors", "cell_mean", "directions", "max_grad", "min_acoustic_eigenvalue", "min_det_F",
+           "min_symmetric_eigenvalue"]
 
 
 def min_det_F(F):
@@ -48,18 +48,39 @@ def directions(dim: int) -> np.ndarray:
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
 
 
-def min_acoustic_eigenvalue(energy_of_F, F, frames):
-    """Smallest eigenvalue of the acoustic tensor ``Q(n)_ik = dP_iJ/dF_kL n_J n_L`` over the points
-    and the sampled unit directions n (`directions`) (scalar, stress units), for the strain energy
-    ``energy_of_F(F, frame)``, F (nc, nq, d, d), frames (nc, nq, kf, d) or None.
+def acoustic_tensors(material, F, frame, dirs):
+    """The acoustic tensors ``Q(n)_ik = dP_iJ/dF_kL n_J n_L`` at one point, (m, d, d), for the unit directions
+    dirs (m, d): with ``C = d2W/dE2`` and ``S = dW/dE`` (`hyperoc.mechanics.kernels.voigt_derivatives`, the law's
+    derivatives in the independent strains), ``dP_iJ/dF_kL = F_iI C_IJKL F_kK + delta_ik S_JL``, so
+
+        Q(n) = F M(n) F^T + (n . S n) I,    M(n)_IK = C_IJKL n_J n_L;
+
+    the 4th-order ``dP/dF`` of the law (its Hessian in F) without forming it."""
+    d = F.shape[-1]
+    I, J, sym, half = VOIGT[d]
+    e = (0.5 * (F.T @ F - jnp.eye(d)))[I, J]
+    H, s = voigt_derivatives(material, d, e, frame)
+    # C_IJKL as a (d^2, d^2) matrix, rows (I, K) and columns (J, L): M(n) and F M F^T are then two matrix products
+    # over all directions at once, with the directions' n_J n_L (d^2, m) and F_iI F_kK (d^2, d^2)
+    C = (H * jnp.outer(half, half))[sym[:, None, :, None], sym[None, :, None, :]].reshape(d * d, d * d)
+    nn = (dirs[:, :, None] * dirs[:, None, :]).reshape(-1, d * d).T
+    FF = (F[:, None, :, None] * F[None, :, None, :]).reshape(d * d, d * d)
+    Q = (FF @ (C @ nn)).T.reshape(-1, d, d)
+    return Q + (((s * half)[sym].reshape(-1) @ nn))[:, None, None] * jnp.eye(d)
+
+
+def min_acoustic_eigenvalue(material, F, frames):
+    """Smallest eigenvalue of the acoustic tensor ``Q(n)_ik = dP_iJ/dF_kL n_J n_L`` (`acoustic_tensors`) over
+    the points and the sampled unit directions n (`directions`) (scalar, stress units), for the strain energy
+    of ``material`` (a `hyperoc.mechanics.materials.Material`), F (nc, nq, d, d), frames (nc, nq, kf, d) or
+    None.
 
     Negative values mean loss of strong ellipticity: the continuum problem is no longer
     well posed and discrete solutions localize (e.g. Saint Venant-Kirchhoff in strong
     compression; in 1D exactly ``dP/dF < 0``, i.e. ``u_x < -1 + 1/sqrt(3)``).
     """
-    A = pointwise(jax.hessian(energy_of_F), F, frames)  # (nc, nq, d, d, d, d)
     dirs = jnp.asarray(directions(F.shape[-1]))
-    Q = jnp.einsum("cqijkl,nj,nl->cqnik", A, dirs, dirs)  # acoustic tensors
+    Q = pointwise(lambda G, frame: acoustic_tensors(material, G, frame, dirs), F, frames)  # (nc, nq, m, d, d)
     return jnp.min(min_symmetric_eigenvalue(Q))
 
 

@@ -308,7 +308,7 @@ class StateModel:
         # one chunk in memory at a time (a whole P2 ventricle's take gigabytes)
         def cell(xs):
             F, frames = xs
-            return diagnostics.min_acoustic_eigenvalue(self.material.energy_of_F, F[None],
+            return diagnostics.min_acoustic_eigenvalue(self.material, F[None],
                                                        None if frames is None else frames[None])
 
         return jax.jit(lambda U: jax.lax.map(lambda u: jnp.min(self.map_cells(
