@@ -160,13 +160,14 @@ def _costs(data) -> dict:
 
 
 def _fingerprint(stepper: TimeStepper, grid: TimeGrid, xis, fs, y0, y1, every: int) -> dict:
-    """What a resumed run must agree on: sizes, the scheme, the step's terms, the segment length and digests
-    of the grid, the controls, the loads and the initial state."""
+    """What a resumed run must agree on: sizes, the quadrature points per cell, the scheme, the step's terms, the
+    segment length and digests of the grid, the controls, the loads and the initial state."""
     digest = hashlib.sha256()
     for a in (grid.t, xis, fs, y0, y1):
         digest.update(np.ascontiguousarray(a, dtype=np.float64).tobytes())
     scheme = stepper.scheme
-    return {"unknowns": int(stepper.model.n), "steps": int(grid.num_steps), "every": int(every),
+    return {"unknowns": int(stepper.model.n), "quadrature_points": int(stepper.model._w.shape[-1]),
+            "steps": int(grid.num_steps), "every": int(every),
             "scheme": [scheme.theta, scheme.multiplier, scheme.rtol, scheme.atol, scheme.max_iter, scheme.newton],
             "terms": [type(term).__name__ for term in stepper.terms],
             "data_sha256": digest.hexdigest()}
