@@ -11,8 +11,8 @@ each stopped when ``|du|_inf <= 1e-11 |u + du|_inf + 1e-15`` on the displacement
 apart. The DOLFINx solve is built from hyperoc's mesh (made by Gmsh on rank 0): its vertices and the P2
 nodes of its curved cells become a distributed DOLFINx mesh with a P2 coordinate element, the base and
 endocardium facets its facet tags; the energy is written in UFL and differentiated by UFL; the cell
-integrals use hyperoc's quadrature rule (the 27-point collapsed Gauss-Jacobi rule of degree 4, as an
-FFCx custom rule), the facet integrals a rule of degree 4 (the follower integrand ``v . cof(F) N dA`` is
+integrals use hyperoc's quadrature rule for P2 cells (`hyperoc.fem.quadrature.simplex_rule` of degree 4, as
+an FFCx custom rule), the facet integrals a rule of degree 4 (the follower integrand ``v . cof(F) N dA`` is
 a polynomial of degree 4 on the curved facets: exact for both); the Newton loop (own, in this file)
 factors the tangent with MUMPS (PC lu) at every iteration.
 
