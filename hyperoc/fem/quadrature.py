@@ -26,14 +26,7 @@ def simplex_rule(dim: int, degree: int) -> tuple[np.ndarray, np.ndarray]:
     The weights sum to the reference volume ``1 / dim!``.
     """
     if degree <= 1:
-        return np.full((1, dim), 1.0 / (dim + 1)), np.array([1.0 / math.factorial(dim)])
-    if degree == 2 and dim == 2:
-        pts = np.array([[1 / 6, 1 / 6], [2 / 3, 1 / 6], [1 / 6, 2 / 3]])
-        return pts, np.full(3, 1 / 6)
-    if degree == 2 and dim == 3:
-        a, b = (5 - math.sqrt(5)) / 20, (5 + 3 * math.sqrt(5)) / 20
-        pts = np.array([[a, a, a], [b, a, a], [a, b, a], [a, a, b]])
-        return pts, np.full(4, 1 / 24)
+        return _orbit(dim), np.array([1.0 / math.factorial(dim)])
     if (dim, degree) in _SYMMETRIC:
         parts = [(_orbit(dim, a, kind), weight) for a, kind, weight in _SYMMETRIC[dim, degree]]
         return np.concatenate([p for p, _ in parts]), np.concatenate([np.full(len(p), w) for p, w in parts])
@@ -58,8 +51,10 @@ def _orbit(dim: int, a: float | None = None, kind: str = "vertex") -> np.ndarray
 
 _R15 = math.sqrt(15)
 #: ``(dim, degree) -> orbits (a, kind, weight)`` (`_orbit`; weights sum to 1 / dim!), where a symmetric rule
-#: needs fewer points than the collapsed product
+#: needs fewer points than the collapsed product (degree 2: the 3- and 4-point rules)
 _SYMMETRIC = {
+    (2, 2): [(1 / 6, "vertex", 1 / 6)],
+    (3, 2): [((5 - math.sqrt(5)) / 20, "vertex", 1 / 24)],
     (2, 4): [(0.44594849091596483, "vertex", 0.11169079483900557),
              (0.09157621350977095, "vertex", 0.05497587182766108)],
     (2, 5): [(None, "vertex", 9 / 80), ((6 + _R15) / 21, "vertex", (155 + _R15) / 2400),
